@@ -1,0 +1,66 @@
+"""The ``radseek`` console command: one subcommand per job, each owned by the package that does it.
+
+Subcommand modules are imported lazily so that ``radseek echo`` does not pay for OMPL or MAVSDK.
+Each module exposes ``main(argv: list[str] | None) -> int`` with its own argparse parser.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+# name -> (module, one-line description)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("mission.run_cli", "fly a search mission against the mock vehicle and write a report"),
+    "router": ("radseek.router_cli", "run the zenoh router on tcp/127.0.0.1:7447 (loopback only)"),
+    "detector": ("detector_fw_sim.detector_cli", "run the emulated 32-channel spectroscopy board"),
+    "vehicle": ("mission.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
+    "mission": ("mission.mission_cli", "run the mission process (dwell control, estimator, planner)"),
+    "topics": ("radseek.inspect_cli", "list live radseek zenoh keys with their rates"),
+    "echo": ("radseek.echo_cli", "print messages on a zenoh key readably"),
+    "simulate-dataset": ("detector_fw_sim.simulate_cli", "write a simulated flight in the dataset format"),
+    "localize": ("estimator.localize_cli", "estimate source position and strength from a dataset"),
+    "compare": ("estimator.compare_cli", "compare two flights' particle-filter runs (paper 000 metrics)"),
+    "diagnose": ("estimator.diagnose_cli", "compare model and measurements, find the missing effect"),
+    "replay": ("mission.replay_cli", "re-run the estimator on a recorded flight"),
+    "plan": ("planner.plan_cli", "plan the next dwell points for a scene and print/plot them"),
+}
+
+
+def _usage() -> str:
+    width = max(map(len, SUBCOMMANDS))
+    lines = ["usage: radseek COMMAND [options]   (radseek COMMAND --help for details)", "", "commands:"]
+    lines += [f"  {name:<{width}}  {desc}" for name, (_, desc) in SUBCOMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in {"-h", "--help", "help"}:
+        print(_usage())
+        return 0
+    if argv[0] == "--version":
+        from radseek import __version__
+
+        print(f"radseek {__version__}")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in SUBCOMMANDS:
+        print(f"radseek: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module_name = SUBCOMMANDS[name][0]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:
+            print(f"radseek: command {name!r} is not available in this build", file=sys.stderr)
+            return 2
+        raise
+    try:
+        return int(module.main(rest) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,269 @@
+"""Every zenoh key and payload schema of radseek, declared once (like PX4's ``msg/`` files).
+
+Keys live under ``radseek/<vehicle>/``. Payloads are UTF-8 JSON objects so that any third-party
+tool (``zenoh-cli``, Foxglove, a ROS bridge) can read them; the raw detector frame is the board's
+binary encoding (see ``detector_fw_sim.frame_codec``). Frames: local ENU metres, yaw in radians
+counter-clockwise from +x (east); times in simulation seconds from the shared clock.
+
+Topics whose name starts with ``sim/`` carry the simulated world's truth: only the detector
+emulator may subscribe to them (RadInterAct-style isolation). Estimators see ``pose`` only.
+
+Usage::
+
+    from radseek import topics
+    key = topics.key(topics.HISTOGRAM, vehicle="uav0")      # "radseek/uav0/detector/histogram"
+    payload = topics.Histogram(...).to_bytes()
+    msg = topics.Histogram.from_bytes(sample.payload.to_bytes())   # raises PayloadError on bad input
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, ClassVar, Self
+
+PREFIX = "radseek"
+DEFAULT_VEHICLE = "uav0"
+N_CHANNELS = 32
+
+
+class PayloadError(ValueError):
+    """A message that does not match its declared schema (names the topic and field)."""
+
+
+def key(topic: str, vehicle: str = DEFAULT_VEHICLE) -> str:
+    """Full key expression of ``topic`` for ``vehicle``: ``radseek/<vehicle>/<topic>``."""
+    if not vehicle or "/" in vehicle or "*" in vehicle:
+        raise ValueError(f"vehicle name {vehicle!r} must be one non-empty key chunk")
+    return f"{PREFIX}/{vehicle}/{topic}"
+
+
+def all_keys(vehicle: str = "*") -> str:
+    """Key expression matching every radseek topic (of one vehicle, or all)."""
+    return f"{PREFIX}/{vehicle}/**"
+
+
+# topic names (relative to radseek/<vehicle>/)
+SIM_CLOCK = "sim/clock"
+SIM_TRUTH_POSE = "sim/truth_pose"
+POSE = "pose"
+HISTOGRAM = "detector/histogram"
+RAW_FRAME = "detector/raw"
+DETECTOR_STATUS = "detector/status"
+MISSION_STATE = "mission/state"
+ESTIMATE = "estimate"
+PLAN = "plan"
+
+# Histogram.flags bits (mirrors the board's status byte, detector_fw_sim.frame_codec)
+FLAG_SATURATED = 0x01  # a comparator counter wrapped or the input stage saturated
+FLAG_STALE_POSE = 0x02  # no true pose arrived recently: counts are background only, do not use
+FLAG_GAP = 0x04  # one or more frames were lost before this one (sequence jump)
+FLAG_CRC_ERROR = 0x08  # set by a receiver that kept a frame whose CRC failed (normally dropped)
+
+
+def _check_number(topic: str, name: str, value: Any, *, finite: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise PayloadError(f"{topic}: field {name!r} must be a number, got {value!r}")
+    if finite and not math.isfinite(value):
+        raise PayloadError(f"{topic}: field {name!r} must be finite, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class _Payload:
+    """Base of all payloads: JSON (de)serialisation with field validation."""
+
+    TOPIC: ClassVar[str] = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_bytes(self) -> bytes:
+        return json.dumps(self.to_dict(), separators=(",", ":")).encode()
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Self:
+        if not isinstance(data, dict):
+            raise PayloadError(f"{cls.TOPIC}: payload must be a JSON object, got {type(data).__name__}")
+        kwargs = {}
+        for f in fields(cls):
+            if f.name not in data:
+                if f.default is not f.default_factory:  # has a default of either kind
+                    continue
+                raise PayloadError(f"{cls.TOPIC}: missing field {f.name!r}")
+            kwargs[f.name] = data[f.name]
+        obj = cls(**kwargs)
+        obj.validate()
+        return obj
+
+    @classmethod
+    def from_bytes(cls, payload: bytes) -> Self:
+        try:
+            data = json.loads(payload)
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise PayloadError(f"{cls.TOPIC}: payload is not JSON ({exc})") from None
+        return cls.from_dict(data)
+
+    def validate(self) -> None:
+        for f in fields(self):
+            if f.type in ("float", float):
+                _check_number(self.TOPIC, f.name, getattr(self, f.name))
+
+
+@dataclass(frozen=True)
+class SimClock(_Payload):
+    """``sim/clock``: the one simulation clock every process reads (published by the vehicle)."""
+
+    TOPIC: ClassVar[str] = SIM_CLOCK
+    t: float  # s, simulation time since start
+    speedup: float  # simulation seconds per wall second (1.0 = real time)
+
+
+@dataclass(frozen=True)
+class TruthPose(_Payload):
+    """``sim/truth_pose``: the vehicle's true pose. Simulator only: never read by estimators."""
+
+    TOPIC: ClassVar[str] = SIM_TRUTH_POSE
+    t: float  # s, sim time
+    x: float  # m, ENU
+    y: float
+    z: float
+    yaw: float  # rad, detector axis heading, CCW from +x
+
+
+@dataclass(frozen=True)
+class Pose(_Payload):
+    """``pose``: the vehicle's *estimated* pose with its position covariance (GPS-denied odometry)."""
+
+    TOPIC: ClassVar[str] = POSE
+    t: float  # s, sim time
+    x: float  # m, ENU, estimated
+    y: float
+    z: float
+    yaw: float  # rad
+    var_x: float = 0.0  # m^2, variance of the position estimate
+    var_y: float = 0.0
+    var_z: float = 0.0
+    var_yaw: float = 0.0  # rad^2
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("var_x", "var_y", "var_z", "var_yaw"):
+            if getattr(self, name) < 0:
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must be >= 0")
+
+
+@dataclass(frozen=True)
+class Histogram(_Payload):
+    """``detector/histogram``: one decoded 100 ms board frame.
+
+    ``counts[k]`` are pulses whose amplitude fell in comparator channel k (channel 31 = overflow).
+    ``board_time`` is the board's own clock (s); ``t`` the sim time at the frame's end;
+    ``duration`` the real time integrated. The board reports no live time (dead time loses counts
+    silently); ``live_time`` is the emulator's truth and is present only for diagnostics.
+    """
+
+    TOPIC: ClassVar[str] = HISTOGRAM
+    seq: int
+    board_time: float
+    t: float
+    duration: float
+    counts: list[int]
+    flags: int = 0
+    live_time: float | None = None
+
+    @property
+    def total(self) -> int:
+        return int(sum(self.counts))
+
+    @property
+    def rate(self) -> float:
+        return self.total / self.duration if self.duration > 0 else 0.0
+
+    def validate(self) -> None:
+        for name in ("board_time", "t", "duration"):
+            _check_number(self.TOPIC, name, getattr(self, name))
+        if self.duration <= 0:
+            raise PayloadError(f"{self.TOPIC}: field 'duration' must be > 0, got {self.duration}")
+        for name in ("seq", "flags"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a non-negative integer")
+        if not isinstance(self.counts, list) or len(self.counts) != N_CHANNELS:
+            raise PayloadError(f"{self.TOPIC}: field 'counts' must be a list of {N_CHANNELS} integers")
+        for k, c in enumerate(self.counts):
+            if isinstance(c, bool) or not isinstance(c, int) or c < 0:
+                raise PayloadError(f"{self.TOPIC}: counts[{k}] must be a non-negative integer, got {c!r}")
+
+
+@dataclass(frozen=True)
+class DetectorStatus(_Payload):
+    """``detector/status``: 1 Hz health of the detector process (frame and error counters)."""
+
+    TOPIC: ClassVar[str] = DETECTOR_STATUS
+    t: float
+    frames: int
+    stale_frames: int
+    crc_errors: int
+    state: str = "ok"
+
+
+@dataclass(frozen=True)
+class MissionState(_Payload):
+    """``mission/state``: what the mission is doing, for displays."""
+
+    TOPIC: ClassVar[str] = MISSION_STATE
+    t: float
+    phase: str  # e.g. "connect", "takeoff", "explore", "dwell", "transit", "rtl", "done"
+    dwell_index: int = -1
+    battery: float = 1.0  # remaining fraction
+    progress: str = ""
+
+
+@dataclass(frozen=True)
+class SourceEstimate:
+    x: float
+    y: float
+    z: float
+    cps_at_1m: float
+
+
+@dataclass(frozen=True)
+class Estimate(_Payload):
+    """``estimate``: the current source estimate with covariance (and CRLB when known).
+
+    ``covariance`` is the row-major covariance of (x, y, z, cps_at_1m) per source, flattened.
+    """
+
+    TOPIC: ClassVar[str] = ESTIMATE
+    t: float
+    method: str
+    sources: list[dict[str, float]]
+    background_cps: float
+    covariance: list[list[float]] = field(default_factory=list)
+    crlb: list[list[float]] | None = None
+
+
+@dataclass(frozen=True)
+class Plan(_Payload):
+    """``plan``: the next dwell points (x, y, z, yaw) and the collision-free path to the first."""
+
+    TOPIC: ClassVar[str] = PLAN
+    t: float
+    dwell_points: list[list[float]]
+    path: list[list[float]] = field(default_factory=list)
+
+
+PAYLOADS: dict[str, type[_Payload]] = {
+    cls.TOPIC: cls
+    for cls in (SimClock, TruthPose, Pose, Histogram, DetectorStatus, MissionState, Estimate, Plan)
+}
+
+
+def topic_of(full_key: str) -> str:
+    """The topic name of a full key: ``radseek/uav0/detector/histogram`` -> ``detector/histogram``."""
+    parts = full_key.split("/", 2)
+    if len(parts) < 3 or parts[0] != PREFIX:
+        raise ValueError(f"{full_key!r} is not a radseek key")
+    return parts[2]

@@ -1,0 +1,79 @@
+"""The one place the zenoh configuration is built: every radseek process opens its session here.
+
+Default wiring is like ``zenohd``'s: ``radseek router`` listens on ``tcp/127.0.0.1:7447`` (zenoh's
+default port, loopback only, multicast scouting off); every other process is a peer that connects
+there and listens nowhere. ``--zenoh-config FILE`` replaces all of that with a standard zenoh JSON5
+configuration for other networks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import zenoh
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def router_config(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("router"))
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def client_config(config_file: str | Path | None = None, connect: str = DEFAULT_ENDPOINT) -> zenoh.Config:
+    """Peer config connecting to the router at ``connect``, or the user's own JSON5 file."""
+    if config_file is not None:
+        path = Path(config_file)
+        if not path.is_file():
+            raise FileNotFoundError(f"zenoh config file {path} does not exist")
+        return zenoh.Config.from_file(str(path))
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The zenoh options every radseek process takes."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--zenoh-config", metavar="FILE", help="standard zenoh JSON5 config (overrides --connect)")
+    g.add_argument("--connect", default=DEFAULT_ENDPOINT, help=f"router endpoint (default {DEFAULT_ENDPOINT})")
+    g.add_argument("--vehicle-name", default="uav0", help="vehicle key chunk: radseek/<name>/... (default uav0)")
+
+
+def open_session(
+    config_file: str | Path | None = None,
+    connect: str = DEFAULT_ENDPOINT,
+    *,
+    wait_for_router_s: float = 30.0,
+) -> zenoh.Session:
+    """Open a peer session, retrying until the router answers (or ``wait_for_router_s`` passes).
+
+    A zenoh peer opens even with no router; we wait until it sees one so that nothing published
+    at start-up is lost silently. Raises ``TimeoutError`` naming the endpoint otherwise.
+    """
+    session = zenoh.open(client_config(config_file, connect))
+    if config_file is not None:
+        return session
+    deadline = time.monotonic() + wait_for_router_s
+    while True:
+        if any(True for _ in session.info.routers_zid()):
+            return session
+        if time.monotonic() > deadline:
+            session.close()
+            raise TimeoutError(
+                f"no zenoh router at {connect} after {wait_for_router_s:.0f} s: start one with 'radseek router'"
+            )
+        time.sleep(0.1)
+
+
+def session_from_args(args: argparse.Namespace, *, wait_for_router_s: float = 30.0) -> zenoh.Session:
+    return open_session(args.zenoh_config, args.connect, wait_for_router_s=wait_for_router_s)

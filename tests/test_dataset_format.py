@@ -1,0 +1,76 @@
+import shutil
+
+import numpy as np
+import pytest
+
+from radseek.dataset import DatasetError, read_dataset, write_dataset
+from tests.conftest import shared_dataset_names
+
+
+@pytest.mark.parametrize("name", shared_dataset_names())
+def test_reads_every_shared_dataset(shared_datasets, name):
+    ds = read_dataset(shared_datasets / name)
+    assert len(ds.frames) > 100
+    assert ds.frames.counts.shape == (len(ds.frames), 32)
+    assert ds.scenario.channel_edges_keV.shape == (33,)
+    assert ds.truth is not None and len(ds.truth.sources) >= 1
+    assert np.all(np.diff(ds.frames.t) >= 0)
+
+
+def test_round_trip_keeps_every_value(shared_datasets, tmp_path):
+    ds = read_dataset(shared_datasets / "lattice-wall")
+    write_dataset(tmp_path / "copy", ds.frames, ds.scenario, ds.truth)
+    back = read_dataset(tmp_path / "copy")
+    assert np.array_equal(back.frames.counts, ds.frames.counts)
+    assert np.allclose(back.frames.positions, ds.frames.positions, atol=1e-4)
+    assert np.allclose(back.frames.pose_variances, ds.frames.pose_variances, rtol=1e-3)
+    assert back.scenario.walls == ds.scenario.walls
+    assert back.truth == ds.truth
+
+
+def _corrupt(shared_datasets, tmp_path, edit):
+    dst = tmp_path / "bad"
+    shutil.copytree(shared_datasets / "lattice-clean", dst)
+    lines = (dst / "frames.csv").read_text().splitlines()
+    edit(lines)
+    (dst / "frames.csv").write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def test_negative_counts_name_row_and_column(shared_datasets, tmp_path):
+    def edit(lines):
+        cells = lines[5].split(",")
+        cells[10] = "-3"
+        lines[5] = ",".join(cells)
+
+    with pytest.raises(DatasetError, match=r"frames.csv: row 6, column 'c00'"):
+        read_dataset(_corrupt(shared_datasets, tmp_path, edit))
+
+
+def test_nan_pose_is_rejected(shared_datasets, tmp_path):
+    def edit(lines):
+        cells = lines[3].split(",")
+        cells[2] = "nan"
+        lines[3] = ",".join(cells)
+
+    with pytest.raises(DatasetError, match=r"row 4, column 'x'"):
+        read_dataset(_corrupt(shared_datasets, tmp_path, edit))
+
+
+def test_truncated_row_and_missing_column(shared_datasets, tmp_path):
+    with pytest.raises(DatasetError, match="truncated"):
+        read_dataset(_corrupt(shared_datasets, tmp_path, lambda ls: ls.__setitem__(7, ls[7][:20])))
+    def rename(lines):
+        lines[0] = lines[0].replace("var_x", "vx")
+
+    with pytest.raises(DatasetError, match="lacks column"):
+        read_dataset(_corrupt(shared_datasets, tmp_path / "b", rename))
+
+
+def test_bad_scenario_names_the_key(shared_datasets, tmp_path):
+    dst = tmp_path / "bad"
+    shutil.copytree(shared_datasets / "lattice-clean", dst)
+    text = (dst / "scenario.json").read_text().replace('"background_cps": 30.5', '"background_cps": "lots"')
+    (dst / "scenario.json").write_text(text)
+    with pytest.raises(DatasetError, match=r"scenario.json: key 'background_cps' must be a number"):
+        read_dataset(dst)
