@@ -2,8 +2,12 @@
 
 Default wiring is like ``zenohd``'s: ``radseek router`` listens on ``tcp/127.0.0.1:7447`` (zenoh's
 default port, loopback only, multicast scouting off); every other process is a peer that connects
-there and listens nowhere. ``--zenoh-config FILE`` replaces all of that with a standard zenoh JSON5
-configuration for other networks.
+there as a zenoh *client* and listens nowhere. ``--zenoh-config FILE`` replaces all of that with a
+standard zenoh JSON5 configuration for other networks.
+
+Why client and not peer: with zenoh 1.10, two peers that both connect only to the router and listen
+nowhere exchange nothing (peer gossip tells them to connect to each other directly, which they
+cannot). Clients route everything through the router, which is the wiring we want.
 """
 
 from __future__ import annotations
@@ -27,14 +31,14 @@ def router_config(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Config:
 
 
 def client_config(config_file: str | Path | None = None, connect: str = DEFAULT_ENDPOINT) -> zenoh.Config:
-    """Peer config connecting to the router at ``connect``, or the user's own JSON5 file."""
+    """Client config connecting to the router at ``connect``, or the user's own JSON5 file."""
     if config_file is not None:
         path = Path(config_file)
         if not path.is_file():
             raise FileNotFoundError(f"zenoh config file {path} does not exist")
         return zenoh.Config.from_file(str(path))
     conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("mode", json.dumps("client"))
     conf.insert_json5("connect/endpoints", json.dumps([connect]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -55,24 +59,23 @@ def open_session(
     *,
     wait_for_router_s: float = 30.0,
 ) -> zenoh.Session:
-    """Open a peer session, retrying until the router answers (or ``wait_for_router_s`` passes).
+    """Open a client session, retrying until the router answers (or ``wait_for_router_s`` passes).
 
-    A zenoh peer opens even with no router; we wait until it sees one so that nothing published
-    at start-up is lost silently. Raises ``TimeoutError`` naming the endpoint otherwise.
+    Raises ``TimeoutError`` naming the endpoint, with the command that starts a router.
     """
-    session = zenoh.open(client_config(config_file, connect))
     if config_file is not None:
-        return session
+        return zenoh.open(client_config(config_file, connect))
     deadline = time.monotonic() + wait_for_router_s
     while True:
-        if any(True for _ in session.info.routers_zid()):
-            return session
-        if time.monotonic() > deadline:
-            session.close()
-            raise TimeoutError(
-                f"no zenoh router at {connect} after {wait_for_router_s:.0f} s: start one with 'radseek router'"
-            )
-        time.sleep(0.1)
+        try:
+            return zenoh.open(client_config(config_file, connect))
+        except zenoh.ZError as exc:
+            if time.monotonic() > deadline:
+                raise TimeoutError(
+                    f"no zenoh router at {connect} after {wait_for_router_s:.0f} s ({exc}): "
+                    "start one with 'radseek router'"
+                ) from None
+            time.sleep(0.2)
 
 
 def session_from_args(args: argparse.Namespace, *, wait_for_router_s: float = 30.0) -> zenoh.Session:
