@@ -165,13 +165,14 @@ class Histogram(_Payload):
     """
 
     TOPIC: ClassVar[str] = HISTOGRAM
-    seq: int
-    board_time: float
-    t: float
-    duration: float
-    counts: list[int]
-    flags: int = 0
-    live_time: float | None = None
+    seq: int  # board frame counter (u32); a jump means lost frames (FLAG_GAP)
+    board_time: float  # s, board clock at the end of the integration
+    t: float  # s, sim time at the frame's end
+    duration: float  # s, real time integrated (0.1)
+    counts: list[int]  # 32 pulse counts, comparator channels 0..31
+    flags: int = 0  # FLAG_* bits
+    live_time: float | None = None  # s, emulator truth for diagnostics (the board does not report it)
+    wall_time: float | None = None  # s, Unix wall time at publication (optional; for latency measurement only)
 
     @property
     def total(self) -> int:
