@@ -1,0 +1,80 @@
+"""The planner's view of the source: a Gaussian position belief plus strength and background.
+
+The planner never sees the estimator's internals nor the simulator's truth: it takes this small
+record (filled by the mission layer from ``radseek.topics.Estimate``) and plain arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from radseek.dataset import Wall
+from radseek.geometry import path_lengths
+
+
+@dataclass(frozen=True)
+class SourceBelief:
+    """Source estimate [p_s, Sigma_s, lambda_s] of paper 003 sec. IV-B-3.
+
+    mean: (3,) m, ENU; covariance: (3, 3) m^2 (symmetric positive semi-definite);
+    cps_at_1m: net count rate at 1 m (cps, > 0); background_cps: >= 0.
+    """
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    cps_at_1m: float
+    background_cps: float = 0.0
+
+    def __post_init__(self) -> None:
+        mean = np.asarray(self.mean, dtype=float).reshape(3)
+        cov = np.asarray(self.covariance, dtype=float).reshape(3, 3)
+        if not np.allclose(cov, cov.T):
+            raise ValueError("covariance must be symmetric")
+        if np.linalg.eigvalsh(cov).min() < -1e-12:
+            raise ValueError("covariance must be positive semi-definite")
+        if not self.cps_at_1m > 0 or self.background_cps < 0:
+            raise ValueError("need cps_at_1m > 0 and background_cps >= 0")
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "covariance", cov)
+
+    def semi_major_axis(self, extra_covariance: np.ndarray | None = None) -> float:
+        """Largest semi-axis (m) of the 1-sigma ellipsoid of covariance (+ extra, e.g. the pose's)."""
+        cov = self.covariance if extra_covariance is None else self.covariance + np.asarray(extra_covariance)
+        return float(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
+
+    def predicted_net_rate(self, points: np.ndarray, walls: Sequence[Wall] = (), wall_mu_per_m: float = 0.0,
+                           min_distance: float = 0.05) -> np.ndarray:
+        """Net (background-free) rate (cps) at points (..., 3) from the mean source: paper 003 eq. 1-4,
+        lambda = cps_at_1m / r^2 * exp(-mu * wall path length); r floored at ``min_distance``."""
+        p = np.asarray(points, dtype=float)
+        r2 = np.maximum(((p - self.mean) ** 2).sum(-1), min_distance**2)
+        rate = self.cps_at_1m / r2
+        if walls and wall_mu_per_m > 0:
+            rate = rate * np.exp(-wall_mu_per_m * path_lengths(p, self.mean, walls))
+        return rate
+
+
+@dataclass(frozen=True)
+class DwellHistory:
+    """Previous dwell points p_k (K, 3) and their gross mean rates lambda_k (K,) in cps."""
+
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    rates: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.positions, dtype=float).reshape(-1, 3)
+        rates = np.asarray(self.rates, dtype=float).reshape(-1)
+        if len(rates) != len(pos):
+            raise ValueError("positions and rates must have the same length")
+        object.__setattr__(self, "positions", pos)
+        object.__setattr__(self, "rates", rates)
+
+    def __len__(self) -> int:
+        return len(self.rates)
+
+    def above_background(self, background_cps: float, k_sigma: float = 3.0, dwell_s: float = 5.0) -> np.ndarray:
+        """Mask of readings significantly above background: lambda_k - b > k sqrt(b / T) (Poisson)."""
+        return self.rates - background_cps > k_sigma * np.sqrt(max(background_cps, 1e-9) / dwell_s)
