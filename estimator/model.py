@@ -1,0 +1,340 @@
+"""The composable measurement model: baseline count model plus any subset of physical effects.
+
+Baseline (paper 003 eq. 1-4; dataset-format.md): the expected counts of a frame of duration T at
+detector position p are
+
+    E[counts] = T * ( sum_i S_i / |p - s_i|^2  +  B )
+
+with S_i = ``cps_at_1m`` (paper 003's A e v_s / 4 pi) and B the background rate. Each effect of the
+vocabulary (``radseek.dataset.EFFECTS``) is a part with declared parameters and a pure evaluate, in the
+spirit of astropy.modeling: ``MeasurementModel(scenario, effects=(...))`` composes them and
+``with_effect`` adds one, so the diagnosis can add or drop an effect and refit without rewriting the
+model. Everything is vectorised over hypotheses: parameter values may be arrays of shape (P,)
+(particles, grid cells) and the result is (P, N) for N frames.
+
+Parameter names: ``x, y, z, cps_at_1m, background_cps`` for the baseline, ``"<effect>.<key>"`` with the
+truth.json keys for effects (``dead_time.tau_s``, ``second_source.x`` ...).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from radseek.dataset import EFFECTS, Frames, Scenario
+from radseek.geometry import path_lengths, wall_arrays
+
+#: effects that change only the spectrum, not the total counts (see estimator.spectral)
+SPECTRAL_ONLY = ("gain_drift",)
+MIN_DISTANCE_M = 0.05  # closer than this the point-source model is meaningless; clamp
+
+
+@dataclass(frozen=True)
+class Param:
+    """A model parameter: default (start) value, bounds, whether it is fixed, unit and a fit step."""
+
+    name: str
+    value: float
+    lower: float
+    upper: float
+    fixed: bool = False
+    unit: str = ""
+    step: float = 0.0  # typical scale for the minimiser's first steps (0: 10 % of |value| or 1)
+
+    @property
+    def scale(self) -> float:
+        return self.step or (0.1 * abs(self.value) if self.value else 1.0)
+
+
+Theta = Mapping[str, Any]
+
+
+def _col(v: Any) -> np.ndarray:
+    """Hypothesis values (scalar or (P,)) as a column (P, 1) broadcasting against frames (N,)."""
+    a = np.asarray(v, dtype=float)
+    if a.ndim > 1:
+        raise ValueError(f"parameter values must be scalars or 1-D arrays of hypotheses, got shape {a.shape}")
+    return a[:, None] if a.ndim else a
+
+
+# ------------------------------------------------------------------------------------------ effects
+
+
+@dataclass(frozen=True)
+class Context:
+    """What an effect may look at: the detector poses used for this evaluation and the scenario."""
+
+    pos: np.ndarray  # (N, 3) detector positions (recorded, or shifted by pose offsets / drift)
+    yaw: np.ndarray  # (N,)
+    t: np.ndarray  # (N,) frame times
+    scenario: Scenario
+    walls: np.ndarray  # (W, 6) from radseek.geometry.wall_arrays
+
+
+class Effect:
+    """One physical effect: declared parameters and pure hooks (identity by default)."""
+
+    name: str = ""
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return []
+
+    def positions(self, th: dict[str, np.ndarray], pos: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """True detector positions from the recorded ones (pose_drift)."""
+        return pos
+
+    def extra_sources(self, th: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+        """Additional point sources as (x, y, z, cps_at_1m) columns (second_source)."""
+        return []
+
+    def source_factor(self, th: dict[str, np.ndarray], src: np.ndarray, ctx: Context, dist: np.ndarray) -> Any:
+        """Multiplicative factor on one source's term; src is (..., 1, 3), dist (..., N)."""
+        return 1.0
+
+    def background(self, th: dict[str, np.ndarray], b: np.ndarray, ctx: Context) -> np.ndarray:
+        return b
+
+    def recorded_rate(self, th: dict[str, np.ndarray], n: np.ndarray) -> np.ndarray:
+        """Recorded rate from the true total rate (dead_time)."""
+        return n
+
+
+class DeadTime(Effect):
+    """Paralyzable dead time, paper 000 eq. 10: m = n exp(-n tau) on the total true rate n."""
+
+    name = "dead_time"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [Param("dead_time.tau_s", 2e-6, 0.0, 1e-3, unit="s", step=2e-6)]
+
+    def recorded_rate(self, th, n):
+        return n * np.exp(-n * th["dead_time.tau_s"])
+
+
+class WallAttenuation(Effect):
+    """Beer-Lambert through the mapped walls: exp(-mu L), L the 3-D path length inside the slabs
+    (paper 004 eq. 5.19 with one effective mu for the mapped walls)."""
+
+    name = "wall_attenuation"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [Param("wall_attenuation.mu_per_m", 1.0, 0.0, 100.0, unit="1/m", step=0.5)]
+
+    def source_factor(self, th, src, ctx, dist):
+        if ctx.walls.shape[0] == 0:
+            return 1.0
+        length = path_lengths(ctx.pos, src, ctx.walls)  # (..., N)
+        return np.exp(-th["wall_attenuation.mu_per_m"] * length)
+
+
+class Anisotropy(Effect):
+    """Reduced sensitivity in a cone behind the detector (paper 003 calibration, ~50 %):
+    factor 1 - f (1 - tanh((theta - half_angle) / edge)) / 2, theta the angle between the detector's
+    back direction (-axis, horizontal) and the 3-D direction to the source."""
+
+    name = "anisotropy"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [
+            Param("anisotropy.fraction", 0.3, 0.0, 1.0, step=0.05),
+            Param("anisotropy.half_angle_deg", 40.0, 5.0, 90.0, unit="deg", step=5.0),
+            Param("anisotropy.edge_deg", 4.0, 0.5, 30.0, fixed=True, unit="deg", step=1.0),
+        ]
+
+    def source_factor(self, th, src, ctx, dist):
+        d = src - ctx.pos  # (..., N, 3)
+        back = np.stack([-np.cos(ctx.yaw), -np.sin(ctx.yaw)], axis=-1)  # (N, 2)
+        cos_t = (d[..., 0] * back[:, 0] + d[..., 1] * back[:, 1]) / np.maximum(dist, 1e-9)
+        theta = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+        edge = th["anisotropy.edge_deg"]
+        cone = 0.5 * (1.0 - np.tanh((theta - th["anisotropy.half_angle_deg"]) / edge))
+        return 1.0 - th["anisotropy.fraction"] * cone
+
+
+class AirAttenuation(Effect):
+    """Attenuation in air along the whole line of sight: exp(-mu d) (~0.0093 /m at 662 keV)."""
+
+    name = "air_attenuation"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [Param("air_attenuation.mu_per_m", 0.005, 0.0, 0.5, unit="1/m", step=0.003)]
+
+    def source_factor(self, th, src, ctx, dist):
+        return np.exp(-th["air_attenuation.mu_per_m"] * dist)
+
+
+class SecondSource(Effect):
+    """Another point source of the same nuclide (paper 004's multiple landmarks)."""
+
+    name = "second_source"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        lo, hi = scenario.bounds_min, scenario.bounds_max
+        c = (lo + hi) / 2
+        return [
+            Param("second_source.x", float(c[0]), float(lo[0]), float(hi[0]), unit="m", step=0.3),
+            Param("second_source.y", float(c[1]), float(lo[1]), float(hi[1]), unit="m", step=0.3),
+            Param("second_source.z", scenario.source_z, float(lo[2]), float(hi[2]), fixed=True, unit="m", step=0.1),
+            Param("second_source.cps_at_1m", 500.0, 0.0, 1e7, unit="cps", step=100.0),
+        ]
+
+    def extra_sources(self, th):
+        return [tuple(th[f"second_source.{k}"] for k in ("x", "y", "z", "cps_at_1m"))]
+
+
+class BackgroundGradient(Effect):
+    """Background varying linearly in space: B(x, y) = B + gx x + gy y (B is the rate at the origin)."""
+
+    name = "background_gradient"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [
+            Param("background_gradient.gx", 0.0, -1e3, 1e3, unit="cps/m", step=0.5),
+            Param("background_gradient.gy", 0.0, -1e3, 1e3, unit="cps/m", step=0.5),
+        ]
+
+    def background(self, th, b, ctx):
+        x, y = ctx.pos[..., 0], ctx.pos[..., 1]
+        return np.maximum(b + th["background_gradient.gx"] * x + th["background_gradient.gy"] * y, 1e-3)
+
+
+class PoseDrift(Effect):
+    """Odometry drift: recorded = true + v t, so the true position is recorded - v t."""
+
+    name = "pose_drift"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [
+            Param("pose_drift.vx", 0.0, -0.2, 0.2, unit="m/s", step=2e-4),
+            Param("pose_drift.vy", 0.0, -0.2, 0.2, unit="m/s", step=2e-4),
+        ]
+
+    def positions(self, th, pos, t):
+        sx, sy = np.broadcast_arrays(th["pose_drift.vx"] * t, th["pose_drift.vy"] * t)
+        return pos - np.stack([sx, sy, np.zeros_like(sx)], axis=-1)
+
+
+EFFECT_PARTS: dict[str, type[Effect]] = {
+    cls.name: cls
+    for cls in (DeadTime, WallAttenuation, Anisotropy, AirAttenuation, SecondSource, BackgroundGradient, PoseDrift)
+}
+assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS)
+
+
+# ------------------------------------------------------------------------------------------ model
+
+
+class MeasurementModel:
+    """Baseline count model composed with effects; pure and vectorised over hypotheses."""
+
+    def __init__(self, scenario: Scenario, effects: Sequence[str] = ()):
+        for name in effects:
+            if name in SPECTRAL_ONLY:
+                raise ValueError(f"{name} changes only the spectrum, not total counts: use estimator.spectral")
+            if name not in EFFECT_PARTS:
+                raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECT_PARTS))}")
+        self.scenario = scenario
+        self.effects: tuple[str, ...] = tuple(dict.fromkeys(effects))
+        self._parts = [EFFECT_PARTS[n]() for n in self.effects]
+        self._walls = wall_arrays(scenario.walls)
+        lo, hi = scenario.bounds_min, scenario.bounds_max
+        c = (lo + hi) / 2
+        base = [
+            Param("x", float(c[0]), float(lo[0]), float(hi[0]), unit="m", step=0.3),
+            Param("y", float(c[1]), float(lo[1]), float(hi[1]), unit="m", step=0.3),
+            Param("z", scenario.source_z, float(lo[2]), float(hi[2]), fixed=True, unit="m", step=0.1),
+            Param("cps_at_1m", 1000.0, 0.0, 1e7, unit="cps", step=100.0),
+            Param("background_cps", max(scenario.background_cps, 1.0), 0.0, 1e5, unit="cps", step=2.0),
+        ]
+        self.params: list[Param] = base + [p for part in self._parts for p in part.params(scenario)]
+
+    def __repr__(self) -> str:
+        return f"MeasurementModel(effects={list(self.effects)})"
+
+    @property
+    def param_names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    @property
+    def free_names(self) -> list[str]:
+        return [p.name for p in self.params if not p.fixed]
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(f"{self!r} has no parameter {name!r}")
+
+    def with_effect(self, name: str) -> MeasurementModel:
+        return MeasurementModel(self.scenario, (*self.effects, name))
+
+    def with_params(self, **changes: dict[str, Any]) -> MeasurementModel:
+        """A copy with some Param fields changed, e.g. ``with_params(z={"fixed": False})``."""
+        m = MeasurementModel(self.scenario, self.effects)
+        m.params = [replace(p, **changes[p.name]) if p.name in changes else p for p in self.params]
+        return m
+
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.value for p in self.params}
+
+    def _theta(self, theta: Theta) -> dict[str, np.ndarray]:
+        unknown = set(theta) - set(self.param_names)
+        if unknown:
+            raise KeyError(f"{self!r} has no parameter(s) {sorted(unknown)}")
+        full = self.defaults()
+        full.update(theta)
+        return {k: _col(v) for k, v in full.items()}
+
+    def _context(self, th: dict[str, np.ndarray], frames: Frames, offsets: np.ndarray | None) -> Context:
+        pos = frames.positions if offsets is None else frames.positions + offsets
+        for part in self._parts:
+            pos = part.positions(th, pos, frames.t)
+        return Context(pos=pos, yaw=frames.yaw, t=frames.t, scenario=self.scenario, walls=self._walls)
+
+    def _sources(self, th: dict[str, np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+        srcs = [(th["x"], th["y"], th["z"], th["cps_at_1m"])]
+        for part in self._parts:
+            srcs += part.extra_sources(th)
+        return srcs
+
+    def _source_rate(self, th: dict[str, np.ndarray], ctx: Context) -> np.ndarray:
+        total = 0.0
+        for sx, sy, sz, s in self._sources(th):
+            src = np.stack(np.broadcast_arrays(sx, sy, sz), axis=-1)  # (3,) or (P, 1, 3)
+            d = ctx.pos - src
+            dist = np.maximum(np.sqrt((d**2).sum(-1)), MIN_DISTANCE_M)
+            term = s / dist**2
+            for part in self._parts:
+                term = term * part.source_factor(th, src, ctx, dist)
+            total = total + term
+        return np.asarray(total)
+
+    def _background_rate(self, th: dict[str, np.ndarray], ctx: Context) -> np.ndarray:
+        b = th["background_cps"] * np.ones(len(ctx.t))
+        for part in self._parts:
+            b = part.background(th, b, ctx)
+        return b
+
+    def source_rate(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
+        """True source count rate (cps) at each frame, before dead time: (N,) or (P, N)."""
+        th = self._theta(theta)
+        return self._source_rate(th, self._context(th, frames, offsets))
+
+    def background_rate(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
+        th = self._theta(theta)
+        return self._background_rate(th, self._context(th, frames, offsets)) * np.ones(len(frames))
+
+    def expected_counts(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
+        """Expected recorded total counts per frame: (N,) for scalar theta, (P, N) for (P,) arrays.
+
+        ``offsets`` (N, 3) shifts the recorded positions (per-dwell pose offsets, see estimator.mle).
+        """
+        th = self._theta(theta)
+        ctx = self._context(th, frames, offsets)
+        n = self._source_rate(th, ctx) + self._background_rate(th, ctx)
+        for part in self._parts:
+            n = part.recorded_rate(th, n)
+        return n * frames.duration
