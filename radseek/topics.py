@@ -57,7 +57,7 @@ PLAN = "plan"
 
 # Histogram.flags bits (mirrors the board's status byte, detector_fw_sim.frame_codec)
 FLAG_SATURATED = 0x01  # a comparator counter wrapped or the input stage saturated
-FLAG_STALE_POSE = 0x02  # no true pose arrived recently: counts are background only, do not use
+FLAG_STALE_POSE = 0x02  # no true pose arrived recently: the emulator sent zero counts, do not use
 FLAG_GAP = 0x04  # one or more frames were lost before this one (sequence jump)
 FLAG_CRC_ERROR = 0x08  # set by a receiver that kept a frame whose CRC failed (normally dropped)
 
