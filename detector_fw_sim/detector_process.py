@@ -1,0 +1,226 @@
+"""The detector process: the emulated board publishing its frames over zenoh on the sim clock.
+
+Every 100 ms of sim time (frame ``k`` = interval ``[k T, (k+1) T)``, ``detector_fw_sim.board``):
+
+1. wait until the sim clock reaches the end of the interval;
+2. take the vehicle's latest true pose from ``sim/truth_pose`` (or the fixed ``--pose``); if none
+   arrived within ``stale_after_s`` sim seconds the frame is flagged ``STALE_POSE`` and carries zero
+   counts: the emulator does not know where the vehicle is, so it invents nothing;
+3. draw the interval's counts from the emulator, build and encode the board frame;
+4. publish the bytes on ``detector/raw`` (after any injected fault), decode them with the driver like
+   any consumer, and publish the decoded ``detector/histogram`` JSON (a frame the driver rejects is
+   counted and dropped; the next good one carries ``FLAG_GAP``);
+5. every 1 s of sim time publish ``detector/status``.
+
+Fault switches for the mission tests (``FaultConfig``): corrupt or truncate raw frames at a given
+rate (the driver must reject them by CRC or length), and drop-outs during which no frame is sent.
+A restarted process continues the sequence at the value board time gives; its first frame carries
+``FLAG_GAP`` unless it is frame 0.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import zenoh
+
+from detector_fw_sim.board import Board
+from detector_fw_sim.frame_codec import FRAME_SIZE, FrameError, SequenceTracker, decode_frame, encode_frame
+from detector_fw_sim.frame_codec import frame_to_histogram as _to_histogram
+from radseek import topics
+from radseek.simclock import Clock
+
+
+class CountSource(Protocol):
+    """What the process needs from ``detector_fw_sim.emulator.DetectorEmulator``."""
+
+    def draw(self, pose: np.ndarray, t: float, duration: float) -> np.ndarray:
+        """(32,) counts for true pose (x, y, z, yaw), frame mid-time ``t`` and ``duration`` (s)."""
+        ...
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Injected faults. Rates are per-frame probabilities; drop-outs are (start, duration) in sim s."""
+
+    corrupt_rate: float = 0.0  # flip 1-3 random bytes of the raw frame
+    truncate_rate: float = 0.0  # cut the raw frame short
+    dropouts: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("corrupt_rate", "truncate_rate"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {v}")
+        for t0, d in self.dropouts:
+            if not (np.isfinite(t0) and np.isfinite(d) and d > 0):
+                raise ValueError(f"drop-out {t0}:{d} needs a finite start and a duration > 0")
+
+    def in_dropout(self, t0: float, t1: float) -> bool:
+        """True if the frame interval [t0, t1) overlaps a drop-out."""
+        return any(t0 < s + d and s < t1 for s, d in self.dropouts)
+
+
+def inject(raw: bytes, faults: FaultConfig, rng: np.random.Generator) -> tuple[bytes, str]:
+    """The raw frame after the configured faults, and which fault was applied ("" for none)."""
+    if faults.corrupt_rate > 0 and rng.random() < faults.corrupt_rate:
+        buf = bytearray(raw)
+        n = int(rng.integers(1, 4))
+        for i in rng.choice(len(buf), size=n, replace=False):
+            buf[int(i)] ^= int(rng.integers(1, 256))
+        return bytes(buf), "corrupt"
+    if faults.truncate_rate > 0 and rng.random() < faults.truncate_rate:
+        return raw[: int(rng.integers(1, FRAME_SIZE))], "truncate"
+    return raw, ""
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    vehicle: str = topics.DEFAULT_VEHICLE
+    stale_after_s: float = 0.5  # sim s: a true pose older than this makes frames STALE_POSE
+    fixed_pose: tuple[float, float, float, float] | None = None  # x, y, z, yaw: no truth-pose topic needed
+    until: float | None = None  # sim s: stop after the frame ending here (None = run until stopped)
+    seed: int = 0
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    status_period_s: float = 1.0
+
+
+@dataclass
+class Counters:
+    frames: int = 0  # frames the board produced (including stale and rejected ones, excluding drop-outs)
+    published: int = 0  # histograms published
+    stale_frames: int = 0
+    rejected: int = 0  # raw frames the driver rejected (CRC, length)
+    dropout_frames: int = 0  # frames not sent during drop-outs
+    bad_pose_msgs: int = 0  # truth-pose messages that failed validation (dropped)
+    gaps: int = 0
+
+
+class TruthPoseFollower:
+    """Keeps the latest valid ``sim/truth_pose``; bad messages are counted and dropped."""
+
+    def __init__(self, session: zenoh.Session, vehicle: str, counters: Counters):
+        self._lock = threading.Lock()
+        self._latest: topics.TruthPose | None = None
+        self._counters = counters
+        self._sub = session.declare_subscriber(topics.key(topics.SIM_TRUTH_POSE, vehicle), self._on_pose)
+
+    def _on_pose(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = topics.TruthPose.from_bytes(sample.payload.to_bytes())
+        except (topics.PayloadError, TypeError):
+            with self._lock:
+                self._counters.bad_pose_msgs += 1
+            return
+        with self._lock:
+            if self._latest is None or msg.t >= self._latest.t:
+                self._latest = msg
+
+    def latest(self) -> topics.TruthPose | None:
+        with self._lock:
+            return self._latest
+
+    def undeclare(self) -> None:
+        self._sub.undeclare()
+
+
+class DetectorProcess:
+    """Runs the board on ``clock`` and publishes under ``radseek/<vehicle>/detector/``."""
+
+    def __init__(self, session: zenoh.Session, clock: Clock, emulator: CountSource, config: DetectorConfig):
+        self.session, self.clock, self.emulator, self.config = session, clock, emulator, config
+        self.board = Board()
+        self.counters = Counters()
+        self.state = "starting"
+        self._rng = np.random.default_rng([config.seed, 0xFA17])  # faults only; the emulator has its own
+        v = config.vehicle
+        self._raw_pub = session.declare_publisher(topics.key(topics.RAW_FRAME, v))
+        self._hist_pub = session.declare_publisher(topics.key(topics.HISTOGRAM, v))
+        self._status_pub = session.declare_publisher(topics.key(topics.DETECTOR_STATUS, v))
+        self._poses = None if config.fixed_pose is not None else TruthPoseFollower(session, v, self.counters)
+        self._tracker: SequenceTracker | None = None
+        self.stop_event = threading.Event()
+
+    # -- one frame -------------------------------------------------------------------------------
+    def _pose_for(self, t_end: float) -> np.ndarray | None:
+        if self.config.fixed_pose is not None:
+            return np.asarray(self.config.fixed_pose, dtype=float)
+        msg = self._poses.latest() if self._poses else None
+        if msg is None or t_end - msg.t > self.config.stale_after_s:
+            return None
+        return np.array([msg.x, msg.y, msg.z, msg.yaw])
+
+    def produce(self, k: int) -> None:
+        """Make, publish and decode frame ``k`` (its interval has ended on the sim clock)."""
+        t0, t1 = self.board.interval(k)
+        if self.config.faults.in_dropout(t0, t1):
+            self.counters.dropout_frames += 1
+            self.state = "dropout"
+            return
+        pose = self._pose_for(t1)
+        if pose is None:
+            counts = np.zeros(topics.N_CHANNELS, dtype=np.int64)  # no pose: invent nothing
+            self.counters.stale_frames += 1
+            self.state = "stale_pose"
+        else:
+            counts = np.asarray(self.emulator.draw(pose, 0.5 * (t0 + t1), t1 - t0))  # t = frame mid-time
+            self.state = "ok"
+        frame = self.board.make_frame(k, counts, stale_pose=pose is None)
+        self.counters.frames += 1
+        raw, _ = inject(encode_frame(frame), self.config.faults, self._rng)
+        self._raw_pub.put(raw)
+        self._consume(raw, t1)
+
+    def _consume(self, raw: bytes, t_end: float) -> None:
+        """Decode our own raw frame like any consumer and publish the histogram."""
+        try:
+            frame = decode_frame(raw)
+        except FrameError:
+            self.counters.rejected += 1
+            return
+        if self._tracker is None:  # first frame of this process: earlier board frames were not sent
+            self._tracker = SequenceTracker(first_is_gap=frame.seq > 0)
+        gap = self._tracker.update(frame.seq)
+        self.counters.gaps = self._tracker.gaps
+        hist = _to_histogram(frame, t=t_end, flags=gap, wall_time=time.time())
+        self._hist_pub.put(hist.to_bytes())
+        self.counters.published += 1
+
+    def publish_status(self, t: float) -> None:
+        c = self.counters
+        msg = topics.DetectorStatus(t=float(t), frames=c.frames, stale_frames=c.stale_frames,
+                                    crc_errors=c.rejected, state=self.state)
+        self._status_pub.put(msg.to_bytes())
+
+    # -- the loop --------------------------------------------------------------------------------
+    def run(self) -> Counters:
+        """Produce frames on the sim clock until ``config.until`` or ``stop_event``."""
+        k = self.board.index_at(self.clock.now())
+        period = self.board.period_s
+        status_every = max(1, round(self.config.status_period_s / period))
+        while not self.stop_event.is_set():
+            t_end = self.board.interval(k)[1]
+            if self.config.until is not None and t_end > self.config.until + 1e-9:
+                break
+            if not self.clock.sleep_until(t_end, timeout_wall_s=0.25):
+                continue  # clock stalled (owner paused or gone): wait, never run ahead of it
+            now = self.clock.now()
+            if now - t_end > 50 * period:  # far behind (clock jumped): skip ahead, consumers see a gap
+                k = self.board.index_at(now)
+                continue
+            self.produce(k)
+            if (k + 1) % status_every == 0:
+                self.publish_status(t_end)
+            k += 1
+        self.publish_status(self.clock.now())
+        return self.counters
+
+    def close(self) -> None:
+        if self._poses is not None:
+            self._poses.undeclare()
+        for pub in (self._raw_pub, self._hist_pub, self._status_pub):
+            pub.undeclare()

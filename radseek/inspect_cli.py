@@ -1,0 +1,193 @@
+"""``radseek topics``: list the live radseek zenoh keys with their message rates.
+
+Listens to ``radseek/**`` (or ``--key``) for ``--duration`` wall seconds and prints one row per key:
+messages seen, rate in messages per wall second (from the first to the last arrival), the rate in
+simulation time when that vehicle's ``sim/clock`` was seen (wall rate / speed-up), mean payload size
+and the payload schema. ``--markdown`` prints instead the topic table of ``docs/topics.md``, generated
+from ``radseek/topics.py`` (no zenoh needed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import re
+import sys
+import threading
+import time
+from dataclasses import dataclass, fields
+
+from radseek import topics
+from radseek.zenoh_session import add_arguments, session_from_args
+
+# who publishes each topic (documentation only; the schema itself lives in radseek/topics.py)
+PUBLISHERS: dict[str, str] = {
+    topics.SIM_CLOCK: "vehicle, or `radseek detector --clock own`",
+    topics.SIM_TRUTH_POSE: "vehicle (read only by the detector emulator)",
+    topics.POSE: "vehicle",
+    topics.HISTOGRAM: "detector",
+    topics.RAW_FRAME: "detector",
+    topics.DETECTOR_STATUS: "detector",
+    topics.MISSION_STATE: "mission",
+    topics.ESTIMATE: "mission",
+    topics.PLAN: "mission",
+}
+RATES: dict[str, str] = {
+    topics.SIM_CLOCK: "10 Hz or faster",
+    topics.HISTOGRAM: "10 Hz",
+    topics.RAW_FRAME: "10 Hz",
+    topics.DETECTOR_STATUS: "1 Hz",
+}
+
+
+@dataclass
+class KeyStats:
+    count: int = 0
+    nbytes: int = 0
+    first: float = 0.0
+    last: float = 0.0
+
+    def add(self, n: int, wall: float) -> None:
+        if self.count == 0:
+            self.first = wall
+        self.count += 1
+        self.nbytes += n
+        self.last = wall
+
+    @property
+    def rate(self) -> float:
+        """Messages per wall second from inter-arrival times (0 with fewer than two messages)."""
+        span = self.last - self.first
+        return (self.count - 1) / span if self.count > 1 and span > 0 else 0.0
+
+
+def schema_name(full_key: str) -> str:
+    try:
+        topic = topics.topic_of(full_key)
+    except ValueError:
+        return "?"
+    if topic == topics.RAW_FRAME:
+        return "board frame (binary)"
+    cls = topics.PAYLOADS.get(topic)
+    return cls.__name__ if cls else "?"
+
+
+def table(stats: dict[str, KeyStats], speedups: dict[str, float]) -> str:
+    """The rows printed by ``radseek topics`` (speedups: vehicle -> sim/clock speed-up)."""
+    rows = [("KEY", "MSGS", "HZ", "SIM HZ", "AVG B", "SCHEMA")]
+    for k in sorted(stats):
+        s = stats[k]
+        vehicle = k.split("/")[1] if k.count("/") >= 2 else ""
+        sim = f"{s.rate / speedups[vehicle]:.1f}" if vehicle in speedups and s.rate > 0 else "-"
+        rows.append((k, str(s.count), f"{s.rate:.1f}", sim, str(s.nbytes // max(s.count, 1)), schema_name(k)))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join(
+        "  ".join(c.ljust(w) if i in (0, 5) else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))
+        .rstrip()
+        for r in rows
+    )
+
+
+_FIELD_RE = re.compile(r"^\s+(\w+):\s*([^=#]+?)\s*(?:=\s*([^#]+?))?\s*(?:#\s*(.*))?$")
+
+
+def _field_comments(cls: type) -> dict[str, tuple[str, str]]:
+    """field name -> (default text, trailing comment) read from the class source in topics.py."""
+    out = {}
+    for line in inspect.getsource(cls).splitlines():
+        m = _FIELD_RE.match(line)
+        if m and m.group(1) != "TOPIC":
+            out[m.group(1)] = ((m.group(3) or "").strip(), (m.group(4) or "").strip())
+    return out
+
+
+def topics_markdown() -> str:
+    """The topic table of docs/topics.md, generated from ``radseek/topics.py``."""
+    lines = [
+        "# radseek zenoh topics",
+        "",
+        "Generated from `radseek/topics.py` by `radseek topics --markdown > docs/topics.md`; do not edit by hand",
+        "(`tests/test_inspection.py` fails when this file is out of date).",
+        "",
+        f"Keys are `{topics.PREFIX}/<vehicle>/<topic>` (default vehicle `{topics.DEFAULT_VEHICLE}`). Payloads are",
+        "UTF-8 JSON objects except `detector/raw`, the board's binary frame (docs/frame-format.md). Frames:",
+        "local ENU metres, yaw in radians counter-clockwise from +x (east); times in simulation seconds from",
+        "the shared clock. Topics under `sim/` carry the simulated truth: only the detector emulator reads them.",
+        "",
+        "| key | publisher | rate | payload |",
+        "| --- | --- | --- | --- |",
+    ]
+    all_topics = list(topics.PAYLOADS)
+    if topics.RAW_FRAME not in all_topics:
+        all_topics.insert(all_topics.index(topics.HISTOGRAM) + 1, topics.RAW_FRAME)
+    for t in all_topics:
+        cls = topics.PAYLOADS.get(t)
+        payload = f"`{cls.__name__}` (JSON)" if cls else "board frame (90 bytes binary)"
+        lines.append(f"| `{topics.PREFIX}/<vehicle>/{t}` | {PUBLISHERS.get(t, '?')} | {RATES.get(t, 'on change')} "
+                     f"| {payload} |")
+    flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
+    lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]
+    src = inspect.getsource(topics)
+    for name, bit in sorted(flag_bits, key=lambda nb: nb[1]):
+        m = re.search(rf"^{name}\s*=.*#\s*(.*)$", src, re.M)
+        lines.append(f"| 0x{bit:02x} | `{name}` | {m.group(1).strip() if m else ''} |")
+    for t, cls in topics.PAYLOADS.items():
+        doc = inspect.cleandoc(cls.__doc__ or "").replace("\n", " ")
+        lines += ["", f"## `{t}`: {cls.__name__}", "", doc, "", "| field | type | default | notes (units) |",
+                  "| --- | --- | --- | --- |"]
+        comments = _field_comments(cls)
+        for f in fields(cls):
+            default, note = comments.get(f.name, ("", ""))
+            lines.append(f"| `{f.name}` | `{f.type}` | {f'`{default}`' if default else 'required'} | {note} |")
+    lines += ["", f"## `{topics.RAW_FRAME}`", "",
+              "One board frame per message, bytes as on the wire: see docs/frame-format.md. Decode it with",
+              "`detector_fw_sim.frame_codec.decode_frame` (raises `FrameError` on a truncated or corrupted frame).", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="radseek topics", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--duration", type=float, default=3.0, help="wall seconds to listen (default 3)")
+    p.add_argument("--key", default=topics.all_keys(), help="key expression to list (default radseek/*/**)")
+    p.add_argument("--markdown", action="store_true", help="print the topic table (docs/topics.md) and exit")
+    add_arguments(p)
+    args = p.parse_args(argv)
+    if args.markdown:
+        print(topics_markdown())
+        return 0
+    if args.duration <= 0:
+        p.error("--duration must be > 0")
+    try:
+        session = session_from_args(args)
+    except (TimeoutError, FileNotFoundError) as exc:
+        print(f"radseek topics: {exc}", file=sys.stderr)
+        return 1
+    lock = threading.Lock()
+    stats: dict[str, KeyStats] = {}
+    speedups: dict[str, float] = {}
+
+    def on_sample(sample) -> None:
+        k, payload = str(sample.key_expr), sample.payload.to_bytes()
+        now = time.monotonic()
+        with lock:
+            stats.setdefault(k, KeyStats()).add(len(payload), now)
+        if k.endswith("/" + topics.SIM_CLOCK):
+            try:
+                speedups[k.split("/")[1]] = topics.SimClock.from_bytes(payload).speedup
+            except topics.PayloadError:
+                pass
+
+    sub = session.declare_subscriber(args.key, on_sample)
+    try:
+        time.sleep(args.duration)
+    except KeyboardInterrupt:
+        pass
+    sub.undeclare()
+    session.close()
+    with lock:
+        if not stats:
+            print(f"no messages on {args.key} in {args.duration:g} s (is anything publishing to {args.connect}?)")
+            return 0
+        print(table(stats, speedups))
+    return 0
