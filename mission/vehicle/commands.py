@@ -1,0 +1,161 @@
+"""COMMAND_LONG / COMMAND_INT handling: each command is decoded once into a ``Command``, executed on the
+navigator (or the vehicle's services) and answered with COMMAND_ACK.
+
+PX4-flavoured, since that is the autopilot type announced: arm 400, takeoff 22, land 21, RTL 20,
+hold 17 or DO_SET_MODE AUTO.LOITER, set mode 176 (PX4 main/sub modes), mission start 300 or
+DO_SET_MODE AUTO.MISSION, set current item 224, reposition/go-to 192, change speed 178, plus the
+message services MAVSDK uses (SET_MESSAGE_INTERVAL 511, REQUEST_MESSAGE 512, capabilities 520).
+Unknown commands get MAV_RESULT_UNSUPPORTED; bad parameters MAV_RESULT_DENIED.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from pymavlink.dialects.v20 import common as M
+
+from mission.vehicle.frames import Home, geodetic_to_enu, yaw_ned_to_enu
+from mission.vehicle.geofence import Geofence
+from mission.vehicle.navigator import Mode, Navigator, mode_from_px4
+
+log = logging.getLogger(__name__)
+FORCE_MAGIC = 21196
+
+
+@dataclass(frozen=True)
+class Command:
+    command: int
+    params: tuple[float, float, float, float]
+    lat: float  # deg or nan
+    lon: float
+    alt: float  # m, meaning per frame
+    frame: int  # MAV_FRAME_GLOBAL (AMSL) for COMMAND_LONG
+
+    @classmethod
+    def from_msg(cls, msg) -> Command:
+        p = (float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4))
+        if msg.get_type() == "COMMAND_INT":
+            glob = msg.x != 0 or msg.y != 0
+            lat = msg.x / 1e7 if glob else math.nan
+            lon = msg.y / 1e7 if glob else math.nan
+            return cls(int(msg.command), p, lat, lon, float(msg.z), int(msg.frame))
+        return cls(int(msg.command), p, float(msg.param5), float(msg.param6), float(msg.param7),
+                   M.MAV_FRAME_GLOBAL)
+
+
+class Services(Protocol):
+    """What commands need from the vehicle besides the navigator."""
+
+    nav: Navigator
+    home: Home
+    fence: Geofence
+
+    def send_message_by_id(self, msg_id: int, endpoint) -> bool: ...
+
+    def set_message_interval(self, msg_id: int, interval_us: float) -> bool: ...
+
+
+def _alt_to_enu_z(cmd: Command, home: Home) -> float:
+    rel = cmd.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+    return cmd.alt if rel else cmd.alt - home.alt_m
+
+
+def execute(cmd: Command, svc: Services, endpoint) -> tuple[int, list]:
+    """Run one command; returns (MAV_RESULT, extra messages to send after the ACK)."""
+    nav, c = svc.nav, cmd.command
+    p1, p2, p3, p4 = cmd.params
+    ok = M.MAV_RESULT_ACCEPTED
+    denied = M.MAV_RESULT_DENIED
+    if c == M.MAV_CMD_COMPONENT_ARM_DISARM:
+        if p1 == 1:
+            return (ok if nav.arm() else denied), []
+        if p1 == 0:
+            return (ok if nav.disarm(force=p2 == FORCE_MAGIC) else denied), []
+        return denied, []
+    if c == M.MAV_CMD_NAV_TAKEOFF:
+        if not nav.armed:
+            return M.MAV_RESULT_TEMPORARILY_REJECTED, []
+        alt = _alt_to_enu_z(cmd, svc.home) if math.isfinite(cmd.alt) else None
+        if alt is not None and not svc.fence.contains(np.array([nav.pos[0], nav.pos[1], alt])):
+            return denied, []
+        return (ok if nav.takeoff(alt) else denied), []
+    if c == M.MAV_CMD_NAV_LAND:
+        return (ok if nav.land() else denied), []
+    if c == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+        return (ok if nav.rtl() else denied), []
+    if c == M.MAV_CMD_NAV_LOITER_UNLIM:
+        return (ok if nav.hold() else denied), []
+    if c == M.MAV_CMD_DO_SET_MODE:
+        if not (int(p1) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
+            return denied, []
+        mode = mode_from_px4(int(p2), int(p3))
+        if mode is None:
+            return M.MAV_RESULT_UNSUPPORTED, []
+        return (ok if nav.set_mode(mode) else denied), []
+    if c == M.MAV_CMD_MISSION_START:
+        if p1 > 0 and not nav.set_current(int(p1)):
+            return denied, []
+        return (ok if nav.start_mission() else denied), []
+    if c == M.MAV_CMD_DO_SET_MISSION_CURRENT:
+        if not math.isfinite(p1):
+            return denied, []
+        return (ok if nav.set_current(int(p1)) else denied), []
+    if c == M.MAV_CMD_DO_REPOSITION:
+        return _reposition(cmd, svc), []
+    if c == M.MAV_CMD_DO_CHANGE_SPEED:
+        if not (math.isfinite(p2) and 0 < p2 <= 20):
+            return denied, []
+        nav.limits = nav.limits.with_speed_xy(p2)
+        return ok, []
+    if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+        if not (math.isfinite(p1) and math.isfinite(p2)):
+            return denied, []
+        return (ok if svc.set_message_interval(int(p1), p2) else M.MAV_RESULT_UNSUPPORTED), []
+    if c == M.MAV_CMD_REQUEST_MESSAGE:
+        if not math.isfinite(p1):
+            return denied, []
+        return (ok if svc.send_message_by_id(int(p1), endpoint) else M.MAV_RESULT_UNSUPPORTED), []
+    if c == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+        svc.send_message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, endpoint)
+        return ok, []
+    log.info("command %d unsupported", c)
+    return M.MAV_RESULT_UNSUPPORTED, []
+
+
+def _reposition(cmd: Command, svc: Services) -> int:
+    nav = svc.nav
+    if not nav.armed:
+        return M.MAV_RESULT_TEMPORARILY_REJECTED
+    target = nav.pos.copy()
+    if math.isfinite(cmd.lat) and math.isfinite(cmd.lon):
+        if not (-90 <= cmd.lat <= 90 and -180 <= cmd.lon <= 180):
+            return M.MAV_RESULT_DENIED
+        target[:2] = geodetic_to_enu(svc.home, cmd.lat, cmd.lon, svc.home.alt_m)[:2]
+    if math.isfinite(cmd.alt):
+        target[2] = _alt_to_enu_z(cmd, svc.home)
+    if not svc.fence.contains(target):
+        log.warning("reposition to %s outside the geofence: denied", np.round(target, 2))
+        return M.MAV_RESULT_DENIED
+    speed = cmd.params[0]
+    if math.isfinite(speed) and 0 < speed <= 20:
+        nav.limits = nav.limits.with_speed_xy(speed)
+    yaw = yaw_ned_to_enu(math.radians(cmd.params[3])) if math.isfinite(cmd.params[3]) else None
+    return M.MAV_RESULT_ACCEPTED if nav.goto(target, yaw) else M.MAV_RESULT_DENIED
+
+
+def set_mode_message(msg, nav: Navigator) -> int:
+    """The legacy SET_MODE message: PX4 custom mode in ``custom_mode``."""
+    if not (msg.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
+        return M.MAV_RESULT_DENIED
+    main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
+    mode = mode_from_px4(main, sub)
+    if mode is None:
+        return M.MAV_RESULT_UNSUPPORTED
+    return M.MAV_RESULT_ACCEPTED if nav.set_mode(mode) else M.MAV_RESULT_DENIED
+
+
+__all__ = ["Command", "execute", "set_mode_message", "Mode"]

@@ -1,0 +1,372 @@
+"""Flight modes and mission execution: turns the current mode and mission item into a motion target
+and steps the kinematics (``motion.step``) in fixed sim steps.
+
+Modes are PX4's (the autopilot type we announce), so MAVSDK and QGroundControl name them right:
+HOLD (AUTO.LOITER), TAKEOFF, MISSION, RTL, LAND, and POSCTL (treated as hold). The navigator works in
+the vehicle's *estimated* local ENU frame: it flies on its own (drifting) estimate, like a real
+GPS-denied vehicle. Mission items are converted from lat/lon here with ``frames``.
+
+Dwell points are NAV_WAYPOINT items whose hold time (param1) is the longest dwell allowed; a client
+that has decided the dwell is long enough ends it early with DO_SET_MISSION_CURRENT / MISSION_SET_CURRENT
+to the next item (see docs/vehicle.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from pymavlink.dialects.v20 import common as M
+
+from mission.vehicle import motion
+from mission.vehicle.frames import Home, geodetic_to_enu, yaw_ned_to_enu
+from mission.vehicle.mission_protocol import GLOBAL_FRAMES, MissionItem
+
+
+class Mode(Enum):
+    HOLD = "HOLD"
+    POSCTL = "POSCTL"
+    TAKEOFF = "TAKEOFF"
+    MISSION = "MISSION"
+    RTL = "RTL"
+    LAND = "LAND"
+
+
+# PX4 custom_mode = main_mode << 16 | sub_mode << 24
+PX4_MAIN_POSCTL, PX4_MAIN_AUTO = 3, 4
+PX4_SUB = {Mode.TAKEOFF: 2, Mode.HOLD: 3, Mode.MISSION: 4, Mode.RTL: 5, Mode.LAND: 6}
+
+
+def px4_custom_mode(mode: Mode) -> int:
+    if mode is Mode.POSCTL:
+        return PX4_MAIN_POSCTL << 16
+    return (PX4_MAIN_AUTO << 16) | (PX4_SUB[mode] << 24)
+
+
+def mode_from_px4(main_mode: int, sub_mode: int) -> Mode | None:
+    if main_mode == PX4_MAIN_POSCTL:
+        return Mode.POSCTL
+    if main_mode == PX4_MAIN_AUTO:
+        for mode, sub in PX4_SUB.items():
+            if sub == sub_mode:
+                return mode
+    return None
+
+
+@dataclass(frozen=True)
+class NavParams:
+    takeoff_alt: float = 2.5  # m above home, (0.5, 100] [MIS_TAKEOFF_ALT]
+    rtl_alt: float = 5.0  # m above home, (1, 120] [RTL_RETURN_ALT]
+    land_speed: float = 0.7  # m/s, (0.1, 3] [MPC_LAND_SPEED]
+    acceptance_radius: float = 0.2  # m, (0.01, 10] [NAV_ACC_RAD]
+    disarm_after_land_s: float = 2.0  # s, [0, 60] [COM_DISARM_LAND]
+
+
+class MissionState:  # MAV_MISSION_STATE
+    UNKNOWN, NO_MISSION, NOT_STARTED, ACTIVE, PAUSED, COMPLETE = range(6)
+
+
+class Navigator:
+    def __init__(self, home: Home, limits: motion.MotionLimits | None = None, params: NavParams | None = None):
+        self.home = home
+        self.base_limits = limits or motion.MotionLimits()
+        self.limits = self.base_limits
+        self.p = params or NavParams()
+        self.pos = np.zeros(3)  # estimated ENU m
+        self.vel = np.zeros(3)
+        self.accel = np.zeros(3)
+        self.yaw = math.pi / 2  # ENU: facing north
+        self.armed = False
+        self.landed = True
+        self.mode = Mode.HOLD
+        self.target = self.pos.copy()
+        self.target_yaw: float | None = None
+        self.items: list[MissionItem] = []
+        self.seq = 0
+        self.started = False  # the mission has been started since it was uploaded
+        self.complete = False
+        self._phase = "go"
+        self._hold_until = 0.0
+        self._landed_at: float | None = None
+        self._t = 0.0
+        self.events: list[tuple[str, object]] = []  # ("reached", seq) | ("text", str) | ("mode", Mode)
+
+    # -- state queries -------------------------------------------------------------------------
+    @property
+    def in_air(self) -> bool:
+        return not self.landed
+
+    @property
+    def landing(self) -> bool:
+        return self.in_air and (self.mode is Mode.LAND or (self._phase == "descend"))
+
+    @property
+    def mission_state(self) -> int:
+        if not self.items:
+            return MissionState.NO_MISSION
+        if self.complete:
+            return MissionState.COMPLETE
+        if not self.started:
+            return MissionState.NOT_STARTED
+        return MissionState.ACTIVE if self.mode is Mode.MISSION else MissionState.PAUSED
+
+    def item_target(self, item: MissionItem) -> np.ndarray:
+        """ENU position of a positional item (lat = lon = 0 means 'here')."""
+        if item.frame not in GLOBAL_FRAMES:
+            return self.pos.copy()
+        rel = item.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+        alt = item.z + self.home.alt_m if rel else item.z
+        if item.x == 0 and item.y == 0:
+            p = self.pos.copy()
+            p[2] = alt - self.home.alt_m
+            return p
+        return geodetic_to_enu(self.home, item.x / 1e7, item.y / 1e7, alt)
+
+    # -- commands (return True if accepted) ----------------------------------------------------
+    def _set_mode(self, mode: Mode) -> None:
+        if mode is not self.mode:
+            self.mode = mode
+            self.events.append(("mode", mode))
+        self._phase = "go"
+
+    def arm(self) -> bool:
+        if not self.armed:
+            self.armed = True
+            self._landed_at = None
+            self.events.append(("text", "Armed"))
+        return True
+
+    def disarm(self, force: bool = False) -> bool:
+        if self.in_air and not force:
+            return False
+        self.armed = False
+        self.vel[:] = 0
+        self.events.append(("text", "Disarmed"))
+        return True
+
+    def hold(self) -> bool:
+        self._set_mode(Mode.HOLD)
+        self.target, self.target_yaw = self._stop_point(), None
+        return True
+
+    def _stop_point(self) -> np.ndarray:
+        """Where the vehicle can stop: position plus the braking distance along the velocity."""
+        v = float(np.linalg.norm(self.vel))
+        if self.landed or v < 1e-6:
+            return self.pos.copy()
+        return self.pos + self.vel / v * (v * v / (2 * self.limits.max_accel))
+
+    def takeoff(self, alt: float | None = None) -> bool:
+        if not self.armed:
+            return False
+        alt = self.p.takeoff_alt if alt is None or not math.isfinite(alt) else alt
+        self._set_mode(Mode.TAKEOFF)
+        self.target = np.array([self.pos[0], self.pos[1], max(alt, 0.5)])
+        self.target_yaw = None
+        self.landed = False
+        return True
+
+    def land(self) -> bool:
+        if self.landed:
+            return False
+        self._set_mode(Mode.LAND)
+        self.target = self._stop_point()
+        self._phase = "descend"
+        return True
+
+    def rtl(self) -> bool:
+        if self.landed:
+            return False
+        self._set_mode(Mode.RTL)
+        self._phase = "climb"
+        return True
+
+    def goto(self, target: np.ndarray, yaw: float | None) -> bool:
+        if not self.armed:
+            return False
+        self._set_mode(Mode.HOLD)
+        self.target, self.target_yaw = np.asarray(target, dtype=float), yaw
+        self.landed = False
+        return True
+
+    def start_mission(self) -> bool:
+        if not self.items:
+            return False
+        if self.complete:  # restart a finished mission from the top
+            self.seq, self.complete = 0, False
+        self._set_mode(Mode.MISSION)
+        self.started = True
+        self._enter_item()
+        return True
+
+    def set_mode(self, mode: Mode) -> bool:
+        return {
+            Mode.HOLD: self.hold, Mode.POSCTL: self._posctl, Mode.MISSION: self.start_mission, Mode.RTL: self.rtl,
+            Mode.LAND: self.land, Mode.TAKEOFF: lambda: self.takeoff(None),
+        }[mode]()
+
+    def _posctl(self) -> bool:
+        self.hold()
+        self.mode = Mode.POSCTL
+        return True
+
+    def set_current(self, seq: int) -> bool:
+        """Jump to item ``seq`` (ends a dwell early when seq is the next item)."""
+        if not 0 <= seq < len(self.items):
+            return False
+        self.seq, self.complete = seq, False
+        if self.mode is Mode.MISSION:
+            self._enter_item()
+        return True
+
+    def replace_mission(self, items: list[MissionItem]) -> None:
+        """A new mission was uploaded: an active mission continues with the new one from item 0."""
+        self.items = list(items)
+        self.seq, self.complete = 0, False
+        self.limits = self.base_limits
+        if self.mode is Mode.MISSION:
+            if self.items:
+                self._enter_item()
+            else:
+                self.hold()
+                self.started = False
+        else:
+            self.started = False
+
+    # -- mission execution ---------------------------------------------------------------------
+    def _enter_item(self) -> None:
+        self._phase = "go"
+        if self.seq >= len(self.items):
+            return
+        item = self.items[self.seq]
+        self.target_yaw = None
+        if item.command == M.MAV_CMD_NAV_TAKEOFF:
+            tgt = self.item_target(item)
+            self.target = np.array([self.pos[0], self.pos[1], tgt[2]])
+            if self.armed:
+                self.landed = False
+        elif item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
+            self.target = self.item_target(item)
+            if item.command == M.MAV_CMD_NAV_WAYPOINT and math.isfinite(item.param4):
+                self.target_yaw = yaw_ned_to_enu(math.radians(item.param4))
+            if self.armed:
+                self.landed = False
+        elif item.command == M.MAV_CMD_NAV_LAND:
+            tgt = self.item_target(item) if (item.x or item.y) else self.pos.copy()
+            self.target = np.array([tgt[0], tgt[1], self.pos[2]])
+        elif item.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self._phase = "climb"
+        elif item.command == M.MAV_CMD_NAV_DELAY:
+            self.target = self._stop_point()
+            self._phase = "hold"
+            self._hold_until = self._t + max(item.param1, 0.0)
+        elif item.command == M.MAV_CMD_DO_CHANGE_SPEED:
+            if math.isfinite(item.param2) and item.param2 > 0:
+                self.limits = self.limits.with_speed_xy(item.param2)
+            self._phase = "done"
+
+    def _advance(self) -> None:
+        self.events.append(("reached", self.seq))
+        if self.seq + 1 < len(self.items):
+            self.seq += 1
+            self._enter_item()
+        else:
+            self.complete = True
+            self.events.append(("text", "Mission finished"))
+            if self.in_air:
+                self.target, self.target_yaw = self._stop_point(), None
+                self._set_mode(Mode.HOLD)
+
+    def _arrived(self) -> bool:
+        return motion.arrived(self.pos, self.vel, self.target, self.p.acceptance_radius)
+
+    def _mission_step(self) -> None:
+        if self.complete or self.seq >= len(self.items) or not self.armed:
+            return
+        item = self.items[self.seq]
+        cmd = item.command
+        if self._phase == "done":
+            self._advance()
+        elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            if self._rtl_step():
+                self._advance()
+        elif cmd == M.MAV_CMD_NAV_LAND:
+            if self._phase == "go" and self._arrived():
+                self._phase = "descend"
+            if self._phase == "descend" and self._descend_step():
+                self._advance()
+        elif self._phase == "hold":
+            if self._t >= self._hold_until:
+                self._advance()
+        elif self._arrived() and self._yaw_done():
+            hold = item.param1 if cmd in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME) else 0.0
+            if hold > 0:
+                self.events.append(("text", f"Holding {hold:.1f} s at item {self.seq}"))
+                self._phase, self._hold_until = "hold", self._t + hold
+            else:
+                self._advance()
+
+    def _yaw_done(self) -> bool:
+        return self.target_yaw is None or abs(math.remainder(self.target_yaw - self.yaw, 2 * math.pi)) < 0.02
+
+    def _rtl_step(self) -> bool:
+        """Climb to the RTL altitude, fly home, land. True once landed."""
+        if self._phase in ("go", "climb"):
+            self._phase = "climb"
+            self.target = np.array([self.pos[0], self.pos[1], max(self.pos[2], self.p.rtl_alt)])
+            if self._arrived():
+                self._phase = "return"
+        if self._phase == "return":
+            self.target = np.array([0.0, 0.0, self.target[2]])
+            if self._arrived():
+                self._phase = "descend"
+        if self._phase == "descend":
+            return self._descend_step()
+        return False
+
+    def _descend_step(self) -> bool:
+        """Descend at land speed to the ground; True when touched down."""
+        self.target = np.array([self.target[0], self.target[1], 0.0])
+        if self.pos[2] <= 0.02 and abs(self.vel[2]) < 0.05:
+            self.pos[2], self.vel[:] = 0.0, 0.0
+            if not self.landed:
+                self.landed = True
+                self._landed_at = self._t
+                self.events.append(("text", "Landing detected"))
+            return True
+        return False
+
+    # -- the fixed step -------------------------------------------------------------------------
+    def step(self, t: float, dt: float) -> float:
+        """Advance to sim time ``t + dt``; returns the distance flown (for the odometry)."""
+        self._t = t
+        if self.armed and not self.landed:
+            if self.mode is Mode.MISSION:
+                self._mission_step()
+            elif self.mode is Mode.TAKEOFF and self._arrived():
+                self.events.append(("text", "Takeoff complete"))
+                self.hold()
+            elif self.mode is Mode.RTL:
+                self._rtl_step()
+            elif self.mode is Mode.LAND:
+                self._descend_step()
+        if self.landed and self.armed and self._landed_at is not None:
+            if t - self._landed_at >= self.p.disarm_after_land_s:
+                self.disarm()
+                self._set_mode(Mode.HOLD)
+                self.target = self.pos.copy()
+        if not self.armed or self.landed:
+            self.accel[:] = 0
+            return 0.0
+        limits = self.limits
+        if self.landing:
+            limits = dataclasses.replace(limits, max_speed_down=self.p.land_speed)
+        old = self.pos
+        old_vel = self.vel
+        self.pos, self.vel, self.yaw = motion.step(self.pos, self.vel, self.yaw, self.target, self.target_yaw,
+                                                   limits, dt)
+        self.accel = (self.vel - old_vel) / dt
+        return float(np.linalg.norm(self.pos - old))

@@ -1,0 +1,402 @@
+"""The mock autopilot's loop: steps the simulation in fixed sim steps on the one clock, answers
+MAVLink on every endpoint, emits telemetry, and publishes clock / true pose / estimated pose on zenoh.
+
+Zenoh never blocks MAVLink: the session is opened in a background thread and publishing starts when
+it is up (a missing router only means nobody sees the zenoh topics yet).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as M
+
+from mission.vehicle import battery as battery_model
+from mission.vehicle import commands, telemetry
+from mission.vehicle.failsafe import Action, Failsafe, FailsafeParams
+from mission.vehicle.frames import Home, geodetic_to_enu
+from mission.vehicle.geofence import Geofence
+from mission.vehicle.link import Endpoint, Link
+from mission.vehicle.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
+from mission.vehicle.motion import MotionLimits
+from mission.vehicle.navigator import Mode, Navigator, NavParams
+from mission.vehicle.odometry import Odometry, OdometryParams
+from mission.vehicle.params import Param, ParamTable
+
+log = logging.getLogger(__name__)
+
+MISSION_MSGS = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT",
+                "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_ACK"}
+PARAM_MSGS = {"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"}
+
+
+@dataclass
+class VehicleConfig:
+    """Everything ``radseek vehicle`` can set (units in names/comments)."""
+
+    bind_host: str = "127.0.0.1"
+    remote_host: str = "127.0.0.1"
+    api_port: int = 14540  # MAVSDK / offboard API (PX4 SITL: the vehicle sends here)
+    gcs_port: int = 14550  # QGroundControl / MAVProxy
+    api_local_port: int = 14580  # where the vehicle's API socket is bound (0 = any free port)
+    gcs_local_port: int = 18570
+    sysid: int = 1
+    compid: int = 1  # must be 1: MAVSDK only takes component 1 as an autopilot
+    speedup: float = 1.0  # sim s per wall s, (0, 1000]
+    dt: float = 0.05  # s, fixed sim step, (0, 0.2]
+    seed: int = 0
+    home: Home = field(default_factory=Home)
+    fence: Geofence = field(default_factory=Geofence)
+    limits: MotionLimits = field(default_factory=MotionLimits)
+    nav: NavParams = field(default_factory=NavParams)
+    odometry: OdometryParams = field(default_factory=OdometryParams)
+    battery: battery_model.BatteryParams = field(default_factory=battery_model.BatteryParams)
+    failsafe: FailsafeParams = field(default_factory=FailsafeParams)
+    signing_key: bytes | None = None
+    drop_rate: float = 0.0
+    zenoh: bool = True
+    zenoh_config: str | None = None
+    zenoh_connect: str = "tcp/127.0.0.1:7447"
+    vehicle_name: str = "uav0"
+    max_wall_hz: float = 20.0  # cap per telemetry message, Hz of wall time
+
+    def __post_init__(self) -> None:
+        if not 0 < self.speedup <= 1000:
+            raise ValueError(f"speedup {self.speedup} must be in (0, 1000]")
+        if not 0 < self.dt <= 0.2:
+            raise ValueError(f"dt {self.dt} must be in (0, 0.2]")
+
+
+class _ZenohOut:
+    """Publishers for sim/clock, sim/truth_pose and pose, opened in the background."""
+
+    def __init__(self, cfg: VehicleConfig):
+        self.cfg = cfg
+        self.ready = False
+        self._session = None
+        self._closed = False
+        self._thread = threading.Thread(target=self._open, name="zenoh-open", daemon=True)
+        self._thread.start()
+
+    def _open(self) -> None:
+        from radseek import topics
+        from radseek.simclock import ClockPublisher
+        from radseek.zenoh_session import open_session
+
+        try:
+            session = open_session(self.cfg.zenoh_config, self.cfg.zenoh_connect, wait_for_router_s=1e9)
+        except Exception as exc:  # noqa: BLE001 - zenoh trouble must not stop the vehicle
+            log.error("zenoh unavailable (%s): flying without zenoh topics", exc)
+            return
+        if self._closed:
+            session.close()
+            return
+        name = self.cfg.vehicle_name
+        self._clock = ClockPublisher(session, name, self.cfg.speedup)
+        self._truth = session.declare_publisher(topics.key(topics.SIM_TRUTH_POSE, name))
+        self._pose = session.declare_publisher(topics.key(topics.POSE, name))
+        self._topics = topics
+        self._session = session
+        self.ready = True
+        log.info("zenoh connected: publishing radseek/%s/{sim/clock,sim/truth_pose,pose}", name)
+
+    def publish(self, t: float, truth: tuple[np.ndarray, float], est: tuple[np.ndarray, float], var: np.ndarray,
+                with_pose: bool) -> None:
+        if not self.ready:
+            return
+        tp = self._topics
+        try:
+            self._clock.publish(t)
+            p, yaw = truth
+            self._truth.put(tp.TruthPose(t=t, x=float(p[0]), y=float(p[1]), z=float(max(p[2], 0.0)),
+                                         yaw=float(yaw)).to_bytes())
+            if with_pose:
+                p, yaw = est
+                self._pose.put(tp.Pose(t=t, x=float(p[0]), y=float(p[1]), z=float(p[2]), yaw=float(yaw),
+                                       var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]),
+                                       var_yaw=float(var[3])).to_bytes())
+        except Exception as exc:  # noqa: BLE001
+            log.warning("zenoh publish failed: %s", exc)
+
+    def close(self) -> None:
+        self._closed = True
+        if self._session is not None:
+            self.ready = False
+            try:
+                self._session.close()
+            except Exception:  # noqa: BLE001
+                pass
+
+
+class Vehicle:
+    def __init__(self, cfg: VehicleConfig):
+        self.cfg = cfg
+        self.home, self.fence = cfg.home, cfg.fence
+        self.nav = Navigator(cfg.home, cfg.limits, cfg.nav)
+        self.odo = Odometry(cfg.odometry, seed=cfg.seed)
+        self.battery = 1.0
+        self.failsafe = Failsafe(cfg.failsafe, cfg.battery.low_threshold, cfg.battery.critical_threshold)
+        self.failsafe_active = False
+        self.protocol = MissionProtocol(self._validate_item, sysid=cfg.sysid, compid=cfg.compid)
+        self._proto_ep: Endpoint | None = None
+        self.link = Link(
+            [("api", (cfg.bind_host, cfg.api_local_port), (cfg.remote_host, cfg.api_port)),
+             ("gcs", (cfg.bind_host, cfg.gcs_local_port), (cfg.remote_host, cfg.gcs_port))],
+            sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
+            seed=cfg.seed, wall_time_s=time.time())
+        self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
+        self.params = self._make_params()
+        self.t = 0.0
+        self._yaw_rate = 0.0
+        self._text_id = 0
+        self._stop = threading.Event()
+        self._zenoh: _ZenohOut | None = None
+        self._next_pose_t = 0.0
+        self.stats = {"steps": 0, "commands": 0, "ignored": 0}
+
+    # -- parameters ------------------------------------------------------------------------------
+    def _make_params(self) -> ParamTable:
+        nav = self.nav
+
+        def set_nav(name):
+            def apply(v):
+                nav.p = dataclasses.replace(nav.p, **{name: v})
+            return apply
+
+        def set_lim(name):
+            def apply(v):
+                nav.base_limits = dataclasses.replace(nav.base_limits, **{name: v})
+                nav.limits = dataclasses.replace(nav.limits, **{name: v})
+            return apply
+
+        def set_fs(v):
+            self.failsafe.params = dataclasses.replace(self.failsafe.params, link_loss_timeout_s=v)
+
+        c = self.cfg
+        return ParamTable([
+            Param("MIS_TAKEOFF_ALT", c.nav.takeoff_alt, 0.5, 100, "m", set_nav("takeoff_alt")),
+            Param("RTL_RETURN_ALT", c.nav.rtl_alt, 1, 120, "m", set_nav("rtl_alt")),
+            Param("MPC_LAND_SPEED", c.nav.land_speed, 0.1, 3, "m/s", set_nav("land_speed")),
+            Param("NAV_ACC_RAD", c.nav.acceptance_radius, 0.01, 10, "m", set_nav("acceptance_radius")),
+            Param("MPC_XY_CRUISE", c.limits.max_speed_xy, 0.1, 20, "m/s", set_lim("max_speed_xy")),
+            Param("MPC_ACC_HOR", c.limits.max_accel, 0.1, 10, "m/s^2", set_lim("max_accel")),
+            Param("COM_DL_LOSS_T", c.failsafe.link_loss_timeout_s, 0.5, 600, "s", set_fs),
+            Param("BAT_LOW_THR", c.battery.low_threshold, 0, 1, "", None),
+            Param("BAT_CRIT_THR", c.battery.critical_threshold, 0, 1, "", None),
+            Param("SIM_SPEEDUP", c.speedup, c.speedup, c.speedup, "", None),  # read-only: fixed at start
+        ])
+
+    # -- validation (mission items and go-to targets) -------------------------------------------
+    def _validate_item(self, item: MissionItem) -> int:
+        result = basic_validate(item)
+        if result != M.MAV_MISSION_ACCEPTED or item.frame not in GLOBAL_FRAMES:
+            return result
+        if item.x == 0 and item.y == 0:  # "here": only the altitude matters
+            p = np.array([0.0, 0.0, item.z if item.frame in (3, 6) else item.z - self.home.alt_m])
+            p[:2] = [(self.fence.xmin + self.fence.xmax) / 2, (self.fence.ymin + self.fence.ymax) / 2]
+        else:
+            lat, lon = item.x / 1e7, item.y / 1e7
+            if not (-90 <= lat <= 90):
+                return M.MAV_MISSION_INVALID_PARAM5_X
+            if not (-180 <= lon <= 180):
+                return M.MAV_MISSION_INVALID_PARAM6_Y
+            rel = item.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+            p = geodetic_to_enu(self.home, lat, lon, item.z + self.home.alt_m if rel else item.z)
+        if item.command == M.MAV_CMD_NAV_LAND:
+            p[2] = max(p[2], self.fence.zmin)  # land altitude is the ground's, not checked
+        axis = self.fence.violated_axis(p)
+        if axis is not None:
+            log.warning("mission item %d outside the geofence (axis %d): %s", item.seq, axis, np.round(p, 2))
+            return (M.MAV_MISSION_INVALID_PARAM5_X, M.MAV_MISSION_INVALID_PARAM6_Y, M.MAV_MISSION_INVALID_PARAM7)[axis]
+        return M.MAV_MISSION_ACCEPTED
+
+    # -- services for commands -------------------------------------------------------------------
+    def snapshot(self) -> telemetry.Snapshot:
+        nav = self.nav
+        if nav.landed:
+            landed_state = M.MAV_LANDED_STATE_ON_GROUND
+        elif nav.landing:
+            landed_state = M.MAV_LANDED_STATE_LANDING
+        elif nav.mode is Mode.TAKEOFF:
+            landed_state = M.MAV_LANDED_STATE_TAKEOFF
+        else:
+            landed_state = M.MAV_LANDED_STATE_IN_AIR
+        items = nav.items
+        seq = min(nav.seq, max(len(items) - 1, 0))
+        return telemetry.Snapshot(
+            self.t, nav.pos, nav.vel, nav.accel, nav.yaw, self._yaw_rate, self.odo.var, nav.armed, nav.landed,
+            landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
+            seq, len(items), nav.mission_state, self.failsafe_active)
+
+    def send_message_by_id(self, msg_id: int, endpoint: Endpoint | None) -> bool:
+        name = telemetry.MSG_IDS.get(msg_id)
+        if name is None:
+            return False
+        self.link.send(telemetry.BUILDERS[name](self.snapshot()), endpoint)
+        return True
+
+    def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
+        name = telemetry.MSG_IDS.get(msg_id)
+        if name is None or name == "AUTOPILOT_VERSION":
+            return False
+        self.scheduler.set_interval(name, interval_us)
+        return True
+
+    def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
+        log.info("STATUSTEXT: %s", text)
+        self._text_id = (self._text_id + 1) % 65536
+        for m in telemetry.statustext(text, severity, self._text_id):
+            self.link.send(m)
+
+    # -- incoming --------------------------------------------------------------------------------
+    def _for_us(self, msg) -> bool:
+        ts = getattr(msg, "target_system", 0)
+        tc = getattr(msg, "target_component", 0)
+        return ts in (0, self.cfg.sysid) and tc in (0, self.cfg.compid)
+
+    def dispatch(self, ep: Endpoint, msg, now_wall: float) -> None:
+        """Answer one incoming message; a message that makes no sense is ignored and logged."""
+        kind = msg.get_type()
+        try:
+            if kind in ("COMMAND_LONG", "COMMAND_INT"):
+                if not self._for_us(msg):
+                    return
+                self.stats["commands"] += 1
+                cmd = commands.Command.from_msg(msg)
+                result, extra = commands.execute(cmd, self, ep)
+                log.info("command %d %s -> result %d", cmd.command, cmd.params, result)
+                self.link.send(M.MAVLink_command_ack_message(cmd.command, result, 0, 0, msg.get_srcSystem(),
+                                                             msg.get_srcComponent()), ep)
+                for m in extra:
+                    self.link.send(m, ep)
+                if cmd.command == M.MAV_CMD_DO_SET_MISSION_CURRENT and result == M.MAV_RESULT_ACCEPTED:
+                    self.link.send(telemetry.mission_current(self.snapshot()))
+            elif kind in MISSION_MSGS:
+                if not self._for_us(msg):
+                    return
+                for m in self.protocol.handle(msg, now_wall, self.nav.seq):
+                    self.link.send(m, ep)
+                if self.protocol.uploading:
+                    self._proto_ep = ep
+                self._react_to_mission_change()
+            elif kind == "MISSION_SET_CURRENT":
+                if self._for_us(msg) and self.nav.set_current(int(msg.seq)):
+                    self.link.send(telemetry.mission_current(self.snapshot()))
+            elif kind == "SET_MODE":
+                if msg.target_system == self.cfg.sysid:
+                    result = commands.set_mode_message(msg, self.nav)
+                    self.link.send(M.MAVLink_command_ack_message(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0,
+                                                                 msg.get_srcSystem(), msg.get_srcComponent()), ep)
+            elif kind in PARAM_MSGS:
+                if self._for_us(msg):
+                    for m in self.params.handle(msg):
+                        self.link.send(m, ep)
+            elif kind == "PING":
+                if msg.target_system == 0:
+                    self.link.send(M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
+                                                          msg.get_srcComponent()), ep)
+            elif kind == "TIMESYNC":
+                if msg.tc1 == 0:
+                    self.link.send(M.MAVLink_timesync_message(int(self.t * 1e9), msg.ts1), ep)
+            else:
+                self.stats["ignored"] += 1
+        except (ValueError, TypeError, OverflowError, IndexError, AttributeError) as exc:
+            log.warning("%s from %d/%d ignored: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(), exc)
+
+    def _react_to_mission_change(self) -> None:
+        if self.protocol.changed:
+            self.protocol.changed = False
+            self.nav.replace_mission(self.protocol.items)
+
+    # -- simulation ------------------------------------------------------------------------------
+    def step(self, dt: float, link_age: float | None) -> None:
+        nav = self.nav
+        yaw0 = nav.yaw
+        dist = nav.step(self.t, dt)
+        self.t += dt
+        self._yaw_rate = math.remainder(nav.yaw - yaw0, 2 * math.pi) / dt
+        self.odo.advance(dist)
+        speed = float(np.linalg.norm(nav.vel))
+        self.battery = battery_model.drain(self.battery, dt, nav.armed, nav.in_air, speed, self.cfg.battery)
+        for ev in self.failsafe.update(self.t, link_age is not None, link_age or 0.0, self.battery, nav.in_air):
+            self.failsafe_active = ev.action is not Action.NONE
+            self.statustext(ev.text, ev.severity)
+            if ev.action is Action.HOLD:
+                nav.hold()
+            elif ev.action is Action.RTL:
+                nav.rtl()
+            elif ev.action is Action.LAND:
+                nav.land()
+        for kind, data in nav.events:
+            if kind == "reached":
+                self.link.send(M.MAVLink_mission_item_reached_message(int(data)))
+                self.link.send(telemetry.mission_current(self.snapshot()))
+            elif kind == "text":
+                self.statustext(str(data))
+            elif kind == "mode":
+                log.info("mode %s", data.value)
+        nav.events.clear()
+        self.stats["steps"] += 1
+
+    def truth(self) -> tuple[np.ndarray, float]:
+        return self.odo.truth_from_estimate(self.nav.pos, self.nav.yaw)
+
+    def emit(self) -> None:
+        due = self.scheduler.due(self.t)
+        if due:
+            snap = self.snapshot()
+            for name in due:
+                self.link.send(telemetry.BUILDERS[name](snap))
+        if self._zenoh is not None and self._zenoh.ready:
+            with_pose = self.t >= self._next_pose_t
+            if with_pose:
+                self._next_pose_t = self.t + 0.1
+            self._zenoh.publish(self.t, self.truth(), (self.nav.pos, self.nav.yaw), self.odo.var, with_pose)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self, max_sim_time: float | None = None) -> None:
+        """The loop: fixed sim steps paced by a FreeRunningClock at ``speedup``."""
+        from radseek.simclock import FreeRunningClock
+
+        cfg = self.cfg
+        if cfg.zenoh:
+            self._zenoh = _ZenohOut(cfg)
+        clock = FreeRunningClock(cfg.speedup, t0=self.t)
+        dt = cfg.dt
+        log.info("vehicle up: api %s -> %s, gcs %s -> %s, speedup %g", self.link.endpoints[0].local_address,
+                 self.link.endpoints[0].remote, self.link.endpoints[1].local_address, self.link.endpoints[1].remote,
+                 cfg.speedup)
+        try:
+            while not self._stop.is_set():
+                now_wall = time.monotonic()
+                for ep, msg in self.link.recv(now_wall):
+                    self.dispatch(ep, msg, now_wall)
+                for m in self.protocol.poll(now_wall):
+                    self.link.send(m, self._proto_ep)
+                last = self.link.last_rx_wall
+                link_age = None if last is None else now_wall - last
+                target = clock.now()
+                n = 0
+                while self.t + dt <= target + 1e-9 and n < 50:
+                    self.step(dt, link_age)
+                    n += 1
+                if target - self.t > 1.0:  # fell behind: shed the debt rather than run in a burst
+                    clock = FreeRunningClock(cfg.speedup, t0=self.t)
+                self.emit()
+                if max_sim_time is not None and self.t >= max_sim_time:
+                    break
+                wait = (self.t + dt - clock.now()) / cfg.speedup
+                if wait > 0:
+                    self.link.wait(min(wait, 0.02))
+        finally:
+            if self._zenoh is not None:
+                self._zenoh.close()
+            self.link.close()

@@ -1,0 +1,110 @@
+"""``radseek vehicle``: the mock autopilot as its own process (MAVLink 2 over UDP on the SITL ports).
+
+With no arguments it sends to 127.0.0.1:14540 (MAVSDK ``udpin://0.0.0.0:14540``) and 127.0.0.1:14550
+(QGroundControl / MAVProxy ``--master=udpin:127.0.0.1:14550``), answers on the same sockets, runs in
+real time and publishes its clock and poses on zenoh (router at tcp/127.0.0.1:7447, waited for in the
+background).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+
+from radseek import zenoh_session
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="radseek vehicle", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    g = p.add_argument_group("MAVLink link")
+    g.add_argument("--api-port", type=int, default=14540, help="remote API/offboard port (default 14540)")
+    g.add_argument("--gcs-port", type=int, default=14550, help="remote GCS port (default 14550)")
+    g.add_argument("--api-local-port", type=int, default=14580, help="local API socket port (0 = any; default 14580)")
+    g.add_argument("--gcs-local-port", type=int, default=18570, help="local GCS socket port (0 = any; default 18570)")
+    g.add_argument("--bind", default="127.0.0.1", help="local address (default loopback only)")
+    g.add_argument("--remote-host", default="127.0.0.1", help="where the SITL ports are (default 127.0.0.1)")
+    g.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
+    g.add_argument("--signing-key", metavar="FILE",
+                   help="MAVLink 2 signing key file (64 hex digits, or a passphrase hashed with SHA-256); "
+                        "unsigned or wrongly signed messages are then refused")
+    g.add_argument("--drop-rate", type=float, default=0.0, help="fault injection: drop each datagram with this "
+                                                                "probability in [0, 1) (default 0)")
+    s = p.add_argument_group("simulation")
+    s.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    s.add_argument("--dt", type=float, default=0.05, help="fixed sim step, s (default 0.05)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the odometry drift and fault injection (default 0)")
+    s.add_argument("--home", default="47.397742,8.545594,488.0", help="home lat,lon,alt_amsl (default PX4 SITL's)")
+    s.add_argument("--bounds", help="geofence xmin,ymin,zmin,xmax,ymax,zmax in local ENU m "
+                                    "(default -500,-500,0,500,500,120)")
+    s.add_argument("--max-speed", type=float, default=3.0, help="horizontal speed limit, m/s (default 3)")
+    s.add_argument("--max-accel", type=float, default=2.0, help="acceleration limit, m/s^2 (default 2)")
+    s.add_argument("--battery-endurance", type=float, default=1200.0,
+                   help="hover endurance on a full battery, sim s (default 1200)")
+    s.add_argument("--drift", type=float, default=0.03, help="odometry drift density, m/sqrt(m) (default 0.03)")
+    f = p.add_argument_group("failsafes")
+    f.add_argument("--link-loss-timeout", type=float, default=5.0,
+                   help="s without any GCS message before holding (link clock, default 5)")
+    f.add_argument("--link-loss-hold", type=float, default=10.0,
+                   help="sim s to hold after link loss before returning to launch (default 10)")
+    f.add_argument("--no-failsafe", action="store_true", help="disable all failsafes")
+    p.add_argument("--no-zenoh", action="store_true", help="do not publish on zenoh")
+    p.add_argument("--duration", type=float, help="stop after this many sim seconds")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every command and transition")
+    zenoh_session.add_arguments(p)
+    return p
+
+
+def config_from_args(args: argparse.Namespace):
+    from mission.vehicle.battery import BatteryParams
+    from mission.vehicle.failsafe import FailsafeParams
+    from mission.vehicle.frames import Home
+    from mission.vehicle.geofence import Geofence
+    from mission.vehicle.link import load_signing_key
+    from mission.vehicle.motion import MotionLimits
+    from mission.vehicle.odometry import OdometryParams
+    from mission.vehicle.vehicle import VehicleConfig
+
+    lat, lon, alt = (float(v) for v in args.home.split(","))
+    return VehicleConfig(
+        bind_host=args.bind, remote_host=args.remote_host, api_port=args.api_port, gcs_port=args.gcs_port,
+        api_local_port=args.api_local_port, gcs_local_port=args.gcs_local_port, sysid=args.sysid,
+        speedup=args.speedup, dt=args.dt, seed=args.seed, home=Home(lat, lon, alt),
+        fence=Geofence.parse(args.bounds) if args.bounds else Geofence(),
+        limits=MotionLimits(max_speed_xy=args.max_speed, max_accel=args.max_accel),
+        odometry=OdometryParams(sigma_xy=args.drift, sigma_z=args.drift / 3),
+        battery=BatteryParams(hover_endurance_s=args.battery_endurance),
+        failsafe=FailsafeParams(args.link_loss_timeout, args.link_loss_hold, enabled=not args.no_failsafe),
+        signing_key=load_signing_key(args.signing_key) if args.signing_key else None,
+        drop_rate=args.drop_rate, zenoh=not args.no_zenoh, zenoh_config=args.zenoh_config,
+        zenoh_connect=args.connect, vehicle_name=args.vehicle_name,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s vehicle %(levelname)s %(message)s")
+    from mission.vehicle.vehicle import Vehicle
+
+    try:
+        cfg = config_from_args(args)
+        vehicle = Vehicle(cfg)
+    except (ValueError, OSError) as exc:
+        print(f"radseek vehicle: {exc}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: vehicle.stop())
+    ep_api, ep_gcs = vehicle.link.endpoints
+    print(f"vehicle ready: MAVLink 2 api {ep_api.local_address[1]}->{cfg.api_port}, "
+          f"gcs {ep_gcs.local_address[1]}->{cfg.gcs_port}, speedup {cfg.speedup:g}"
+          f"{', signed' if cfg.signing_key else ''}", flush=True)
+    try:
+        vehicle.run(max_sim_time=args.duration)
+    except KeyboardInterrupt:
+        pass
+    s = vehicle.link.stats
+    print(f"vehicle stopped at t={vehicle.t:.1f} s: rx {s.rx_packets} tx {s.tx_packets} bad {s.bad_data} "
+          f"refused-signature {s.rejected_signature}", flush=True)
+    return 0
