@@ -290,12 +290,11 @@ def deposit_spectrum(E_keV: float, crystal: Crystal) -> np.ndarray:
     esc1 = np.exp(-mu1 * ell)
     again = w1 * (1 - esc1)
     photo1 = _photo_share_interp(E1)
-    # second Compton scatter (coarser sampling of the first one)
-    idx = np.linspace(0, len(T1), 201).astype(int)
-    T1c = np.array([np.average(T1[a:b], weights=again[a:b] + 1e-300) for a, b in zip(idx[:-1], idx[1:], strict=True)])
-    w1c = np.array([again[a:b].sum() for a, b in zip(idx[:-1], idx[1:], strict=True)])
-    ph1c = np.array([np.average(photo1[a:b], weights=again[a:b] + 1e-300) for a, b in zip(idx[:-1], idx[1:],
-                                                                                         strict=True)])
+    # second Compton scatter (coarser sampling of the first one: 200 groups of 10)
+    g = (again + 1e-300).reshape(200, -1)
+    w1c = again.reshape(200, -1).sum(axis=1)
+    T1c = (T1.reshape(200, -1) * g).sum(axis=1) / g.sum(axis=1)
+    ph1c = (photo1.reshape(200, -1) * g).sum(axis=1) / g.sum(axis=1)
     E1c = E_keV - T1c
     T2, w2 = _kn_samples(E1c, 200)
     esc2 = np.exp(-_mu_total_interp(E1c[:, None] - T2) * ell)

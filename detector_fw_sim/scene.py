@@ -30,11 +30,11 @@ SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
 
 #: Wall materials beyond pydecay's table: name -> (library material, density g/cm^3, void fraction).
-#: A hollow cinder block: lightweight aggregate concrete (~1.4 g/cm^3 solid) with ~60 % voids,
-#: which puts paper 003's 19 cm block wall at about 50 % transmission for Cs-137.
+#: A hollow cinder block: lightweight aggregate concrete (~1.4 g/cm^3 solid) with ~50 % voids
+#: (5.5 /m at 662 keV); scenes may set density_g_cm3 and void_fraction per wall.
 MATERIAL_ALIASES: dict[str, tuple[str, float, float]] = {
-    "cinder block": ("concrete", 1.4, 0.6),
-    "cinder_block": ("concrete", 1.4, 0.6),
+    "cinder block": ("concrete", 1.4, 0.5),
+    "cinder_block": ("concrete", 1.4, 0.5),
     "brick": ("concrete", 1.8, 0.0),
     "steel": ("iron", 7.87, 0.0),
 }
@@ -78,7 +78,7 @@ class BackgroundSpec(_Model):
     #: share of background line photons per terrestrial nuclide (K, U and Th series)
     nuclides: dict[str, float] = Field(default_factory=lambda: {"K-40": 0.45, "Bi-214": 0.3, "Tl-208": 0.25})
     #: photons down-scattered in soil and air per unscattered line photon (flat in log E, 30 keV..E)
-    scatter_ratio: float = Field(default=4.0, ge=0)
+    scatter_ratio: float = Field(default=1.0, ge=0)
 
     @field_validator("nuclides")
     @classmethod
