@@ -59,7 +59,8 @@ def plot(nuclide: str, out: str, seed: int = 0, dwell_s: float = 60.0) -> dict[s
                   f"{100 * det.backscatter_fraction:.0f} %", fontsize=9)
     widths = np.diff(edges)
     widths[-1] = widths[-2]
-    ax2.bar(edges[:-1], counts, width=widths, align="edge", alpha=0.6, label=f"one {dwell_s:.0f} s dwell at 1 m (seed {seed})")
+    ax2.bar(edges[:-1], counts, width=widths, align="edge", alpha=0.6,
+            label=f"one {dwell_s:.0f} s dwell at 1 m (seed {seed})")
     ax2.step(edges[:-1], expected, where="post", color="k", lw=1, label="expected")
     ax2.set_xlabel("channel lower edge (keV); channel 31 = overflow above 1600 keV")
     ax2.set_ylabel("counts per channel")
