@@ -70,8 +70,13 @@ class OccupancyMap:
         object.__setattr__(self, "_frames", tuple(frames))
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario, radius: float = 0.3) -> OccupancyMap:
-        return cls(scenario.bounds_min, scenario.bounds_max, scenario.walls, radius)
+    def from_scenario(cls, scenario: Scenario, radius: float = 0.3, flight_z: tuple[float, float] = (0.5, 2.5)
+                      ) -> OccupancyMap:
+        """The flight volume over a scenario: its x-y bounds (where the source is known to be, per
+        dataset-format.md) at altitudes ``flight_z`` (m), with its walls."""
+        lo = np.array([scenario.bounds_min[0], scenario.bounds_min[1], flight_z[0]])
+        hi = np.array([scenario.bounds_max[0], scenario.bounds_max[1], flight_z[1]])
+        return cls(lo, hi, scenario.walls, radius)
 
     @property
     def free_min(self) -> np.ndarray:
