@@ -40,9 +40,10 @@ def weighted_mean_cov(points: np.ndarray, weights: np.ndarray | None = None) -> 
         if s <= 0:
             raise ValueError("weights sum to zero")
         w = w / s
-    mu = w @ p
+    # einsum rather than BLAS ``@``: multithreaded OpenBLAS stalls on a loaded machine for long vectors
+    mu = np.einsum("i,ij->j", w, p)
     dev = p - mu
-    cov = (dev * w[:, None]).T @ dev
+    cov = np.einsum("ij,ik->jk", dev * w[:, None], dev)
     return mu, cov
 
 

@@ -1,0 +1,89 @@
+"""Paper 000 SIR particle filter: resampler, convergence on the lattice replica, dead time, stopping rule."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator.localizers import make_localizer
+from estimator.localizers.particle_filter import low_variance_resample, poisson_crlb_xyab
+from estimator.localizers.testing import dwell_frames, lattice_flight, lattice_points, scenario_for
+
+
+def test_low_variance_resampler_counts_match_weights():
+    rng = np.random.default_rng(0)
+    w = rng.random(1000) ** 3
+    w /= w.sum()
+    idx = low_variance_resample(w, rng)
+    assert len(idx) == 1000
+    counts = np.bincount(idx, minlength=1000)
+    # systematic resampling: every particle gets floor or ceil of N w_i copies
+    assert np.all(np.abs(counts - 1000 * w) < 1.0 + 1e-9)
+
+
+def test_pf_converges_on_lattice_replica():
+    errs = []
+    for seed in range(3):
+        ds = lattice_flight(seed, pose_sd=0.03)
+        pf = make_localizer("pf", n_particles=20_000, seed=seed).fit(ds)
+        tr = ds.truth.sources[0]
+        errs.append(np.hypot(pf.position_[0] - tr.x, pf.position_[1] - tr.y))
+        assert pf.sources_[0]["cps_at_1m"] == pytest.approx(tr.cps_at_1m, rel=0.15)
+        assert pf.background_ == pytest.approx(30.0, rel=0.15)
+    assert max(errs) < 0.25
+    h = pf.history_
+    assert h[-1]["total_variance"] < h[0]["total_variance"] / 100
+    assert h[-1]["entropy"] < h[0]["entropy"]
+    assert pf.crlb_.shape == (4, 4) and np.all(np.diag(pf.crlb_)[[0, 1, 3]] > 0)
+
+
+def test_dead_time_in_likelihood_removes_intensity_bias():
+    tau = 2e-5
+    src = (5.0, 4.0, 0.0, 30000.0)
+    pts = lattice_points((5.0, 4.0), height=1.2, spacing=1.0)
+    frames = dwell_frames(pts, [src], 30.0, dwell_s=8.0, rng=np.random.default_rng(3), tau_s=tau)
+    scen = scenario_for()
+    kw = dict(n_particles=20_000, activity_scale=20000.0)
+    naive = make_localizer("pf", **kw).fit(frames, scen)
+    aware = make_localizer("pf", dead_time_s=tau, **kw).fit(frames, scen)
+    assert aware.sources_[0]["cps_at_1m"] == pytest.approx(30000, rel=0.08)
+    assert naive.sources_[0]["cps_at_1m"] < 0.9 * 30000
+
+
+def test_sequential_updates_and_stop_on_total_variance():
+    ds = lattice_flight(4)
+    half = len(ds.frames) // 2
+    m = np.arange(len(ds.frames)) < half
+    pf = make_localizer("pf", n_particles=5000, seed=1)
+    pf.partial_fit(ds.frames.select(m), ds.scenario).partial_fit(ds.frames.select(~m))
+    full = make_localizer("pf", n_particles=5000, seed=1).fit(ds)
+    assert pf.n_updates_ >= full.n_updates_ - 1
+    assert np.linalg.norm(pf.position_ - full.position_) < 0.1
+    stop = make_localizer("pf", n_particles=5000, stop_variance=0.5).fit(ds)
+    assert stop.converged_ and stop.n_updates_ < full.n_updates_
+    assert stop.history_[-1]["total_variance"] < 0.5
+
+
+def test_update_api_and_gaussian_likelihood():
+    scen = scenario_for()
+    pf = make_localizer("pf", n_particles=2000, likelihood="gaussian").initialize(scen)
+    pf.update([5.0, 4.0, 1.5], counts=100.0, duration=1.0)
+    assert pf.n_updates_ == 1 and abs(pf.weights_.sum() - 1) < 1e-9
+    with pytest.raises(ValueError):
+        make_localizer("pf", likelihood="nope").initialize(scen)
+
+
+def test_crlb_matches_numeric_fisher():
+    pos = lattice_points((5.0, 4.0))
+    dur = np.full(len(pos), 10.0)
+    theta = np.array([5.0, 4.0, 1600.0, 30.0])
+    c = poisson_crlb_xyab(theta, pos, dur, 0.0)
+
+    def mu(th):
+        d2 = ((pos[:, :2] - th[:2]) ** 2).sum(1) + pos[:, 2] ** 2
+        return dur * (th[2] / d2 + th[3])
+
+    eps = np.array([1e-5, 1e-5, 1e-3, 1e-4])
+    jac = np.stack([(mu(theta + e) - mu(theta - e)) / (2 * e.sum()) for e in np.diag(eps)], axis=1)
+    fisher = (jac / mu(theta)[:, None]).T @ jac
+    np.testing.assert_allclose(c, np.linalg.inv(fisher), rtol=1e-4)
