@@ -56,8 +56,8 @@ class Board:
         return max(0, math.floor(t / self.period_s + 1e-9))
 
     def interval(self, k: int) -> tuple[float, float]:
-        """Start and end board time (s) of frame ``k``."""
-        return k * self.period_s, (k + 1) * self.period_s
+        """Start and end board time (s) of frame ``k`` (rounded to the ns: 0.3, not 0.30000000000000004)."""
+        return round(k * self.period_s, 9), round((k + 1) * self.period_s, 9)
 
     def make_frame(self, k: int, counts: np.ndarray, *, stale_pose: bool = False) -> Frame:
         """Frame ``k`` reporting ``counts`` (32 non-negative integers) for its interval."""

@@ -69,12 +69,12 @@ class Frame:
     @property
     def board_time(self) -> float:
         """Board clock at the end of the integration, seconds."""
-        return self.board_time_us * 1e-6
+        return self.board_time_us / 1e6
 
     @property
     def duration(self) -> float:
         """Integrated real time, seconds."""
-        return self.integration_us * 1e-6
+        return self.integration_us / 1e6
 
     @property
     def total(self) -> int:
