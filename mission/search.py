@@ -1,0 +1,182 @@
+"""The search mission's decisions (paper 003 sec. IV-B), with no I/O: what to fly next and when to stop.
+
+Phases: ``explore`` (frontier exploration until three dwell readings stand above background, paper 003
+sec. IV-B-2, with paper 004's frontier choice), then ``search`` (estimate the source from every frame
+recorded so far, then fly to the next-best dwell point of the random tree scored with eq. 6), until the
+source's 1-sigma position ellipse is smaller than ``stop_sigma_m`` or the dwell budget is spent.
+
+The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
+operator's scenario; it never sees the truth. Two drivers run it: ``mission.mission_process`` over
+MAVLink and zenoh, and ``mission.offline`` in-process for seeded benchmarks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from estimator.localizers.base import Localizer, make_localizer
+from planner.belief import DwellHistory, SourceBelief
+from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
+from planner.exploration import FrontierConfig, exploration_done, plan_exploration
+from planner.next_best import NextBestConfig, plan_next_dwell
+from planner.occupancy import OccupancyMap
+from planner.plan import DwellPlan
+from radseek import topics
+from radseek.dataset import Frames, Scenario
+
+
+class Phase(StrEnum):
+    EXPLORE = "explore"
+    SEARCH = "search"
+    DONE = "done"
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Mission settings (units in comments)."""
+
+    altitude_m: float = 1.5  # m above the floor for every dwell point
+    stop_sigma_m: float = 0.10  # m: stop when the source's 1-sigma semi-major axis (x-y) is below this
+    min_search_dwells: int = 2  # dwell points after exploration before the sigma criterion may stop
+    max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
+    max_dwells: int = 16  # dwell points in all (battery budget)
+    localizer: str = "mle"
+    vehicle_radius_m: float = 0.3
+    dwell: DwellConfig = field(default_factory=DwellConfig)
+    frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    next_best: NextBestConfig = field(default_factory=NextBestConfig)
+
+    def __post_init__(self) -> None:
+        if self.altitude_m <= 0 or self.stop_sigma_m <= 0:
+            raise ValueError("altitude_m and stop_sigma_m must be > 0")
+        if not (0 <= self.min_search_dwells <= self.max_search_dwells <= self.max_dwells):
+            raise ValueError("need 0 <= min_search_dwells <= max_search_dwells <= max_dwells")
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What to do next: fly ``plan`` (path, then dwell at its dwell point) or stop (``plan`` None)."""
+
+    phase: Phase
+    plan: DwellPlan | None
+    reason: str
+
+
+class SearchBrain:
+    """Feed it dwell results; it answers with the next plan. Pure apart from the seeded planner RNG."""
+
+    def __init__(self, scenario: Scenario, config: SearchConfig | None = None, seed: int = 0):
+        self.scenario = scenario
+        self.config = config or SearchConfig()
+        z = self.config.altitude_m
+        self.occ = OccupancyMap.from_scenario(scenario, self.config.vehicle_radius_m, flight_z=(z - 0.5, z + 0.5))
+        self.rng = np.random.default_rng(seed)
+        self.history = DwellHistory()
+        self.dwell = DwellController(self.config.dwell)
+        self.phase = Phase.EXPLORE
+        self.search_dwells = 0
+        self.localizer: Localizer | None = None
+        self.estimates: list[dict] = []  # one per dwell from the first search estimate on
+        self.visited = np.zeros((0, 3))
+
+    # ---------------------------------------------------------------------------- dwell control
+
+    def begin_dwell(self) -> None:
+        self.dwell.reset()
+
+    def on_frame(self, hist: topics.Histogram) -> DwellStatus:
+        """One histogram during a dwell: the dwell controller's verdict (``done`` ends the dwell)."""
+        return self.dwell.update(hist.t, hist.total, hist.duration, hist.flags)
+
+    # ---------------------------------------------------------------------------- decisions
+
+    def start(self, current: np.ndarray) -> Decision:
+        """The first plan from the take-off pose (x, y, z, yaw)."""
+        current = np.asarray(current, dtype=float)
+        current = np.r_[current[:2], self.config.altitude_m, current[3]]
+        return self._explore(current, "start: explore until three readings stand above background")
+
+    def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames, current: np.ndarray,
+                  flown: np.ndarray | None = None) -> Decision:
+        """A dwell ended at ``position`` (estimated, (3,)) with ``status``; ``frames`` is everything
+        recorded so far (usable frames), ``current`` the pose (x, y, z, yaw) now, ``flown`` positions
+        visited since the last call (for exploration)."""
+        pos = np.asarray(position, dtype=float).reshape(3)
+        rate = status.mean_rate if np.isfinite(status.mean_rate) else 0.0
+        self.history = DwellHistory(np.vstack([self.history.positions, pos]), np.r_[self.history.rates, rate])
+        if flown is not None and len(flown):
+            self.visited = np.vstack([self.visited, np.asarray(flown, dtype=float).reshape(-1, 3)])
+        if self.phase is Phase.SEARCH:
+            self.search_dwells += 1
+        n_dwells = len(self.history)
+        if self.phase is Phase.EXPLORE:
+            if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
+                self.phase = Phase.SEARCH
+            elif n_dwells >= self.config.max_dwells:
+                return self._done("dwell budget spent during exploration")
+            else:
+                return self._explore(current, f"explore: {self._above()} of 3 readings above background")
+        belief = self._estimate(frames, current)
+        sigma = belief.semi_major_axis() if belief is not None else np.inf
+        if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
+                sigma < self.config.stop_sigma_m:
+            return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
+        if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
+            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m)")
+        if belief is None:
+            return self._explore(current, "no estimate yet: keep exploring")
+        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.next_best,
+                               rng=self.rng)
+        if not plan.ok:
+            return self._done(f"no valid next dwell point (1-sigma {sigma:.3f} m)")
+        return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m)")
+
+    # ---------------------------------------------------------------------------- helpers
+
+    def _above(self) -> int:
+        return int(self.history.above_background(self.scenario.background_cps, self.config.frontier.k_sigma,
+                                                 self.config.frontier.dwell_s).sum())
+
+    def _at_altitude(self, current: np.ndarray) -> np.ndarray:
+        c = np.asarray(current, dtype=float).copy()
+        c[2] = float(np.clip(self.config.altitude_m, self.occ.bounds_min[2], self.occ.bounds_max[2]))
+        c[:2] = np.clip(c[:2], self.occ.free_min[:2], self.occ.free_max[:2])
+        return c
+
+    def _explore(self, current: np.ndarray, reason: str) -> Decision:
+        plan = plan_exploration(self._at_altitude(current), self.history, self.occ, self.visited,
+                                self.config.frontier, rng=self.rng)
+        if not plan.ok:
+            return self._done("exploration found no frontier left")
+        return Decision(Phase.EXPLORE, plan, reason)
+
+    def _done(self, reason: str) -> Decision:
+        self.phase = Phase.DONE
+        return Decision(Phase.DONE, None, reason)
+
+    def _estimate(self, frames: Frames, current: np.ndarray) -> SourceBelief | None:
+        if len(frames) < 10:
+            return None
+        loc = make_localizer(self.config.localizer)
+        try:
+            loc.fit(frames, self.scenario)
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+            return None
+        self.localizer = loc
+        src = loc.sources_[0]
+        cov = np.asarray(loc.covariance_, dtype=float)[:3, :3]
+        cov = np.where(np.isfinite(cov), cov, 0.0)
+        cov = 0.5 * (cov + cov.T)
+        w, v = np.linalg.eigh(cov)
+        cov = (v * np.clip(w, 0, None)) @ v.T
+        self.estimates.append({"dwell": len(self.history), **src, "background_cps": float(loc.background_),
+                               "sigma_m": float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))})
+        return SourceBelief(np.array([src["x"], src["y"], src["z"]]), cov, max(src["cps_at_1m"], 1e-3),
+                            max(float(loc.background_), 0.0))
+
+    @property
+    def estimate(self) -> dict | None:
+        return self.estimates[-1] if self.estimates else None
