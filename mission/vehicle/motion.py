@@ -2,8 +2,10 @@
 acceleration and yaw-rate limits, stepped in fixed sim steps (ArduPilot SITL style).
 
 The speed profile is trapezoidal: accelerate at ``max_accel``, cruise at the speed limit of the
-flight direction, and brake so as to stop exactly on the target (``v <= sqrt(2 a d)``). For a
-straight leg of length d >= v^2/a from rest to rest the arrival time is ``d / v + v / a``.
+flight direction, and brake at ``BRAKE_FRACTION * max_accel`` so as to stop exactly on the target
+(``v <= sqrt(2 a_b d)``; braking a little below the limit lets the accel-limited velocity track the
+profile in discrete steps without overshoot). For a rest-to-rest straight leg long enough to reach
+cruise speed v, the arrival time is ``d / v + v / (2 a) + v / (2 a_b)`` (``straight_leg_time``).
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mission.vehicle.frames import wrap_pi
+
+BRAKE_FRACTION = 0.8
 
 
 @dataclass(frozen=True)
@@ -62,7 +66,8 @@ def step(
         v_des = np.zeros(3)
     else:
         direction = d / dist
-        speed = min(direction_speed_limit(direction, limits), math.sqrt(2.0 * limits.max_accel * dist), dist / dt)
+        brake = BRAKE_FRACTION * limits.max_accel
+        speed = min(direction_speed_limit(direction, limits), math.sqrt(2.0 * brake * dist), dist / dt)
         v_des = direction * speed
     dv = v_des - vel
     n = float(np.linalg.norm(dv))
@@ -85,8 +90,12 @@ def arrived(pos: np.ndarray, vel: np.ndarray, target: np.ndarray, radius: float 
     return float(np.linalg.norm(np.asarray(target) - pos)) <= radius and float(np.linalg.norm(vel)) <= speed
 
 
-def straight_leg_time(distance: float, speed: float, accel: float) -> float:
-    """Analytic rest-to-rest time of a trapezoidal (or triangular) profile."""
-    if distance <= speed * speed / accel:
-        return 2.0 * math.sqrt(distance / accel)
-    return distance / speed + speed / accel
+def straight_leg_time(distance: float, speed: float, accel: float, brake_fraction: float = BRAKE_FRACTION) -> float:
+    """Analytic rest-to-rest time of the profile: accelerate at ``accel``, cruise at ``speed``, brake at
+    ``brake_fraction * accel`` (triangular when the leg is too short to reach ``speed``)."""
+    brake = brake_fraction * accel
+    d_ramps = speed * speed / (2 * accel) + speed * speed / (2 * brake)
+    if distance <= d_ramps:
+        v = math.sqrt(2 * distance * accel * brake / (accel + brake))
+        return v / accel + v / brake
+    return distance / speed + speed / (2 * accel) + speed / (2 * brake)
