@@ -143,7 +143,7 @@ class DwellController:
     def _finish(self, elapsed: float) -> DwellStatus:
         cfg = self.config
         live = self._t_live
-        if live >= cfg.t_min and self._below_for >= cfg.t_thres:
+        if live >= cfg.t_min - 1e-9 and self._below_for >= cfg.t_thres - 1e-9:
             done, reason = True, "converged"
         elif live >= cfg.t_max - 1e-9:
             done, reason = True, "t_max"
