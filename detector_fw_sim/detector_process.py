@@ -29,7 +29,7 @@ import numpy as np
 import zenoh
 
 from detector_fw_sim.board import Board
-from detector_fw_sim.frame_codec import FRAME_SIZE, FrameError, SequenceTracker, decode_frame, encode_frame
+from detector_fw_sim.frame_codec import FRAME_SIZE, FrameConsumer, encode_frame
 from detector_fw_sim.frame_codec import frame_to_histogram as _to_histogram
 from radseek import topics
 from radseek.simclock import Clock
@@ -142,7 +142,8 @@ class DetectorProcess:
         self._hist_pub = session.declare_publisher(topics.key(topics.HISTOGRAM, v))
         self._status_pub = session.declare_publisher(topics.key(topics.DETECTOR_STATUS, v))
         self._poses = None if config.fixed_pose is not None else TruthPoseFollower(session, v, self.counters)
-        self._tracker: SequenceTracker | None = None
+        # the first frame of this process flags a gap unless it is frame 0: earlier frames were not sent
+        self._driver = FrameConsumer(first_is_gap=True)
         self.stop_event = threading.Event()
 
     # -- one frame -------------------------------------------------------------------------------
@@ -177,15 +178,12 @@ class DetectorProcess:
 
     def _consume(self, raw: bytes, t_end: float) -> None:
         """Decode our own raw frame like any consumer and publish the histogram."""
-        try:
-            frame = decode_frame(raw)
-        except FrameError:
-            self.counters.rejected += 1
+        got = self._driver.accept(raw)
+        self.counters.rejected = self._driver.stats.dropped
+        if got is None:
             return
-        if self._tracker is None:  # first frame of this process: earlier board frames were not sent
-            self._tracker = SequenceTracker(first_is_gap=frame.seq > 0)
-        gap = self._tracker.update(frame.seq)
-        self.counters.gaps = self._tracker.gaps
+        frame, gap = got
+        self.counters.gaps = self._driver.tracker.gaps if self._driver.tracker else 0
         hist = _to_histogram(frame, t=t_end, flags=gap, wall_time=time.time())
         self._hist_pub.put(hist.to_bytes())
         self.counters.published += 1

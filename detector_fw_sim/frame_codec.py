@@ -222,6 +222,37 @@ class SequenceTracker:
         return topics.FLAG_GAP
 
 
+@dataclass
+class FrameConsumer:
+    """Packet-mode driver for ``detector/raw`` (one frame per message): decode, count drops, flag gaps.
+
+    ``accept(raw)`` returns ``(frame, flags)`` with ``FLAG_GAP`` in ``flags`` when frames were lost
+    before this one, or ``None`` for a frame it rejected (counted in ``stats``). It never raises on bad
+    bytes. ``first_is_gap`` marks the first frame as a gap unless it is frame 0 (a consumer or emulator
+    that starts after the board did).
+    """
+
+    first_is_gap: bool = True
+    stats: DecoderStats = field(default_factory=DecoderStats)
+    tracker: SequenceTracker | None = None
+
+    def accept(self, raw: bytes | bytearray | memoryview) -> tuple[Frame, int] | None:
+        try:
+            frame = decode_frame(raw)
+        except FrameError as exc:
+            if str(exc).startswith("truncated"):
+                self.stats.truncated += 1
+            elif str(exc).startswith("CRC"):
+                self.stats.crc_errors += 1
+            else:
+                self.stats.bad_header += 1
+            return None
+        if self.tracker is None:
+            self.tracker = SequenceTracker(first_is_gap=self.first_is_gap and frame.seq > 0)
+        self.stats.frames += 1
+        return frame, self.tracker.update(frame.seq)
+
+
 def frame_to_histogram(frame: Frame, t: float, flags: int = 0, **extra: float | None) -> topics.Histogram:
     """The ``detector/histogram`` message for a decoded frame ending at sim time ``t``.
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import queue
+import re
 import signal
 import socket
 import subprocess
@@ -191,15 +192,15 @@ def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event) -> thread
             clock = FreeRunningClock(SPEEDUP)
             cpub = ClockPublisher(s, "uav0", SPEEDUP)
             ppub = s.declare_publisher(topics.key(topics.SIM_TRUTH_POSE, "uav0"))
-            bad_sent = False
+            tick = 0
             while not stop.wait(0.005):
                 t = clock.now()
                 cpub.publish(t)
                 if pose_on(t):
                     ppub.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
-                    if not bad_sent:  # one malformed pose: must be counted and dropped, not crash
+                    if tick % 50 == 0:  # malformed poses: counted and dropped, never a crash
                         ppub.put(b'{"t": 0, "x": "north"}')
-                        bad_sent = True
+                tick += 1
 
     th = threading.Thread(target=run, daemon=True)
     th.start()
@@ -234,7 +235,7 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
                 time.sleep(0.05)
             det2.p.send_signal(signal.SIGTERM)
             assert det2.p.wait(10) == 0
-            det2.wait_line("stopped after")
+            summary = det2.wait_line("stopped after")
         finally:
             stop.set()
             det.stop()
@@ -293,5 +294,7 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
     assert h2[0].seq > hists[-1].seq + 1 and h2[0].flags & topics.FLAG_GAP
     assert all(h.t == pytest.approx((h.seq + 1) * 0.1) for h in h2)
     assert any(h.total > 0 and not h.flags & topics.FLAG_STALE_POSE for h in h2)  # poses are back
+    assert int(re.search(r"(\d+) bad pose messages", summary).group(1)) > 0
+
     print(f"\nrestart: last seq before kill {hists[-1].seq}, first after {h2[0].seq} (flags {h2[0].flags}); "
           f"{bad}/{n} raw frames rejected by CRC; {len(stale)} stale frames")

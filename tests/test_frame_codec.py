@@ -19,6 +19,7 @@ from detector_fw_sim.frame_codec import (
     U32_MAX,
     U64_MAX,
     Frame,
+    FrameConsumer,
     FrameError,
     FrameStreamDecoder,
     SequenceTracker,
@@ -180,3 +181,20 @@ def test_histogram_message_carries_the_frame():
     back = topics.Histogram.from_bytes(h.to_bytes())
     assert back.seq == 12 and back.counts == list(range(32)) and back.duration == pytest.approx(0.1)
     assert back.board_time == pytest.approx(1.3) and back.flags == topics.FLAG_GAP
+
+
+def test_packet_consumer_drops_bad_frames_and_flags_what_was_lost():
+    b = Board()
+    raw = [encode_frame(b.make_frame(k, np.full(32, k))) for k in range(3, 8)]
+    corrupted = bytearray(raw[1])
+    corrupted[60] ^= 0x01
+    bad_version = bytearray(raw[2])
+    bad_version[2] = 9
+    c = FrameConsumer()
+    out = [c.accept(r) for r in (raw[0], bytes(corrupted), raw[2][:89], bytes(bad_version), raw[3], raw[4])]
+    assert out[1] is None and out[2] is None and out[3] is None
+    assert [(f.seq, flags) for f, flags in (out[0], out[4], out[5])] == [(3, topics.FLAG_GAP), (6, topics.FLAG_GAP),
+                                                                         (7, 0)]
+    assert (c.stats.frames, c.stats.crc_errors, c.stats.truncated, c.stats.bad_header) == (3, 2, 1, 0)
+    assert c.stats.dropped == 3 and c.tracker.lost == 2
+    assert FrameConsumer().accept(encode_frame(b.make_frame(0, np.zeros(32))))[1] == 0  # frame 0: no gap
