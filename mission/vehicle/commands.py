@@ -54,7 +54,8 @@ class Services(Protocol):
     home: Home
     fence: Geofence
 
-    def send_message_by_id(self, msg_id: int, endpoint) -> bool: ...
+    def message_by_id(self, msg_id: int):  # the message, or None if not offered
+        ...
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool: ...
 
@@ -64,7 +65,7 @@ def _alt_to_enu_z(cmd: Command, home: Home) -> float:
     return cmd.alt if rel else cmd.alt - home.alt_m
 
 
-def execute(cmd: Command, svc: Services, endpoint) -> tuple[int, list]:
+def execute(cmd: Command, svc: Services) -> tuple[int, list]:
     """Run one command; returns (MAV_RESULT, extra messages to send after the ACK)."""
     nav, c = svc.nav, cmd.command
     p1, p2, p3, p4 = cmd.params
@@ -118,10 +119,10 @@ def execute(cmd: Command, svc: Services, endpoint) -> tuple[int, list]:
     if c == M.MAV_CMD_REQUEST_MESSAGE:
         if not math.isfinite(p1):
             return denied, []
-        return (ok if svc.send_message_by_id(int(p1), endpoint) else M.MAV_RESULT_UNSUPPORTED), []
+        msg = svc.message_by_id(int(p1))
+        return (ok, [msg]) if msg is not None else (M.MAV_RESULT_UNSUPPORTED, [])
     if c == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
-        svc.send_message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, endpoint)
-        return ok, []
+        return ok, [svc.message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)]
     log.info("command %d unsupported", c)
     return M.MAV_RESULT_UNSUPPORTED, []
 

@@ -119,7 +119,12 @@ class Gcs:
         return out
 
     def wait_vehicle(self, timeout: float = 10.0) -> None:
-        self.recv("HEARTBEAT", timeout=timeout)
+        """Wait until the vehicle's first datagram arrives (even one we cannot verify)."""
+        deadline = time.monotonic() + timeout
+        while self.vehicle_addr is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError("no datagram from the vehicle")
+            self.poll(0.05)
 
     def recv(self, kind: str | set[str], cond: Callable | None = None, timeout: float = 5.0):
         kinds = {kind} if isinstance(kind, str) else kind

@@ -234,12 +234,10 @@ class Vehicle:
             landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
             seq, len(items), nav.mission_state, self.failsafe_active)
 
-    def send_message_by_id(self, msg_id: int, endpoint: Endpoint | None) -> bool:
+    def message_by_id(self, msg_id: int):
+        """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
         name = telemetry.MSG_IDS.get(msg_id)
-        if name is None:
-            return False
-        self.link.send(telemetry.BUILDERS[name](self.snapshot()), endpoint)
-        return True
+        return None if name is None else telemetry.BUILDERS[name](self.snapshot())
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
         name = telemetry.MSG_IDS.get(msg_id)
@@ -269,7 +267,7 @@ class Vehicle:
                     return
                 self.stats["commands"] += 1
                 cmd = commands.Command.from_msg(msg)
-                result, extra = commands.execute(cmd, self, ep)
+                result, extra = commands.execute(cmd, self)
                 log.info("command %d %s -> result %d", cmd.command, cmd.params, result)
                 self.link.send(M.MAVLink_command_ack_message(cmd.command, result, 0, 0, msg.get_srcSystem(),
                                                              msg.get_srcComponent()), ep)

@@ -1,0 +1,155 @@
+"""The vehicle over real UDP on loopback, with a bare pymavlink ground station: telemetry content,
+commands and their ACKs, parameters, malformed input, and MAVLink 2 signing."""
+
+import math
+import os
+import time
+
+import pytest
+from pymavlink.dialects.v20 import common as M
+
+from mission.vehicle.geofence import Geofence
+from mission.vehicle.harness import Gcs, VehicleThread, free_udp_port, thread_config
+from mission.vehicle.navigator import Mode, px4_custom_mode
+
+TELEMETRY = {"HEARTBEAT", "SYS_STATUS", "BATTERY_STATUS", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE",
+             "ODOMETRY", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "HOME_POSITION"}
+
+
+@pytest.fixture
+def flying_setup():
+    gcs_port = free_udp_port()
+    cfg = thread_config(free_udp_port(), gcs_port, speedup=10.0, fence=Geofence(-100, -100, 0, 100, 100, 50))
+    vt = VehicleThread(cfg)
+    with vt as vehicle, Gcs(gcs_port) as gcs:
+        gcs.wait_vehicle()
+        yield vehicle, gcs, vt
+    assert not vt.alive
+
+
+def test_telemetry_streams_and_autopilot_identity(flying_setup):
+    vehicle, gcs, _ = flying_setup
+    deadline = time.monotonic() + 5
+    while not TELEMETRY <= {m.get_type() for m in gcs.received} and time.monotonic() < deadline:
+        gcs.poll()
+    seen = {m.get_type(): m for m in gcs.received}
+    assert TELEMETRY <= set(seen)
+    hb = seen["HEARTBEAT"]
+    assert (hb.autopilot, hb.type) == (M.MAV_AUTOPILOT_PX4, M.MAV_TYPE_QUADROTOR)
+    assert hb.get_srcComponent() == 1 and hb.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    assert hb.custom_mode == px4_custom_mode(Mode.HOLD)
+    odo = seen["ODOMETRY"]
+    assert odo.pose_covariance[0] > 0 and odo.estimator_type == M.MAV_ESTIMATOR_TYPE_VIO
+    assert seen["HOME_POSITION"].latitude == 473977420
+    assert seen["EXTENDED_SYS_STATE"].landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    assert seen["MISSION_CURRENT"].mission_state == 1  # NO_MISSION
+    assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == M.MAV_RESULT_ACCEPTED
+    av = gcs.recv("AUTOPILOT_VERSION")
+    assert av.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 9999) == M.MAV_RESULT_UNSUPPORTED
+    # SET_MESSAGE_INTERVAL: -1 switches a stream off
+    assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, -1) == M.MAV_RESULT_ACCEPTED
+    time.sleep(0.1)
+    gcs.received.clear()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.8:
+        gcs.poll()
+    assert "ATTITUDE" not in {m.get_type() for m in gcs.received}
+    assert "GLOBAL_POSITION_INT" in {m.get_type() for m in gcs.received}
+
+
+def test_commands_fly_and_answer(flying_setup):
+    vehicle, gcs, _ = flying_setup
+    assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_TEMPORARILY_REJECTED  # disarmed
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+    assert gcs.recv("HEARTBEAT", lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+    assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
+    gcs.recv("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_IN_AIR, timeout=5)
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0) == M.MAV_RESULT_DENIED  # in the air
+    assert gcs.command(31999) == M.MAV_RESULT_UNSUPPORTED
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0) == M.MAV_RESULT_UNSUPPORTED  # offboard: not offered
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 0, 4, 3) == M.MAV_RESULT_DENIED  # no custom-mode flag
+    home = vehicle.home
+    # go-to outside the geofence is denied, inside accepted and flown
+    assert gcs.command(M.MAV_CMD_DO_REPOSITION, -1, 0, 0, math.nan, home.lat_deg + 0.01, home.lon_deg,
+                       home.alt_m + 5) == M.MAV_RESULT_DENIED
+    assert gcs.command(M.MAV_CMD_DO_REPOSITION, -1, 0, 0, 90.0, home.lat_deg + 0.0001, home.lon_deg,
+                       home.alt_m + 5) == M.MAV_RESULT_ACCEPTED  # 11.1 m north, facing east
+    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.x - 11.12) < 0.3 and abs(m.z + 5) < 0.3, timeout=8)
+    att = gcs.recv("ATTITUDE", lambda m: abs(m.yaw - math.pi / 2) < 0.05, timeout=5)
+    assert att is not None
+    assert gcs.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH) == M.MAV_RESULT_ACCEPTED
+    gcs.recv("HEARTBEAT", lambda m: m.custom_mode == px4_custom_mode(Mode.RTL))
+    gcs.recv("HEARTBEAT", lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, timeout=10)  # landed, disarmed
+    lp = gcs.recv("LOCAL_POSITION_NED")
+    assert abs(lp.x) < 0.3 and abs(lp.y) < 0.3 and abs(lp.z) < 0.05
+    assert gcs.command(M.MAV_CMD_NAV_LAND) == M.MAV_RESULT_DENIED  # already on the ground
+
+
+def test_parameters(flying_setup):
+    _, gcs, _ = flying_setup
+    gcs.send(M.MAVLink_param_request_list_message(1, 1))
+    values = {}
+    while len(values) < 10:
+        m = gcs.recv("PARAM_VALUE")
+        values[m.param_id] = m
+    assert values["MIS_TAKEOFF_ALT"].param_value == pytest.approx(2.5)
+    gcs.send(M.MAVLink_param_set_message(1, 1, b"MIS_TAKEOFF_ALT", 4.0, M.MAV_PARAM_TYPE_REAL32))
+    assert gcs.recv("PARAM_VALUE").param_value == pytest.approx(4.0)
+    gcs.send(M.MAVLink_param_set_message(1, 1, b"MIS_TAKEOFF_ALT", 1e6, M.MAV_PARAM_TYPE_REAL32))
+    assert gcs.recv("PARAM_VALUE").param_value == pytest.approx(4.0)  # out of bounds: refused
+    gcs.send(M.MAVLink_param_request_read_message(1, 1, b"", 0))
+    assert gcs.recv("PARAM_VALUE").param_index == 0
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+    assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
+    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.z + 4.0) < 0.25, timeout=8)  # the new takeoff altitude
+
+
+def test_malformed_input_never_stops_the_vehicle(flying_setup):
+    vehicle, gcs, vt = flying_setup
+    good = M.MAVLink_ping_message(1, 7, 0, 0).pack(M.MAVLink(None, 255, 190))
+    bad_crc = bytearray(good)
+    bad_crc[-1] ^= 0xFF
+    junk = [os.urandom(n) for n in (1, 5, 40, 300)]
+    mav1 = M.MAVLink(None, 255, 190)
+    mav1.WIRE_PROTOCOL_VERSION = "1.0"
+    v1 = M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav1, force_mavlink1=True)
+    for data in [*junk, bytes(bad_crc), good[:7], b"\xfd" + b"\xff" * 30, bytes(300), v1[:-3]]:
+        gcs.send_raw(data)
+    # nonsense values inside well-formed messages
+    gcs.send(M.MAVLink_command_long_message(1, 1, M.MAV_CMD_DO_SET_MISSION_CURRENT, 0, math.nan, 0, 0, 0, 0, 0, 0))
+    gcs.send(M.MAVLink_mission_item_int_message(1, 1, 3, 6, 16, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0))  # no upload
+    gcs.send(M.MAVLink_mission_set_current_message(1, 1, 50))
+    gcs.send(M.MAVLink_param_request_read_message(1, 1, b"", 500))
+    gcs.send(M.MAVLink_set_mode_message(1, 1, 0xFFFFFFFF))
+    gcs.send(M.MAVLink_command_long_message(7, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))  # other system: not for us
+    gcs.send(M.MAVLink_ping_message(123, 9, 0, 0))
+    assert gcs.recv("PING", lambda m: m.seq == 9).target_system == 255
+    assert vt.alive and not vehicle.nav.armed
+    assert vehicle.link.stats.bad_data >= 4
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+
+
+def test_signing_refuses_unsigned_and_wrongly_signed_commands():
+    key, other = bytes(range(32)), bytes(range(1, 33))
+    gcs_port = free_udp_port()
+    cfg = thread_config(free_udp_port(), gcs_port, speedup=5.0, signing_key=key)
+    with VehicleThread(cfg) as vehicle, Gcs(gcs_port) as plain:
+        hb = plain.recv("HEARTBEAT", timeout=5)  # we can read its (signed) messages without the key
+        assert hb is not None
+        plain.send(M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+        with pytest.raises(TimeoutError):
+            plain.recv("COMMAND_ACK", timeout=0.5)
+        assert vehicle.link.stats.rejected_signature >= 1 and not vehicle.nav.armed
+        plain.close()
+        with Gcs(gcs_port, signing_key=other) as wrong:
+            wrong.wait_vehicle()
+            wrong.send(M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+            with pytest.raises(TimeoutError):
+                wrong.recv("COMMAND_ACK", timeout=0.5)
+        assert not vehicle.nav.armed
+        with Gcs(gcs_port, signing_key=key) as signed:
+            signed.wait_vehicle()
+            assert signed.mav.signing.goodsig_count > 0  # the vehicle signs what it sends
+            assert signed.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        assert vehicle.nav.armed
