@@ -1,0 +1,92 @@
+"""Failsafes: the pure policy, then link loss and low battery on a running vehicle over UDP."""
+
+import math
+import time
+
+from pymavlink.dialects.v20 import common as M
+
+from mission.vehicle.battery import BatteryParams
+from mission.vehicle.failsafe import Action, Failsafe, FailsafeParams
+from mission.vehicle.harness import Gcs, VehicleThread, free_udp_port, thread_config
+from mission.vehicle.navigator import Mode, px4_custom_mode
+
+
+def test_policy_link_loss_hold_then_rtl_and_recovery():
+    fs = Failsafe(FailsafeParams(link_loss_timeout_s=2.0, link_loss_hold_s=10.0), low=0.25, critical=0.1)
+    assert fs.update(0.0, link_seen=False, link_age=100.0, battery=1.0, in_air=True) == []  # no GCS yet
+    assert fs.update(1.0, True, 1.0, 1.0, True) == []
+    (ev,) = fs.update(2.0, True, 2.5, 1.0, True)
+    assert ev.action is Action.HOLD and "link lost" in ev.text
+    assert fs.update(11.9, True, 12.0, 1.0, True) == []
+    (ev,) = fs.update(12.0, True, 12.1, 1.0, True)
+    assert ev.action is Action.RTL
+    assert fs.update(13.0, True, 13.0, 1.0, True) == []  # fires once
+    (ev,) = fs.update(14.0, True, 0.1, 1.0, True)
+    assert ev.action is Action.NONE and "regained" in ev.text
+
+
+def test_policy_battery_low_then_critical_once_each():
+    fs = Failsafe(FailsafeParams(), low=0.25, critical=0.1)
+    assert fs.update(0, True, 0, 0.3, True) == []
+    assert [e.action for e in fs.update(1, True, 0, 0.24, True)] == [Action.RTL]
+    assert fs.update(2, True, 0, 0.2, True) == []
+    assert [e.action for e in fs.update(3, True, 0, 0.09, True)] == [Action.LAND]
+    assert fs.update(4, True, 0, 0.05, True) == []
+    assert Failsafe(FailsafeParams(enabled=False), 0.25, 0.1).update(0, True, 99, 0.0, True) == []
+
+
+def _takeoff(gcs):
+    gcs.wait_vehicle()
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+    assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
+
+
+def _texts(gcs, want, timeout, keepalive=False):
+    """Collect STATUSTEXTs until one contains ``want``; heartbeats keep the link alive if asked."""
+    deadline = time.monotonic() + timeout
+    texts = []
+    while time.monotonic() < deadline:
+        if keepalive:
+            gcs.heartbeat()
+        for m in gcs.poll(0.05):
+            if m.get_type() == "STATUSTEXT":
+                texts.append(m.text)
+                if want in m.text:
+                    return texts
+    raise AssertionError(f"no {want!r} in {texts}")
+
+
+def test_link_loss_holds_then_returns_to_launch():
+    gcs_port = free_udp_port()
+    cfg = thread_config(free_udp_port(), gcs_port, speedup=10.0,
+                        failsafe=FailsafeParams(link_loss_timeout_s=0.6, link_loss_hold_s=4.0))
+    with VehicleThread(cfg) as vehicle, Gcs(gcs_port) as gcs:
+        _takeoff(gcs)
+        _texts(gcs, "Takeoff complete", 5, keepalive=True)
+        assert vehicle.nav.mode is Mode.HOLD
+        t_quiet = vehicle.t
+        # the GCS goes silent: hold, then (4 sim s later) return to launch
+        texts = _texts(gcs, "link lost", 3)
+        gcs.recv("HEARTBEAT", lambda m: m.custom_mode == px4_custom_mode(Mode.HOLD) and
+                 m.system_status == M.MAV_STATE_CRITICAL)
+        t_hold = vehicle.t
+        texts += _texts(gcs, "returning to launch", 3)
+        assert vehicle.nav.mode is Mode.RTL and vehicle.t - t_hold >= 4.0 - 0.2
+        assert t_hold - t_quiet >= 0.6 * cfg.speedup * 0.8  # waited for the (wall) timeout
+        texts += _texts(gcs, "Landing detected", 10)
+        assert vehicle.nav.landed and abs(vehicle.nav.pos[0]) < 0.3
+
+
+def test_low_battery_returns_to_launch():
+    gcs_port = free_udp_port()
+    cfg = thread_config(free_udp_port(), gcs_port, speedup=20.0,
+                        battery=BatteryParams(hover_endurance_s=40.0, low_threshold=0.6, critical_threshold=0.05))
+    with VehicleThread(cfg) as vehicle, Gcs(gcs_port) as gcs:
+        _takeoff(gcs)
+        texts = _texts(gcs, "battery low", 5, keepalive=True)
+        assert vehicle.nav.mode is Mode.RTL
+        # the drain: ~40 % of a 40 s hover endurance is about 16 sim s
+        assert 12.0 < vehicle.t < 25.0, vehicle.t
+        gcs.recv("SYS_STATUS", lambda m: m.battery_remaining <= 60)
+        texts += _texts(gcs, "Landing detected", 5, keepalive=True)
+        assert any("Failsafe" in t for t in texts)
