@@ -5,7 +5,8 @@ expression (``radseek/uav0/detector/**``). Histograms and raw board frames print
 time, total rate (counts per second), a compact spectrum (unicode sparkline, one character per
 channel) and flags; other radseek payloads as ``field=value`` pairs. ``--json`` prints the payload as
 received (binary frames as hex). A message that does not decode prints one ``!`` line to stderr and
-is counted; echo never stops on bad input.
+is counted; echo never stops on bad input. ``--stream PATH`` decodes the board's byte stream from a
+serial device, file or stdin instead (the USB driver path, docs/frame-format.md).
 """
 
 from __future__ import annotations
@@ -143,16 +144,60 @@ def raw_line(key: str, payload: bytes) -> str:
         return f"{key} {payload.hex()}"
 
 
+def echo_stream(path: str, fmt: Formatter, count: int = 0, chunk: int = 64) -> int:
+    """``--stream``: decode a board byte stream (USB serial device, FIFO, file, ``-`` = stdin) and print it.
+
+    Returns the number of frames printed; corrupted and truncated frames are counted and reported at
+    the end (and as they are found), never fatal.
+    """
+    from detector_fw_sim.frame_codec import FrameStreamDecoder
+
+    dec = FrameStreamDecoder()
+    shown, dropped = 0, 0
+    src = sys.stdin.buffer if path == "-" else open(path, "rb", buffering=0)
+    try:
+        while count <= 0 or shown < count:
+            data = src.read(chunk)
+            if not data:
+                break
+            for f in dec.feed(data):
+                print(f"{path} {fmt.spectrum_line(f.seq, None, f.duration, f.counts, f.flags)} "
+                      f"board={f.board_time:.3f}s", flush=True)
+                shown += 1
+            if dec.stats.dropped > dropped:
+                dropped = dec.stats.dropped
+                print(f"! {path}: dropped a bad frame ({dropped} so far)", file=sys.stderr, flush=True)
+    finally:
+        if src is not sys.stdin.buffer:
+            src.close()
+    dec.close()
+    s = dec.stats
+    print(f"{path}: {s.frames} frames, {s.crc_errors} CRC errors, {s.bad_header} bad headers, "
+          f"{s.truncated} truncated, {s.bytes_skipped} bytes skipped", file=sys.stderr, flush=True)
+    return shown
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek echo", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("key", help="topic (detector/histogram) or key expression (radseek/uav0/**)")
+    p.add_argument("key", nargs="?", help="topic (detector/histogram) or key expression (radseek/uav0/**)")
+    p.add_argument("--stream", metavar="PATH",
+                   help="instead of zenoh, decode board frames from a byte stream (serial device, file, - = stdin)")
     p.add_argument("--json", action="store_true", help="print payloads as received (binary as hex)")
     p.add_argument("--log", action="store_true", help="log-scaled spectrum sparkline")
     p.add_argument("-n", "--count", type=int, default=0, help="exit after N messages (default: run until Ctrl-C)")
     p.add_argument("--duration", type=float, default=0.0, help="exit after S wall seconds (default: never)")
     add_arguments(p)
     args = p.parse_args(argv)
+    if args.stream:
+        try:
+            echo_stream(args.stream, Formatter(log=args.log), args.count)
+        except OSError as exc:
+            print(f"radseek echo: {exc}", file=sys.stderr)
+            return 1
+        return 0
+    if args.key is None:
+        p.error("give a KEY (or --stream PATH)")
     try:
         key = resolve_key(args.key, args.vehicle_name)
     except ValueError as exc:

@@ -132,6 +132,22 @@ def test_docs_topics_md_is_generated_from_topics_py():
         assert f"{cls.__name__}" in doc
 
 
+def test_echo_decodes_a_serial_byte_stream(tmp_path):
+    b = Board()
+    frames = [encode_frame(b.make_frame(k, np.arange(32))) for k in range(5)]
+    bad = bytearray(frames[2])
+    bad[50] ^= 0xFF
+    stream = b"\x00\xa5garbage" + frames[0] + frames[1] + bytes(bad) + frames[3][:30] + frames[4] + frames[0][:20]
+    path = tmp_path / "ttyUSB0.bin"
+    path.write_bytes(stream)
+    out = run_cli("echo", "--stream", str(path))
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert [int(line.split("seq=")[1].split()[0]) for line in lines] == [0, 1, 4]
+    assert all("496 cts" in line for line in lines)
+    assert "3 frames, 2 CRC errors, 0 bad headers, 1 truncated" in out.stderr
+
+
 # ---------------------------------------------------------------------------- over zenoh
 
 
