@@ -3,7 +3,12 @@
 Publishes ``radseek/<vehicle>/detector/raw`` (binary board frames, docs/frame-format.md),
 ``detector/histogram`` (decoded JSON) at 10 Hz sim time and ``detector/status`` at 1 Hz; reads the true
 pose from ``sim/truth_pose`` (or ``--pose``). ``--clock own`` (default) runs its own sim clock at
-``--speedup`` (1 = real time) and publishes ``sim/clock``; ``--clock zenoh`` follows the vehicle's.
+``--speedup`` (1 = real time) and publishes ``sim/clock``; ``--clock zenoh`` follows the vehicle's
+(use it whenever a vehicle runs: there must be one clock owner).
+
+With no true pose for ``--stale-after`` sim seconds, frames keep coming at 10 Hz but carry zero counts
+and the STALE_POSE flag: the emulator never invents data. A restarted process continues the frame
+sequence from board time (= sim time); its first histogram carries FLAG_GAP.
 
 Examples::
 
