@@ -36,7 +36,7 @@ class Connection:
     home: Home | None = None
 
     async def close(self) -> None:
-        await self.sdk.destroy()
+        self.sdk.destroy()
 
 
 async def connect(url: str = DEFAULT_URL, timeout_s: float = 30.0) -> Connection:
@@ -45,7 +45,7 @@ async def connect(url: str = DEFAULT_URL, timeout_s: float = 30.0) -> Connection
     await sdk.add_any_connection(url)
     system = await sdk.first_autopilot(timeout_s)
     if system is None:
-        await sdk.destroy()
+        sdk.destroy()
         raise ConnectionFailed(ConnectionResult.NO_VEHICLE, f"{url} after {timeout_s:g} s")
     return Connection(sdk, system)
 
