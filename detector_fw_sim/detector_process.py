@@ -87,6 +87,7 @@ class DetectorConfig:
     seed: int = 0
     faults: FaultConfig = field(default_factory=FaultConfig)
     status_period_s: float = 1.0
+    max_catch_up_s: float = 10.0  # sim s: further behind than this (a clock jump), skip frames instead of bursting
 
 
 @dataclass
@@ -198,8 +199,7 @@ class DetectorProcess:
     def run(self) -> Counters:
         """Produce frames on the sim clock until ``config.until`` or ``stop_event``."""
         k = self.board.index_at(self.clock.now())
-        period = self.board.period_s
-        status_every = max(1, round(self.config.status_period_s / period))
+        status_every = max(1, round(self.config.status_period_s / self.board.period_s))
         while not self.stop_event.is_set():
             t_end = self.board.interval(k)[1]
             if self.config.until is not None and t_end > self.config.until + 1e-9:
@@ -207,7 +207,7 @@ class DetectorProcess:
             if not self.clock.sleep_until(t_end, timeout_wall_s=0.25):
                 continue  # clock stalled (owner paused or gone): wait, never run ahead of it
             now = self.clock.now()
-            if now - t_end > 50 * period:  # far behind (clock jumped): skip ahead, consumers see a gap
+            if now - t_end > self.config.max_catch_up_s:  # clock jumped: skip ahead, consumers see a gap
                 k = self.board.index_at(now)
                 continue
             self.produce(k)

@@ -184,6 +184,14 @@ def test_detector_process_streams_10_hz_on_loopback(router):
     assert len(status) >= 30 and all(s.crc_errors == 0 and s.stale_frames == 0 for s in status)
 
 
+def _wait_for(cond, what: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
 def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event) -> threading.Thread:
     """The test plays the vehicle: sim/clock at SPEEDUP and the true pose while pose_on(t)."""
 
@@ -195,11 +203,13 @@ def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event) -> thread
             tick = 0
             while not stop.wait(0.005):
                 t = clock.now()
-                cpub.publish(t)
+                # pose before clock (one session keeps order): the detector never sees time t without
+                # the pose of time t, even when this thread stalls under load
                 if pose_on(t):
                     ppub.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
                     if tick % 50 == 0:  # malformed poses: counted and dropped, never a crash
                         ppub.put(b'{"t": 0, "x": "north"}')
+                cpub.publish(t)
                 tick += 1
 
     th = threading.Thread(target=run, daemon=True)
@@ -223,16 +233,15 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
             det.wait_line("waiting for")
             driver = _drive_clock_and_pose(router, lambda t: t < 12.0 or t > kill_at, stop)
             det.wait_line("publishing")
-            while not rec.histograms() or rec.histograms()[-1].t < kill_at:
-                time.sleep(0.05)
+            _wait_for(lambda: rec.histograms() and rec.histograms()[-1].t >= kill_at, "frames up to the kill time")
             det.p.send_signal(signal.SIGKILL)
             det.p.wait(10)
             time.sleep(0.3)  # let frames already in flight arrive
             n_before = len(rec.snapshot())
             det2 = Proc(*args)
             det2.wait_line("publishing")
-            while len([h for h in rec.histograms()[-25:] if h.t > kill_at + 1]) < 20:
-                time.sleep(0.05)
+            _wait_for(lambda: len([h for h in rec.histograms()[-25:] if h.t > kill_at + 1]) >= 20,
+                      "20 frames from the restarted process")
             det2.p.send_signal(signal.SIGTERM)
             assert det2.p.wait(10) == 0
             summary = det2.wait_line("stopped after")
