@@ -56,6 +56,7 @@ class TreeConfig:
     yaw_weight: float = 0.1  # m per rad, > 0: weight of yaw in OMPL's state distance
     time_budget: float = 0.2  # s: stop at N_min or more nodes once this has passed
     time_limit: float = 2.0  # s: stop whatever the node count
+    steer_yaw: bool = True  # clamp an edge's yaw change to the limit instead of rejecting the edge
 
     def __post_init__(self) -> None:
         if self.max_edge <= 0 or self.speed <= 0 or self.yaw_rate_max <= 0 or self.yaw_weight <= 0:
@@ -103,8 +104,9 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
 class _EdgeValidator(ob.MotionValidator):
     """Exact wall clearance plus the yaw-rate limit, counting accepted edges for termination."""
 
-    def __init__(self, si: ob.SpaceInformation, occ: OccupancyMap, yaw_per_metre: float):
+    def __init__(self, si: ob.SpaceInformation, occ: OccupancyMap, yaw_per_metre: float, steer_yaw: bool):
         super().__init__(si)
+        self.steer_yaw = steer_yaw
         self.occ = occ
         self.yaw_per_metre = yaw_per_metre
         self.checked = 0
@@ -116,9 +118,14 @@ class _EdgeValidator(ob.MotionValidator):
         p = (pa[0], pa[1], pa[2])
         q = (pb[0], pb[1], pb[2])
         length = math.dist(p, q)
-        dpsi = abs(math.remainder(b[1].value - a[1].value, 2 * math.pi))
-        if dpsi > self.yaw_per_metre * length + 1e-9:
-            return False
+        dpsi = math.remainder(b[1].value - a[1].value, 2 * math.pi)
+        limit = self.yaw_per_metre * length
+        if abs(dpsi) > limit:
+            if not self.steer_yaw:
+                return False
+            # steer: RRT copies the checked state into the tree, so clamping its yaw here adds the
+            # closest yaw-feasible state instead of wasting the sample (checked in the tests)
+            b[1].value = math.remainder(a[1].value + math.copysign(limit, dpsi), 2 * math.pi)
         if not self.occ.segment_valid(p, q):
             return False
         self.accepted += 1
@@ -156,7 +163,7 @@ def grow_tree(start: np.ndarray, occ: OccupancyMap, config: TreeConfig = TreeCon
         return occ.point_valid(p[0], p[1], p[2])
 
     si.setStateValidityChecker(state_valid)
-    validator = _EdgeValidator(si, occ, config.yaw_per_metre)
+    validator = _EdgeValidator(si, occ, config.yaw_per_metre, config.steer_yaw)
     si.setMotionValidator(validator)
     # not used by RRT (edges go through the exact validator) but kept fine for any other OMPL use
     si.setStateValidityCheckingResolution(min(0.01, max(occ.radius, 0.05) / max(si.getMaximumExtent(), 1e-9)))
