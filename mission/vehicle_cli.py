@@ -106,5 +106,5 @@ def main(argv: list[str] | None = None) -> int:
         pass
     s = vehicle.link.stats
     print(f"vehicle stopped at t={vehicle.t:.1f} s: rx {s.rx_packets} tx {s.tx_packets} bad {s.bad_data} "
-          f"refused-signature {s.rejected_signature}", flush=True)
+          f"refused-signature {s.rejected_signature} dropped-rx {s.dropped_rx} dropped-tx {s.dropped_tx}", flush=True)
     return 0
