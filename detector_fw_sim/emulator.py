@@ -68,6 +68,25 @@ def background_cdf(nuclides: tuple[tuple[str, float], ...], scatter_ratio: float
     return np.concatenate([[0.0], np.cumsum(spec)])
 
 
+def _check_frames(poses: np.ndarray, t: np.ndarray, duration: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Shapes (N, 4), (N,), (N,), all finite, durations >= 0; a ValueError names the bad argument."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    if poses.ndim != 2 or poses.shape[1] != 4:
+        raise ValueError(f"poses must be (N, 4) x, y, z, yaw; got shape {poses.shape}")
+    n = len(poses)
+    try:
+        t = np.broadcast_to(np.asarray(t, dtype=float), (n,))
+        duration = np.broadcast_to(np.asarray(duration, dtype=float), (n,))
+    except ValueError:
+        raise ValueError(f"t and duration must be scalars or have {n} entries (one per pose)") from None
+    for name, arr in (("poses", poses), ("t", t), ("duration", duration)):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite, got {arr[~np.isfinite(arr)][:3]}")
+    if np.any(duration < 0):
+        raise ValueError(f"duration must be >= 0, got {duration[duration < 0][:3]}")
+    return poses, t, duration
+
+
 class DetectorEmulator:
     """The board's physics for one scene; ``draw`` uses the generator seeded with ``seed``."""
 
@@ -146,11 +165,12 @@ class DetectorEmulator:
     def expected_counts(self, poses: np.ndarray, t: np.ndarray, duration: np.ndarray) -> np.ndarray:
         """poses (N, 4) TRUE x, y, z, yaw; t (N,) frame-mid times; duration (N,) s -> (N, 32) expected
         recorded counts (after dead time)."""
+        poses, t, duration = _check_frames(poses, t, duration)
         n_k = self.true_rates(poses, t)
         dt = self.scene.effects.dead_time
         if dt.enabled:
             n_k = n_k * transport.dead_time(n_k.sum(axis=1), dt.tau_s)[:, None]
-        return n_k * np.broadcast_to(np.asarray(duration, dtype=float), n_k.shape[:1])[:, None]
+        return n_k * duration[:, None]
 
     # ---------------------------------------------------------------------------- draws
     def draw(self, pose: np.ndarray, t: float, duration: float) -> np.ndarray:

@@ -205,3 +205,17 @@ def test_gain_drift_moves_the_photopeak_not_the_total():
     # (At gain 1.2 the threshold falls to 33 keV and takes in Ba K x-rays: +11 %, as a real board would.)
     total = em.expected_counts(pose(1.0)[None], np.array([120.0]), np.ones(1)).sum()
     assert total == pytest.approx(rates[0].sum(), rel=0.03)
+
+
+def test_bad_frames_are_refused_with_a_clear_message():
+    em = DetectorEmulator(make_scene(background=30.0), seed=0)
+    with pytest.raises(ValueError, match=r"poses must be \(N, 4\)"):
+        em.expected_counts(np.zeros((2, 3)), np.zeros(2), np.ones(2))
+    with pytest.raises(ValueError, match="poses must be finite"):
+        em.draw(np.array([np.nan, 0, 1, 0]), 0.0, 0.1)
+    with pytest.raises(ValueError, match="duration must be >= 0"):
+        em.draw(pose(2.0), 0.0, -0.1)
+    with pytest.raises(ValueError, match="one per pose"):
+        em.expected_counts(np.zeros((3, 4)), np.zeros(2), np.ones(3))
+    # on top of the source the 1/d^2 law is capped (d >= 5 cm), not infinite
+    assert np.isfinite(em.expected_counts(np.array([[0.0, 0.0, 1.0, 0.0]]), 0.0, 0.1)).all()
