@@ -23,24 +23,47 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import zenoh
 
+from detector_fw_sim import transport
 from detector_fw_sim.board import Board
 from detector_fw_sim.frame_codec import FRAME_SIZE, FrameConsumer, encode_frame
 from detector_fw_sim.frame_codec import frame_to_histogram as _to_histogram
 from radseek import topics
 from radseek.simclock import Clock
 
+if TYPE_CHECKING:
+    from detector_fw_sim.scene import Scene
+
 
 class CountSource(Protocol):
     """What the process needs from ``detector_fw_sim.emulator.DetectorEmulator``."""
 
+    scene: Scene
+
     def draw(self, pose: np.ndarray, t: float, duration: float) -> np.ndarray:
         """(32,) counts for true pose (x, y, z, yaw), frame mid-time ``t`` and ``duration`` (s)."""
         ...
+
+    def true_rates(self, poses: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(N, 32) true rates before dead time, cps."""
+        ...
+
+
+def live_time(emulator: CountSource, pose: np.ndarray, t_mid: float, duration: float) -> float:
+    """Emulator truth for diagnostics: the live part of ``duration``.
+
+    With paralyzable dead time (paper 000 eq. 10) the recorded/true ratio exp(-n tau), n the total true
+    rate, is the live fraction; without the dead-time effect the whole interval is live.
+    """
+    dt = emulator.scene.effects.dead_time
+    if not dt.enabled:
+        return float(duration)
+    n = float(np.sum(emulator.true_rates(np.asarray(pose, dtype=float)[None, :], np.array([t_mid]))))
+    return float(duration * transport.dead_time(n, dt.tau_s))
 
 
 @dataclass(frozen=True)
@@ -164,20 +187,23 @@ class DetectorProcess:
             self.state = "dropout"
             return
         pose = self._pose_for(t1)
+        live: float | None = None
         if pose is None:
             counts = np.zeros(topics.N_CHANNELS, dtype=np.int64)  # no pose: invent nothing
             self.counters.stale_frames += 1
             self.state = "stale_pose"
         else:
-            counts = np.asarray(self.emulator.draw(pose, 0.5 * (t0 + t1), t1 - t0))  # t = frame mid-time
+            t_mid = 0.5 * (t0 + t1)
+            counts = np.asarray(self.emulator.draw(pose, t_mid, t1 - t0))
+            live = live_time(self.emulator, pose, t_mid, t1 - t0)
             self.state = "ok"
         frame = self.board.make_frame(k, counts, stale_pose=pose is None)
         self.counters.frames += 1
         raw, _ = inject(encode_frame(frame), self.config.faults, self._rng)
         self._raw_pub.put(raw)
-        self._consume(raw, t1)
+        self._consume(raw, t1, live)
 
-    def _consume(self, raw: bytes, t_end: float) -> None:
+    def _consume(self, raw: bytes, t_end: float, live: float | None = None) -> None:
         """Decode our own raw frame like any consumer and publish the histogram."""
         got = self._driver.accept(raw)
         self.counters.rejected = self._driver.stats.dropped
@@ -185,7 +211,7 @@ class DetectorProcess:
             return
         frame, gap = got
         self.counters.gaps = self._driver.tracker.gaps if self._driver.tracker else 0
-        hist = _to_histogram(frame, t=t_end, flags=gap, wall_time=time.time())
+        hist = _to_histogram(frame, t=t_end, flags=gap, live_time=live, wall_time=time.time())
         self._hist_pub.put(hist.to_bytes())
         self.counters.published += 1
 

@@ -141,8 +141,9 @@ def test_detector_process_streams_10_hz_on_loopback(router):
     rec = Recorder()
     with open_session(connect=router) as s:
         sub = s.declare_subscriber(topics.all_keys("uav0"), rec)
-        det = Proc("detector", "--connect", router, "--pose", "1,2,1.5,0", "--speedup", str(SPEEDUP),
-                   "--until", "34", "--seed", "3")
+        # 1 m above a 15000 cps-at-1m source with paralyzable dead time (tau 12 us): live fraction ~0.84
+        det = Proc("detector", "--connect", router, "--scene", "close-pass-deadtime", "--pose", "6.2,4.8,1.0,0",
+                   "--speedup", str(SPEEDUP), "--until", "34", "--seed", "3")
         try:
             det.wait_line("publishing")
             summary = det.wait_line("stopped after", timeout=60)
@@ -170,7 +171,8 @@ def test_detector_process_streams_10_hz_on_loopback(router):
     print(f"\n{summary}\nsim-time rate {rate:.3f} Hz over {T1 - T0:.0f} s sim ({n_window} histograms); "
           f"latency p50 {np.median(latency) * 1e3:.2f} ms p95 {np.percentile(latency, 95) * 1e3:.2f} ms "
           f"max {latency.max() * 1e3:.2f} ms; publication period {period.mean() * 1e3:.1f} ms sim "
-          f"(sd {period.std() * 1e3:.1f} ms sim at {SPEEDUP:g}x)")
+          f"(sd {period.std() * 1e3:.1f} ms sim at {SPEEDUP:g}x); live fraction {hists[0].live_time / 0.1:.3f}, "
+          f"{np.mean([h.rate for h in hists]):.0f} cps recorded")
     assert abs(rate - 10.0) <= 0.2, rate  # the 10 Hz +- 2 %
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and seqs[-1] == 339  # frame 339 ends at 34.0 s
     assert all(h.flags == 0 for h in hists[1:]) and all(h.duration == pytest.approx(0.1) for h in hists)
@@ -178,8 +180,16 @@ def test_detector_process_streams_10_hz_on_loopback(router):
     assert np.all(latency >= -1e-3)  # the stamp is taken before publication (same host clock)
     raws = [decode_frame(p) for k, p, _ in ev if k == topics.RAW_FRAME]
     assert [f.seq for f in raws] == seqs and [list(f.counts) for f in raws] == [h.counts for h in hists]
-    # the default scene puts ~100-200 cps here: every 100 ms frame sees counts, the run mean is > 50 cps
-    assert np.mean([h.rate for h in hists]) > 50
+    # live time is the paralyzable dead-time truth (paper 000 eq. 10): recorded m = n L with L = exp(-n tau),
+    # so the true rate n = -ln(L) / tau and the recorded total over the run must be Poisson(n L T):
+    # bound at 5 standard deviations
+    tau = 1.2e-5  # detector_fw_sim/scenes/close-pass-deadtime.toml
+    live = np.array([h.live_time / h.duration for h in hists])
+    assert np.all((live > 0.5) & (live < 1.0)) and np.ptp(live) < 1e-9  # fixed pose: one rate
+    n_true = -np.log(live[0]) / tau
+    expected = n_true * live[0] * 0.1 * len(hists)
+    total = sum(h.total for h in hists)
+    assert abs(total - expected) < 5 * np.sqrt(expected), (total, expected)
     status = [topics.DetectorStatus.from_bytes(p) for k, p, _ in ev if k == topics.DETECTOR_STATUS]
     assert len(status) >= 30 and all(s.crc_errors == 0 and s.stale_frames == 0 for s in status)
 
