@@ -150,7 +150,6 @@ def lattice(scene: Scene, rng: np.random.Generator, z: tuple[float, float] = (1.
 def lawnmower(scene: Scene, rng: np.random.Generator, spacing: float | None = None) -> FlightPath:
     """Rows across the bounds at 2 m (outdoors) or 1.5 m; background dwells far from the area outdoors."""
     lo, hi = np.array(scene.bounds.min[:2]), np.array(scene.bounds.max[:2])
-    size = hi - lo
     outdoor = scene.kind == "outdoor"
     z = 2.0 if outdoor else 1.5
     spacing = spacing or (2.5 if outdoor else 1.5)
@@ -161,7 +160,7 @@ def lawnmower(scene: Scene, rng: np.random.Generator, spacing: float | None = No
         rows += [(xs[0], y, z, 0.0 if i % 2 == 0 else math.pi, 0.0, 0.0), (xs[1], y, z, 0.0 if i % 2 == 0 else math.pi,
                                                                            0.0, 0.0)]
     if outdoor:
-        far = lo - np.array([0.8, 0.6]) * max(50.0, 2 * float(np.linalg.norm(size)))
+        far = lo - np.array([40.0, 30.0])  # 50 m from the corner, 60-70 m from the area (paper 000)
     else:
         far = lo + 0.5
     bg_start = (far[0], far[1], z, 0.0, float(rng.uniform(10, 15)), 0.0)
