@@ -106,7 +106,7 @@ def plot_fig4(path: Path) -> None:
     ax2.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=7)
     fig.suptitle("Paper 003 Fig. 4 setting: eq. 6 on a 3 x 3 m grid")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
