@@ -194,8 +194,8 @@ class DetectorProcess:
             self.state = "stale_pose"
         else:
             t_mid = 0.5 * (t0 + t1)
-            counts = np.asarray(self.emulator.draw(pose, t_mid, t1 - t0))
-            live = live_time(self.emulator, pose, t_mid, t1 - t0)
+            counts = np.asarray(self.emulator.draw(pose, t_mid, self.board.period_s))
+            live = live_time(self.emulator, pose, t_mid, self.board.period_s)
             self.state = "ok"
         frame = self.board.make_frame(k, counts, stale_pose=pose is None)
         self.counters.frames += 1

@@ -202,8 +202,8 @@ def _wait_for(cond, what: str, timeout: float = 60.0) -> None:
         time.sleep(0.05)
 
 
-def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event) -> threading.Thread:
-    """The test plays the vehicle: sim/clock at SPEEDUP and the true pose while pose_on(t)."""
+def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event, jump: list[float]) -> threading.Thread:
+    """The test plays the vehicle: sim/clock at SPEEDUP (plus ``jump[0]`` s) and the true pose while pose_on(t)."""
 
     def run() -> None:
         with open_session(connect=router) as s:
@@ -212,7 +212,7 @@ def _drive_clock_and_pose(router: str, pose_on, stop: threading.Event) -> thread
             ppub = s.declare_publisher(topics.key(topics.SIM_TRUTH_POSE, "uav0"))
             tick = 0
             while not stop.wait(0.005):
-                t = clock.now()
+                t = clock.now() + jump[0]
                 # pose before clock (one session keeps order): the detector never sees time t without
                 # the pose of time t, even when this thread stalls under load
                 if pose_on(t):
@@ -241,7 +241,8 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
         det2 = None
         try:
             det.wait_line("waiting for")
-            driver = _drive_clock_and_pose(router, lambda t: t < 12.0 or t > kill_at, stop)
+            jump = [0.0]
+            driver = _drive_clock_and_pose(router, lambda t: t < 12.0 or t > kill_at, stop, jump)
             det.wait_line("publishing")
             _wait_for(lambda: rec.histograms() and rec.histograms()[-1].t >= kill_at, "frames up to the kill time")
             det.p.send_signal(signal.SIGKILL)
@@ -252,6 +253,10 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
             det2.wait_line("publishing")
             _wait_for(lambda: len([h for h in rec.histograms()[-25:] if h.t > kill_at + 1]) >= 20,
                       "20 frames from the restarted process")
+            # injected fault: the vehicle's clock jumps 30 s ahead; the detector skips, it does not burst
+            t_jump = rec.histograms()[-1].t
+            jump[0] = 30.0
+            _wait_for(lambda: rec.histograms()[-1].t > t_jump + 31, "frames after the clock jump")
             det2.p.send_signal(signal.SIGTERM)
             assert det2.p.wait(10) == 0
             summary = det2.wait_line("stopped after")
@@ -314,6 +319,10 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
     assert all(h.t == pytest.approx((h.seq + 1) * 0.1) for h in h2)
     assert any(h.total > 0 and not h.flags & topics.FLAG_STALE_POSE for h in h2)  # poses are back
     assert int(re.search(r"(\d+) bad pose messages", summary).group(1)) > 0
+    steps = [(a, b) for a, b in zip(h2, h2[1:], strict=False) if b.seq - a.seq > 100]
+    assert len(steps) == 1 and steps[0][1].flags & topics.FLAG_GAP, [(a.seq, b.seq) for a, b in steps]
+    # it skips the whole 30 s plus however far it lagged the clock when the jump came (<= 5 s sim here)
+    assert 300 <= steps[0][1].seq - steps[0][0].seq < 350
 
     print(f"\nrestart: last seq before kill {hists[-1].seq}, first after {h2[0].seq} (flags {h2[0].flags}); "
           f"{bad}/{n} raw frames rejected by CRC; {len(stale)} stale frames")
