@@ -48,6 +48,7 @@ class OccupancyMap:
     radius: float = 0.3
     grown: np.ndarray = field(init=False, repr=False)
     _frames: tuple = field(init=False, repr=False)
+    _box: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         lo = np.asarray(self.bounds_min, dtype=float).reshape(3)
@@ -68,6 +69,8 @@ class OccupancyMap:
             ux, uy = ((x1 - x0) / length, (y1 - y0) / length) if length > 0 else (1.0, 0.0)
             frames.append((x0, y0, ux, uy, length, th / 2, h))
         object.__setattr__(self, "_frames", tuple(frames))
+        lo_f, hi_f = self.free_min, self.free_max
+        object.__setattr__(self, "_box", (*map(float, lo_f), *map(float, hi_f)))
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, radius: float = 0.3, flight_z: tuple[float, float] = (0.5, 2.5)
@@ -104,8 +107,8 @@ class OccupancyMap:
 
     def point_valid(self, x: float, y: float, z: float) -> bool:
         """Scalar ``points_valid`` without numpy overhead (for OMPL's per-state callback)."""
-        lo, hi = self.free_min, self.free_max
-        if not (lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1] and lo[2] <= z <= hi[2]):
+        x0_, y0_, z0_, x1_, y1_, z1_ = self._box
+        if not (x0_ <= x <= x1_ and y0_ <= y <= y1_ and z0_ <= z <= z1_):
             return False
         for x0, y0, ux, uy, length, half, h in self._frames:
             rx, ry = x - x0, y - y0
@@ -115,27 +118,37 @@ class OccupancyMap:
         return True
 
     def segment_valid(self, a: Sequence[float], b: Sequence[float]) -> bool:
-        """Scalar ``segments_valid``: exact slab clipping in each grown wall's frame, pure Python."""
-        if not (self.point_valid(*a) and self.point_valid(*b)):
+        """Scalar ``segments_valid``: exact slab clipping in each grown wall's frame, pure Python.
+
+        The volume is a box (convex), so both ends inside it puts the segment inside; the clipping over
+        t in [0, 1] also catches an end inside a wall."""
+        ax, ay, az = a[0], a[1], a[2]
+        bx, by, bz = b[0], b[1], b[2]
+        x0_, y0_, z0_, x1_, y1_, z1_ = self._box
+        if not (x0_ <= ax <= x1_ and y0_ <= ay <= y1_ and z0_ <= az <= z1_
+                and x0_ <= bx <= x1_ and y0_ <= by <= y1_ and z0_ <= bz <= z1_):
             return False
-        ax, ay, az = a
-        dx, dy, dz = b[0] - ax, b[1] - ay, b[2] - az
+        dx, dy, dz = bx - ax, by - ay, bz - az
         for x0, y0, ux, uy, length, half, h in self._frames:
             rx, ry = ax - x0, ay - y0
             # local coordinates along the wall (s), across it (n) and up (z)
             p0 = (rx * ux + ry * uy, rx * uy - ry * ux, az)
             d = (dx * ux + dy * uy, dx * uy - dy * ux, dz)
             t0, t1 = 0.0, 1.0
-            for p, dd, lo, hi in zip(p0, d, (0.0, -half, 0.0), (length, half, h), strict=True):
+            for k, lo, hi in ((0, 0.0, length), (1, -half, half), (2, 0.0, h)):
+                p, dd = p0[k], d[k]
                 if dd == 0.0:
                     if p < lo or p > hi:
-                        t0, t1 = 1.0, 0.0
+                        t0 = 2.0  # parallel and outside this slab: no hit
                         break
                     continue
                 ta, tb = (lo - p) / dd, (hi - p) / dd
                 if ta > tb:
                     ta, tb = tb, ta
-                t0, t1 = max(t0, ta), min(t1, tb)
+                if ta > t0:
+                    t0 = ta
+                if tb < t1:
+                    t1 = tb
                 if t0 > t1:
                     break
             if t0 <= t1:
