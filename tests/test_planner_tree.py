@@ -212,3 +212,19 @@ def test_yaw_sequence_respects_the_rate_limit_and_faces_the_source_when_it_can()
         assert np.all(dpsi <= rate * np.linalg.norm(np.diff(pts, axis=0), axis=1) / 0.5 + 1e-9)
     # with a fast yaw the final heading is the bearing to the source (a deterministic candidate)
     assert yaw[-1] == pytest.approx(math.atan2(5.0, -4.0))
+
+
+def test_belief_from_an_estimate_message():
+    from radseek.topics import Estimate
+
+    full = np.diag([0.04, 0.09, 0.01, 400.0])
+    full[0, 1] = full[1, 0] = 0.02
+    msg = Estimate(t=3.0, method="pf", sources=[{"x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 900.0}],
+                   background_cps=25.0, covariance=[full.ravel().tolist()])
+    b = SourceBelief.from_estimate(msg)
+    np.testing.assert_allclose(b.mean, [1.0, 2.0, 0.0])
+    np.testing.assert_allclose(b.covariance, full[:3, :3])
+    assert b.cps_at_1m == 900.0 and b.background_cps == 25.0
+    bare = SourceBelief.from_estimate(Estimate(t=0.0, method="x", sources=msg.sources, background_cps=25.0),
+                                      default_sigma_m=0.5)
+    np.testing.assert_allclose(bare.covariance, np.eye(3) * 0.25)
