@@ -20,6 +20,7 @@ A restarted process continues the sequence at the value board time gives; its fi
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -121,6 +122,7 @@ class Counters:
     rejected: int = 0  # raw frames the driver rejected (CRC, length)
     dropout_frames: int = 0  # frames not sent during drop-outs
     bad_pose_msgs: int = 0  # truth-pose messages that failed validation (dropped)
+    emulator_errors: int = 0  # poses the physics could not evaluate (frame sent stale, zero counts)
     gaps: int = 0
 
 
@@ -194,9 +196,18 @@ class DetectorProcess:
             self.state = "stale_pose"
         else:
             t_mid = 0.5 * (t0 + t1)
-            counts = np.asarray(self.emulator.draw(pose, t_mid, self.board.period_s))
-            live = live_time(self.emulator, pose, t_mid, self.board.period_s)
-            self.state = "ok"
+            try:
+                counts = np.asarray(self.emulator.draw(pose, t_mid, self.board.period_s))
+                live = live_time(self.emulator, pose, t_mid, self.board.period_s)
+                self.state = "ok"
+            except ValueError as exc:  # an absurd pose the physics cannot evaluate: report, send no data
+                self.counters.emulator_errors += 1
+                if self.counters.emulator_errors == 1:
+                    print(f"radseek detector: emulator failed at pose {pose.tolist()} ({exc}); "
+                          "sending STALE_POSE frames for such poses", file=sys.stderr, flush=True)
+                pose, counts = None, np.zeros(topics.N_CHANNELS, dtype=np.int64)
+                self.counters.stale_frames += 1
+                self.state = "emulator_error"
         frame = self.board.make_frame(k, counts, stale_pose=pose is None)
         self.counters.frames += 1
         raw, _ = inject(encode_frame(frame), self.config.faults, self._rng)
