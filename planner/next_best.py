@@ -87,7 +87,14 @@ def finish_path(tree_path: np.ndarray, start_yaw: float, belief_mean: np.ndarray
     # deterministic candidates beside the q random ones: the bearing itself and a feasible greedy turn to it
     target = bearings(pts, belief_mean)
     greedy = track_yaw(pts, start_yaw, target, config.tree.speed, config.tree.yaw_rate_max)
-    yaw = sample_yaw(pts, start_yaw, bearing_score(belief_mean), q=config.q, speed=config.tree.speed,
+    facing = bearing_score(belief_mean)
+
+    def score(points: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+        s = facing(points, yaws)
+        s[-1] *= len(points)  # the heading while dwelling matters as much as the whole transit
+        return s
+
+    yaw = sample_yaw(pts, start_yaw, score, q=config.q, speed=config.tree.speed,
                      yaw_rate_max=config.tree.yaw_rate_max, rng=rng, extra=np.column_stack([target, greedy]))
     return np.column_stack([pts, yaw])
 
