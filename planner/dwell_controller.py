@@ -32,7 +32,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from radseek.topics import FLAG_CRC_ERROR, FLAG_SATURATED, FLAG_STALE_POSE
+from radseek.topics import FLAG_CRC_ERROR, FLAG_SATURATED, FLAG_STALE_POSE, Histogram
 
 #: frames carrying any of these flags are not counted
 REJECT_FLAGS = FLAG_STALE_POSE | FLAG_CRC_ERROR | FLAG_SATURATED
@@ -132,6 +132,10 @@ class DwellController:
             else:
                 self._below_for = 0.0
         return self._finish(elapsed)
+
+    def update_histogram(self, msg: Histogram) -> DwellStatus:
+        """``update`` from a decoded ``detector/histogram`` message (all 32 channels summed)."""
+        return self.update(msg.t, msg.total, msg.duration, msg.flags)
 
     def _threshold(self) -> float:
         cfg = self.config

@@ -129,3 +129,20 @@ def test_config_bounds_are_enforced():
         DwellConfig(t_thres=0)
     with pytest.raises(ValueError):
         DwellConfig(t_timeout=1.0)
+
+
+def test_histogram_messages_feed_the_controller():
+    from radseek.topics import Histogram
+
+    c = DwellController()
+    counts = [0] * 32
+    counts[12], counts[13] = 6, 4  # 10 counts per 0.1 s frame
+    st = None
+    for k in range(100):
+        msg = Histogram(seq=k, board_time=k * DT, t=(k + 1) * DT, duration=DT, counts=counts,
+                        flags=FLAG_STALE_POSE if k % 5 == 4 else 0)
+        st = c.update_histogram(msg)
+        if st.done:
+            break
+    assert st is not None and st.done and st.mean_rate == pytest.approx(100.0)
+    assert st.frames_rejected == st.frames_used // 4
