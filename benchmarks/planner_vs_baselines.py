@@ -47,8 +47,11 @@ class Episode:
 
 def run_episode(strategy: str, occ: OccupancyMap, start: np.ndarray, background: float, measure: Measure,
                 localize: Localize, error_fn: Callable[[SourceBelief], float], rng: np.random.Generator,
-                target_m: float = 0.3, max_dwells: int = 25, speed: float = 0.5) -> Episode:
-    """Fly ``strategy`` (next-best, greedy, lattice, lawnmower, spiral) until the error is below target."""
+                target_m: float = 0.3, max_dwells: int = 25, speed: float = 0.5, pre_threshold: float = 150.0
+                ) -> Episode:
+    """Fly ``strategy`` (next-best, greedy, lattice, lawnmower, spiral, pre) until the error is below target.
+
+    Every measurement is a dwell point, including PRE's eight neighbour readings per step."""
     ep = Episode(strategy)
     current = np.asarray(start, dtype=float).copy()
     history = DwellHistory()
@@ -64,10 +67,18 @@ def run_episode(strategy: str, occ: OccupancyMap, start: np.ndarray, background:
     elif strategy == "spiral":
         centre = np.r_[(occ.free_min[:2] + occ.free_max[:2]) / 2, z]
         queue = list(bl.valid_points(bl.spiral(centre, 1.5, occ.free_min, occ.free_max), occ))
+    pre = pre_points(current[:3], occ, bl.PREGradient(threshold=pre_threshold), rng) if strategy == "pre" else None
+    last_rate: float | None = None
     belief = None
     while ep.dwells < max_dwells:
         path = None
-        if strategy in ("next-best", "greedy"):
+        if pre is not None:
+            try:
+                p = next(pre) if last_rate is None else pre.send(last_rate)
+            except StopIteration:
+                p = None
+            point = None if p is None else np.r_[p, current[3]]
+        elif strategy in ("next-best", "greedy"):
             if belief is None or not exploration_done(history, background):
                 plan = plan_exploration(current, history, occ, np.concatenate(visited), FrontierConfig(), rng=rng)
                 point, path = (plan.dwell_points[0], plan.path) if plan.ok else (None, None)
@@ -89,6 +100,7 @@ def run_episode(strategy: str, occ: OccupancyMap, start: np.ndarray, background:
         ep.mission_time += float(np.linalg.norm(np.diff(path[:, :3], axis=0), axis=1).sum()) / speed
         visited.append(path[:, :3])
         rate, dwell_s = measure(point[:3], float(point[3]))
+        last_rate = rate
         ep.mission_time += dwell_s
         ep.dwells += 1
         history = DwellHistory(np.vstack([history.positions, point[None, :3]]), np.r_[history.rates, rate])
@@ -101,6 +113,31 @@ def run_episode(strategy: str, occ: OccupancyMap, start: np.ndarray, background:
             break
     ep.stop = ep.stop or "max_dwells"
     return ep
+
+
+def pre_points(start: np.ndarray, occ: OccupancyMap, policy: bl.PREGradient, rng: np.random.Generator):
+    """Paper 001 Algorithm 1 as a generator: yields each point to measure and receives its rate (send).
+
+    A step measures the 8 valid neighbours one ``policy.step`` away (eq. 1 needs their readings; invalid
+    neighbours count as -inf) and moves to one of them, whose reading becomes the next y_i; it ends when
+    the circling closes a loop.
+    """
+    here = np.asarray(start, dtype=float)
+    track = [here]
+    y = yield here
+    while True:
+        nbrs = here + policy.step * np.c_[bl.UNIT_DIRECTIONS, np.zeros(8)]
+        ok = occ.segments_valid(np.broadcast_to(here, nbrs.shape), nbrs)
+        if not ok.any():
+            return
+        rates = np.full(8, -np.inf)
+        for k in np.flatnonzero(ok):
+            rates[k] = yield nbrs[k]
+        here = policy.step_from(here, y, rates, rng)
+        y = float(rates[int(np.argmin(np.linalg.norm(nbrs - here, axis=1)))])  # measured already: reuse it
+        track.append(here)
+        if not policy.rid_flag and bl.path_closed(np.array(track)):
+            return
 
 
 # ------------------------------------------------------------------ stand-ins (until the real ones exist)
@@ -162,7 +199,7 @@ def main() -> None:
     seed_ompl(11)
     lo, hi = np.array([0.0, 0.0, 0.5]), np.array([10.0, 8.0, 2.5])
     occ = OccupancyMap(lo, hi, (), 0.3)
-    strategies = ("next-best", "greedy", "lattice", "lawnmower", "spiral")
+    strategies = ("next-best", "greedy", "lattice", "lawnmower", "spiral", "pre")
     rows: dict[str, list[Episode]] = {s: [] for s in strategies}
     for seed in range(args.seeds):
         srng = np.random.default_rng(1000 + seed)

@@ -29,7 +29,7 @@ def test_run_episode_uses_only_the_injected_callables_and_stops_at_the_target():
         err = 2.0 ** -(len(history) - 3)
         return SourceBelief(source + [err, 0.0, 0.0], np.eye(3) * 0.01, 1000.0, 30.0)
 
-    for strategy in ("next-best", "lattice"):
+    for strategy in ("next-best", "lattice", "pre"):
         calls.update(measure=0, localize=0)
         ep = pvb.run_episode(strategy, occ, np.array([0.6, 0.6, 1.5, 0.0]), 30.0, measure, localize,
                              lambda b: float(np.linalg.norm(b.mean - source)), np.random.default_rng(0))
