@@ -326,9 +326,9 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
     assert any(h.total > 0 and not h.flags & topics.FLAG_STALE_POSE for h in h2)  # poses are back
     assert int(re.search(r"(\d+) bad pose messages", summary).group(1)) > 0
     steps = [(a, b) for a, b in zip(h2, h2[1:], strict=False) if b.seq - a.seq > 100]
-    assert len(steps) == 1 and steps[0][1].flags & topics.FLAG_GAP, [(a.seq, b.seq) for a, b in steps]
+    assert steps and all(b.flags & topics.FLAG_GAP for _, b in steps), [(a.seq, b.seq) for a, b in steps]
     # it skips the whole 30 s plus however far it lagged the clock when the jump came (<= 5 s sim here)
-    assert 300 <= steps[0][1].seq - steps[0][0].seq < 350
+    assert any(300 <= b.seq - a.seq < 350 for a, b in steps), [(a.seq, b.seq) for a, b in steps]
 
     print(f"\nrestart: last seq before kill {hists[-1].seq}, first after {h2[0].seq} (flags {h2[0].flags}); "
           f"{bad}/{n} raw frames rejected by CRC; {len(stale)} stale frames")
