@@ -192,4 +192,8 @@ def localizer_class(name: str) -> type[Localizer]:
 
 def make_localizer(name: str, **settings: Any) -> Localizer:
     """A localizer by registry name (``sphere``, ``pf``, ``multi-pf``, ``gp``, ``mle``) with its settings."""
-    return localizer_class(name)(**settings)
+    cls = localizer_class(name)
+    unknown = set(settings) - set(cls._param_names())
+    if unknown:
+        raise ValueError(f"{name} has no setting(s) {sorted(unknown)}; settings: {sorted(cls._param_names())}")
+    return cls(**settings)
