@@ -44,6 +44,9 @@ class SearchConfig:
     max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
     max_dwells: int = 16  # dwell points in all (battery budget)
     localizer: str = "mle"
+    #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
+    #: localizer takes ``init``), with few extra starts and no CRLB, so the vehicle does not hover idle
+    localizer_settings: dict = field(default_factory=lambda: {"n_starts": 3, "compute_crlb": False})
     vehicle_radius_m: float = 0.3
     dwell: DwellConfig = field(default_factory=DwellConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
@@ -160,7 +163,12 @@ class SearchBrain:
     def _estimate(self, frames: Frames, current: np.ndarray) -> SourceBelief | None:
         if len(frames) < 10:
             return None
+        settings = dict(self.config.localizer_settings)
         loc = make_localizer(self.config.localizer)
+        if self.estimates and "init" in loc.get_params():
+            prev = self.estimates[-1]
+            settings["init"] = {k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")}
+        loc.set_params(**{k: v for k, v in settings.items() if k in loc.get_params()})
         try:
             loc.fit(frames, self.scenario)
         except (ValueError, np.linalg.LinAlgError, RuntimeError):

@@ -1,0 +1,49 @@
+"""``radseek mission``: the mission process (dwell control, estimator, planner, MAVSDK client, recorder).
+
+It reads only the operator's scenario (``scenario.json`` of the dataset format: walls, bounds,
+background estimate) and flies a search against whatever autopilot answers on ``--url``; the recorded
+flight is written to ``--out`` as a dataset, with ``mission_summary.json`` and ``mission_log.jsonl``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from radseek import zenoh_session
+from radseek.dataset import DatasetError, read_scenario
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="radseek mission", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenario", required=True, help="scenario.json (the operator's view of the scene)")
+    p.add_argument("--out", required=True, help="directory for the recorded dataset and mission summary")
+    p.add_argument("--url", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL (default PX4 SITL's)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
+    p.add_argument("--altitude", type=float, default=1.5, help="dwell altitude, m (default 1.5)")
+    p.add_argument("--stop-sigma", type=float, default=0.10, help="stop when the 1-sigma error ellipse is below, m")
+    p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
+    p.add_argument("--localizer", default="mle", help="estimator used in flight (default mle)")
+    zenoh_session.add_arguments(p)
+    args = p.parse_args(argv)
+
+    from mission.mission_process import MissionSettings, run_mission
+    from mission.search import SearchConfig
+
+    try:
+        scenario = read_scenario(Path(args.scenario))
+    except DatasetError as exc:
+        print(f"radseek mission: {exc}", file=sys.stderr)
+        return 2
+    config = SearchConfig(altitude_m=args.altitude, stop_sigma_m=args.stop_sigma,
+                          max_dwells=args.max_dwells, max_search_dwells=min(6, args.max_dwells),
+                          localizer=args.localizer)
+    settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed)
+    with zenoh_session.session_from_args(args) as session:
+        summary = run_mission(session, scenario, Path(args.out), config, settings)
+    print(json.dumps({k: summary[k] for k in ("reason", "dwell_points", "mission_time_s", "estimate")},
+                     default=float))
+    return 0

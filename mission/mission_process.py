@@ -1,0 +1,297 @@
+"""The mission process: MAVSDK client + zenoh subscriber + search brain + flight recorder.
+
+Flow: connect to the autopilot (MAVSDK, ``udpin://0.0.0.0:14540`` by default), wait until healthy, arm,
+take off, then loop: ask the brain for a plan, upload it as a raw mission (path waypoints, then the dwell
+point as a waypoint holding for the longest dwell allowed), wait until the estimated pose has settled at
+the dwell point, feed the histograms to the dwell controller until it has counted enough, end the hold
+(``end_dwell``: advance the current item), hand the dwell to the brain, repeat. When the brain stops,
+return to launch and land. Every histogram received is recorded with the estimated pose at its mid-time.
+
+Only estimated poses (``pose``) and histograms reach this process; it never subscribes to ``sim/``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from mission.client.action import ActionFailed, Actions
+from mission.client.connection import connect, wait_healthy
+from mission.client.mission_upload import DwellPoint, MissionControl
+from mission.client.telemetry import TelemetryWatch
+from mission.recorder import FlightRecorder, PoseHistory
+from mission.search import Decision, Phase, SearchBrain, SearchConfig
+from radseek import topics
+from radseek.dataset import COLUMNS, Frames, Scenario
+
+ARRIVE_RADIUS_M = 0.12
+ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
+
+
+@dataclass
+class MissionSettings:
+    url: str = "udpin://0.0.0.0:14540"
+    vehicle: str = topics.DEFAULT_VEHICLE
+    seed: int = 0
+    connect_timeout_s: float = 60.0
+    leg_timeout_s: float = 120.0  # wall s to reach a dwell point before giving up on it
+
+
+async def _in_air(tel: TelemetryWatch) -> bool:
+    async for v in tel._tel.subscribe_in_air():
+        return bool(v)
+    return False
+
+
+class _Stream:
+    """Thread-safe bridge from zenoh callbacks to the asyncio loop: poses into a history, histograms
+    into a queue (every one is also recorded at once, so nothing received is lost)."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, recorder: FlightRecorder):
+        self.loop = loop
+        self.recorder = recorder
+        self.poses = PoseHistory(keep_s=120.0)
+        self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
+        self.lock = threading.Lock()
+        self.dwell_index = -1
+        self.rows: list[np.ndarray] = []
+        self.bad_payloads = 0
+        self.latest_pose: topics.Pose | None = None
+
+    def on_pose(self, sample: zenoh.Sample) -> None:
+        try:
+            pose = topics.Pose.from_bytes(sample.payload.to_bytes())
+        except topics.PayloadError:
+            self.bad_payloads += 1
+            return
+        with self.lock:
+            self.poses.add(pose)
+            self.latest_pose = pose
+
+    def on_histogram(self, sample: zenoh.Sample) -> None:
+        try:
+            hist = topics.Histogram.from_bytes(sample.payload.to_bytes())
+        except topics.PayloadError:
+            self.bad_payloads += 1
+            return
+        with self.lock:
+            pose = self.poses.at(hist.t - hist.duration / 2)
+            usable = self.recorder.record(hist, pose, self.dwell_index)
+            if usable and pose is not None:
+                self.rows.append(np.r_[hist.t, hist.duration, pose.x, pose.y, pose.z, pose.yaw, pose.var_x,
+                                       pose.var_y, pose.var_z, self.dwell_index, hist.counts])
+        self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
+
+    def frames(self) -> Frames:
+        with self.lock:
+            return Frames.from_rows(np.array(self.rows).reshape(-1, len(COLUMNS)))
+
+    def pose(self) -> topics.Pose | None:
+        with self.lock:
+            return self.latest_pose
+
+
+class MissionRunner:
+    def __init__(self, session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig,
+                 settings: MissionSettings):
+        self.session = session
+        self.scenario = scenario
+        self.out = Path(out)
+        self.config = config
+        self.settings = settings
+        self.brain = SearchBrain(scenario, config, seed=settings.seed)
+        v = settings.vehicle
+        self._state_pub = session.declare_publisher(topics.key(topics.MISSION_STATE, v))
+        self._est_pub = session.declare_publisher(topics.key(topics.ESTIMATE, v))
+        self._plan_pub = session.declare_publisher(topics.key(topics.PLAN, v))
+        self.log: list[dict] = []
+        self.t_start: float | None = None
+        self.battery = math.nan
+
+    async def _watch(self, tel: TelemetryWatch, stream: _Stream) -> None:
+        """Background: keep the battery level and log every STATUSTEXT (failsafes say why here)."""
+
+        async def battery() -> None:
+            async for b in tel._tel.subscribe_battery():
+                self.battery = float(b.remaining_percent) / (100.0 if b.remaining_percent > 1.0 else 1.0)
+
+        async def texts() -> None:
+            async for severity, text in tel.status_texts():
+                self._event(stream, "statustext", severity=severity, text=text)
+
+        await asyncio.gather(battery(), texts())
+
+    # ------------------------------------------------------------------------------ publishing
+
+    def _now(self, stream: _Stream) -> float:
+        p = stream.pose()
+        return p.t if p is not None else 0.0
+
+    def publish_state(self, stream: _Stream, phase: str, progress: str) -> None:
+        msg = topics.MissionState(t=self._now(stream), phase=phase, dwell_index=stream.dwell_index,
+                                  battery=1.0 if math.isnan(self.battery) else self.battery, progress=progress)
+        self._state_pub.put(msg.to_bytes())
+
+    def _event(self, stream: _Stream, kind: str, **fields) -> None:
+        entry = {"t": self._now(stream), "event": kind, **fields}
+        self.log.append(entry)
+        with open(self.out / "mission_log.jsonl", "a") as fh:
+            fh.write(json.dumps(entry) + "\n")
+
+    # ------------------------------------------------------------------------------ flying
+
+    async def _arrive(self, stream: _Stream, target: np.ndarray) -> bool:
+        """Wait until the estimated position has stayed within ARRIVE_RADIUS_M of target for
+        ARRIVE_SETTLE_S of sim time."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.settings.leg_timeout_s
+        inside_since: float | None = None
+        while loop.time() < deadline:
+            p = stream.pose()
+            if p is not None:
+                if math.dist((p.x, p.y, p.z), target[:3]) < ARRIVE_RADIUS_M:
+                    inside_since = p.t if inside_since is None else inside_since
+                    if p.t - inside_since >= ARRIVE_SETTLE_S:
+                        return True
+                else:
+                    inside_since = None
+            await asyncio.sleep(0.01)
+        return False
+
+    async def _dwell(self, stream: _Stream):
+        """Feed histograms that start after arrival to the dwell controller until it is satisfied."""
+        while not stream.queue.empty():  # frames integrated while still moving do not count
+            stream.queue.get_nowait()
+        self.brain.begin_dwell()
+        while True:
+            hist = await stream.queue.get()
+            status = self.brain.on_frame(hist)
+            if status.done:
+                return status
+
+    async def run(self) -> dict:
+        loop = asyncio.get_running_loop()
+        recorder = FlightRecorder(self.out, self.scenario)
+        stream = _Stream(loop, recorder)
+        v = self.settings.vehicle
+        subs = [
+            self.session.declare_subscriber(topics.key(topics.POSE, v), stream.on_pose),
+            self.session.declare_subscriber(topics.key(topics.HISTOGRAM, v), stream.on_histogram),
+        ]
+        wall0 = time.monotonic()
+        try:
+            self.publish_state(stream, "connect", f"waiting for an autopilot on {self.settings.url}")
+            conn = await connect(self.settings.url, self.settings.connect_timeout_s)
+            home = await wait_healthy(conn, self.settings.connect_timeout_s)
+            actions, mission, tel = Actions(conn), MissionControl(conn), TelemetryWatch(conn)
+            watcher = asyncio.create_task(self._watch(tel, stream))
+            self._event(stream, "connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
+            self.publish_state(stream, "connect", "waiting for the detector's histograms")
+            try:
+                await asyncio.wait_for(stream.queue.get(), self.settings.connect_timeout_s)
+            except TimeoutError:
+                raise RuntimeError(f"no detector histograms after {self.settings.connect_timeout_s:g} s "
+                                   f"on {topics.key(topics.HISTOGRAM, v)}") from None
+            self.publish_state(stream, "takeoff", "arming and taking off")
+            await actions.arm()
+            await actions.takeoff(self.config.altitude_m)
+            await tel.wait_in_air(True, 60.0)
+            await tel.wait_position(lambda p: p[2] > self.config.altitude_m - 0.2, 120.0)
+            self.t_start = self._now(stream)
+            current = self._current(stream)
+            decision = self.brain.start(current)
+            while decision.plan is not None:
+                self._publish_plan(stream, decision)
+                plan = decision.plan
+                points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
+                d = plan.dwell_points[0]
+                points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
+                await mission.replace_remaining(points)
+                await mission.start()  # (re)enter AUTO.MISSION at the new first item
+                self.publish_state(stream, decision.phase.value,
+                                   f"flying to dwell point {len(self.brain.history)}: {decision.reason}")
+                if not await self._arrive(stream, d):
+                    self._event(stream, "leg_timeout", target=d.tolist())
+                with stream.lock:
+                    stream.dwell_index = len(self.brain.history)
+                self.publish_state(stream, "dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
+                status = await self._dwell(stream)
+                p = stream.pose()
+                position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
+                self._event(stream, "dwell", index=stream.dwell_index, position=position.tolist(),
+                            **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
+                decision = self.brain.end_dwell(position, status, stream.frames(), self._current(stream))
+                await mission.end_dwell()
+                with stream.lock:
+                    stream.dwell_index = -1
+                if self.brain.estimate is not None:
+                    self._publish_estimate(stream)
+                self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
+                            estimate=self.brain.estimate)
+            self.publish_state(stream, "rtl", f"search done: {decision.reason}")
+            t_done = self._now(stream)
+            try:
+                await actions.return_to_launch()
+            except ActionFailed as exc:
+                # a failsafe (low battery, link loss) may have taken the vehicle home already
+                if await _in_air(tel):
+                    raise
+                self._event(stream, "rtl_refused_on_ground", result=exc.result)
+            await tel.wait_in_air(False, 300.0)
+            t_landed = self._now(stream)
+            watcher.cancel()
+            await conn.close()
+            summary = {
+                "reason": decision.reason,
+                "dwell_points": len(self.brain.history),
+                "search_dwell_points": self.brain.search_dwells,
+                "mission_time_s": t_done - (self.t_start or 0.0),
+                "flight_time_s": t_landed,
+                "wall_time_s": time.monotonic() - wall0,
+                "estimate": self.brain.estimate,
+                "estimates": self.brain.estimates,
+                "frames_received": recorder.received,
+                "frames_recorded": recorder.recorded,
+                "frames_flagged": recorder.flagged,
+                "bad_payloads": stream.bad_payloads,
+            }
+            self.publish_state(stream, "done", summary["reason"])
+            return summary
+        finally:
+            for s in subs:
+                s.undeclare()
+            recorder.close()
+
+    def _current(self, stream: _Stream) -> np.ndarray:
+        p = stream.pose()
+        if p is None:
+            return np.array([0.0, 0.0, self.config.altitude_m, 0.0])
+        return np.array([p.x, p.y, p.z, p.yaw])
+
+    def _publish_plan(self, stream: _Stream, decision: Decision) -> None:
+        assert decision.plan is not None
+        self._plan_pub.put(decision.plan.to_topic(self._now(stream)).to_bytes())
+
+    def _publish_estimate(self, stream: _Stream) -> None:
+        loc = self.brain.localizer
+        if loc is not None:
+            self._est_pub.put(loc.to_estimate(self._now(stream)).to_bytes())
+
+
+def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,
+                settings: MissionSettings | None = None) -> dict:
+    runner = MissionRunner(session, scenario, out, config or SearchConfig(), settings or MissionSettings())
+    summary = asyncio.run(runner.run())
+    (Path(out) / "mission_summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    return summary
+
+
+__all__ = ["MissionRunner", "MissionSettings", "Phase", "run_mission"]

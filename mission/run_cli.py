@@ -1,0 +1,199 @@
+"""``radseek run [SCENE]``: fly a whole search against the mock vehicle and write a report.
+
+Starts the stack as separate processes on loopback — the zenoh router, the mock autopilot (owner of
+the simulation clock and the true pose), the detector emulator (following that clock, reading the
+true pose) and the mission process (MAVSDK client, dwell controller, estimator, planner, recorder) —
+shows live progress, stops when the mission lands, then writes under ``--out``: ``dataset/`` (the
+recorded flight in the dataset format, plus ``truth.json``), ``report.png``, ``summary.json`` and the
+processes' logs. Only this launcher and the detector see the scene's truth; the mission process is
+given the operator's ``scenario.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+
+from radseek import topics
+
+PY = sys.executable
+
+
+def _radseek(*args: str) -> list[str]:
+    return [PY, "-m", "radseek.cli", *args]
+
+
+class Stack:
+    """The processes of one run; each logs to its own file and is stopped on exit."""
+
+    def __init__(self, logs: Path):
+        self.logs = logs
+        self.logs.mkdir(parents=True, exist_ok=True)
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
+        fh = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 (closed with the process)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    def stop(self) -> None:
+        for name in reversed(list(self.procs)):
+            proc = self.procs[name]
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGTERM)
+        for proc in self.procs.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(5)
+
+
+class Progress:
+    """Live one-line display from ``mission/state`` and ``estimate``."""
+
+    def __init__(self, session, vehicle: str, stream=sys.stderr):
+        self.stream = stream
+        self.state: topics.MissionState | None = None
+        self.estimate: topics.Estimate | None = None
+        self.lock = threading.Lock()
+        self._subs = [
+            session.declare_subscriber(topics.key(topics.MISSION_STATE, vehicle), self._on_state),
+            session.declare_subscriber(topics.key(topics.ESTIMATE, vehicle), self._on_estimate),
+        ]
+        self._last = ""
+
+    def _on_state(self, sample) -> None:
+        try:
+            st = topics.MissionState.from_bytes(sample.payload.to_bytes())
+        except topics.PayloadError:
+            return
+        with self.lock:
+            self.state = st
+        self.show()
+
+    def _on_estimate(self, sample) -> None:
+        try:
+            est = topics.Estimate.from_bytes(sample.payload.to_bytes())
+        except topics.PayloadError:
+            return
+        with self.lock:
+            self.estimate = est
+        self.show()
+
+    def show(self) -> None:
+        with self.lock:
+            st, est = self.state, self.estimate
+        if st is None:
+            return
+        line = f"[t={st.t:6.1f}s] {st.phase:<8s} dwell {st.dwell_index:>2d}  battery {100 * st.battery:3.0f}%"
+        if est is not None and est.sources:
+            s = est.sources[0]
+            cov = est.covariance
+            sig = math.sqrt(max(cov[0][0] + cov[1][1], 0.0)) if cov else math.nan
+            line += f"  estimate ({s['x']:.2f}, {s['y']:.2f}) m  {s['cps_at_1m']:.0f} cps@1m  sigma {sig:.2f} m"
+        line += f"  {st.progress}"
+        if line != self._last:
+            self._last = line
+            print(line[:160], file=self.stream, flush=True)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="radseek run", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scene", nargs="?", default=None, help="scene TOML/JSON or bundled name (default: default)")
+    p.add_argument("--out", help="output directory (default runs/<time>-<scene>)")
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument("--speedup", type=float, default=20.0, help="sim seconds per wall second (default 20)")
+    speed.add_argument("--realtime", action="store_true", help="run at real time (--speedup 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of counts, odometry drift and planner (default 0)")
+    p.add_argument("--zenoh-port", type=int, default=7447, help="router port on 127.0.0.1 (default 7447)")
+    p.add_argument("--mavlink-port", type=int, default=14540, help="MAVSDK API port (default 14540)")
+    p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
+    p.add_argument("--vehicle-local-ports", default="14580,18570", help="vehicle's own UDP ports (api,gcs)")
+    p.add_argument("--max-dwells", type=int, default=16, help="dwell budget (default 16)")
+    p.add_argument("--timeout", type=float, default=900.0, help="wall seconds before the run is abandoned")
+    p.add_argument("--vehicle-arg", action="append", default=[], help="extra argument for radseek vehicle")
+    p.add_argument("--detector-arg", action="append", default=[], help="extra argument for radseek detector")
+    p.add_argument("-q", "--quiet", action="store_true", help="no live progress")
+    args = p.parse_args(argv)
+    speedup = 1.0 if args.realtime else args.speedup
+
+    from detector_fw_sim.scene import SceneError, load_scene
+    from radseek.dataset import write_json
+    from radseek.zenoh_session import open_session
+
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as exc:
+        print(f"radseek run: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out or f"runs/{datetime.now():%Y%m%d-%H%M%S}-{scene.name}")
+    out.mkdir(parents=True, exist_ok=True)
+    scenario_file = out / "scenario.json"
+    write_json(scenario_file, scene.scenario().to_dict())
+    scene_file = out / "scene.json"
+    scene_file.write_text(scene.model_dump_json(indent=2))
+    endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
+    api_local, gcs_local = args.vehicle_local_ports.split(",")
+    stack = Stack(out / "logs")
+    print(f"radseek run: scene {scene.name!r}, speed-up {speedup:g}, output {out}", file=sys.stderr)
+    t0 = time.monotonic()
+    try:
+        stack.start("router", _radseek("router", "--listen", endpoint))
+        stack.start("vehicle", _radseek(
+            "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
+            "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
+            "--gcs-local-port", gcs_local, "--max-speed", "1.0", *args.vehicle_arg))
+        stack.start("detector", _radseek(
+            "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
+            "--connect", endpoint, *args.detector_arg))
+        mission = stack.start("mission", _radseek(
+            "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
+            "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
+            "--max-dwells", str(args.max_dwells)))
+        with open_session(connect=endpoint) as session:
+            progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
+            try:
+                while mission.poll() is None:
+                    if time.monotonic() - t0 > args.timeout:
+                        print(f"radseek run: abandoned after {args.timeout:g} s wall", file=sys.stderr)
+                        break
+                    for name, proc in stack.procs.items():
+                        if name != "mission" and proc.poll() is not None:
+                            raise RuntimeError(f"{name} exited with {proc.returncode}: see {out}/logs/{name}.log")
+                    time.sleep(0.2)
+            finally:
+                if progress:
+                    progress.close()
+    except (RuntimeError, TimeoutError) as exc:
+        print(f"radseek run: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        stack.stop()
+    wall = time.monotonic() - t0
+    if mission.returncode != 0:
+        print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
+        return 1
+    write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
+    from mission.report import write_report
+
+    summary = write_report(out, wall_time_s=wall, speedup=speedup)
+    print(json.dumps({k: summary[k] for k in ("error_m", "dwell_points", "mission_time_s")}, default=float))
+    print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=sys.stderr)
+    return 0
