@@ -7,7 +7,10 @@ multi-start and bounded (MIGRAD), with the per-dwell pose offsets profiled out w
 information, HESSE); ``crlb_`` is the Cramér-Rao bound for the flown poses at the estimate: paper 004
 eq. 5.3-5.7 generalised to the Poisson likelihood and the model's free parameters (J = sum_i grad mu_i
 grad mu_i^T / mu_i), inverted over all free parameters and then restricted to (x, y, z, cps_at_1m) per
-source (so nuisance parameters such as the background are accounted for, not ignored).
+source (so nuisance parameters such as the background are accounted for, not ignored). That bound takes
+the recorded poses as exact; ``crlb_pose_`` (same layout) also treats each dwell's pose offset as a
+nuisance with the dataset's reported variance (:func:`pose_aware_crlb`), which is the bound an estimator
+using uncertain poses can actually reach.
 
 A ``second_source`` effect gives a second entry in ``sources_``. ``fixed`` pins parameters at given
 values (e.g. ``{"dead_time.tau_s": 1.2e-5}`` for a calibrated detector).
@@ -23,7 +26,7 @@ import numpy as np
 from estimator.localizers.base import Localizer, source_dict
 from radseek.dataset import Frames, Scenario
 
-__all__ = ["MaximumLikelihood", "source_param_names"]
+__all__ = ["MaximumLikelihood", "source_param_names", "pose_aware_crlb"]
 
 SOURCE_KEYS = ("x", "y", "z", "cps_at_1m")
 
@@ -46,6 +49,41 @@ def _embed(mat: np.ndarray, names: list[str], per_source: list[list[str]]) -> np
         for b, pb in idx:
             out[a, b] = mat[pa, pb]
     return out
+
+
+def pose_aware_crlb(model, theta: dict[str, float], frames: Frames, step_m: float = 1e-3) -> np.ndarray:
+    """CRLB of the free parameters when every dwell's pose offset is an unknown with its reported prior.
+
+    The Poisson CRLB (:func:`estimator.mle.crlb`) assumes the recorded poses are exact. With per-dwell offsets
+    delta_g ~ N(0, diag(var)) as nuisance parameters (as :func:`estimator.mle.fit` models them), the hybrid
+    information is [[J_tt, J_td], [J_dt, J_dd + Sigma^-1]] and the bound on theta is the inverse of its Schur
+    complement J_tt - sum_g J_td,g (J_dd,g + Sigma_g^-1)^-1 J_dt,g (one 3 x 3 block per dwell/transit run).
+    """
+    from estimator.mle import PoseGroups, expected_count_gradient
+
+    full = {**model.defaults(), **theta}
+    mu = np.maximum(model.expected_counts(full, frames), 1e-12)
+    gt = expected_count_gradient(model, full, frames)  # (N, k)
+    gd = np.empty((len(frames), 3))
+    for a in range(3):
+        shift = np.zeros((len(frames), 3))
+        shift[:, a] = step_m
+        up = model.expected_counts(full, frames, offsets=shift)
+        dn = model.expected_counts(full, frames, offsets=-shift)
+        gd[:, a] = (up - dn) / (2 * step_m)
+    j = (gt / mu[:, None]).T @ gt
+    groups = PoseGroups.from_frames(frames)
+    for g in range(groups.n_groups):
+        var = groups.variance[g]
+        active = var > 1e-12
+        if not active.any():
+            continue
+        m = groups.index == g
+        a_ = gd[m][:, active]
+        jdd = (a_ / mu[m, None]).T @ a_ + np.diag(1.0 / var[active])
+        jtd = (gt[m] / mu[m, None]).T @ a_
+        j -= jtd @ np.linalg.solve(jdd, jtd.T)
+    return np.linalg.pinv(j)
 
 
 class MaximumLikelihood(Localizer):
@@ -84,10 +122,13 @@ class MaximumLikelihood(Localizer):
         self.covariance_ = _embed(np.asarray(res.covariance, dtype=float), res.free_names, per_source)
         self.background_ = float(res.values["background_cps"])
         self.crlb_ = None
+        self.crlb_pose_ = None
         if self.compute_crlb:
             c = crlb(model, res.values, frames)
             self.crlb_ = _embed(c, model.free_names, per_source)
             self.crlb_full_ = c
+            if self.pose_uncertainty and np.any(frames.pose_variances > 0):
+                self.crlb_pose_ = _embed(pose_aware_crlb(model, res.values, frames), model.free_names, per_source)
         self.info_: dict[str, Any] = {
             "effects": list(model.effects),
             "values": res.values,
