@@ -65,3 +65,18 @@ def test_registry_and_sklearn_contract():
         make_localizer("mle").set_params(bogus=1)
     with pytest.raises(TypeError, match="scenario"):
         make_localizer("mle").fit(lattice_flight(0).frames)
+
+
+def test_pose_aware_crlb_reduces_to_poisson_crlb_and_grows_with_pose_variance():
+    from estimator.localizers.mle import pose_aware_crlb
+    from estimator.mle import crlb
+    from estimator.model import MeasurementModel
+
+    src = (4.3, 3.7, 0.0, 1600.0)
+    theta = {"x": 4.3, "y": 3.7, "cps_at_1m": 1600.0, "background_cps": 30.0}
+    exact = dwell_frames(lattice_points((4.3, 3.7)), [src], 30.0, dwell_s=10.0, exact=True)
+    noisy = dwell_frames(lattice_points((4.3, 3.7)), [src], 30.0, dwell_s=10.0, exact=True, pose_sd=0.04)
+    model = MeasurementModel(scenario_for())
+    np.testing.assert_allclose(pose_aware_crlb(model, theta, exact), crlb(model, theta, exact), rtol=1e-6)
+    c0, c1 = crlb(model, theta, noisy), pose_aware_crlb(model, theta, noisy)
+    assert np.all(np.diag(c1) >= np.diag(c0)) and c1[0, 0] > 1.5 * c0[0, 0]

@@ -9,8 +9,9 @@
   ``sources_`` (list of ``{"x", "y", "z", "cps_at_1m"}``), ``covariance_`` (row-major over
   (x, y, z, cps_at_1m) per source, as in :class:`radseek.topics.Estimate`), ``background_`` (cps),
   ``crlb_`` (same layout as ``covariance_``, or None when the method has no bound).
-- ``partial_fit(frames, scenario=None)`` feeds more frames of the same flight. The sequential filters
-  (``pf``, ``multi-pf``) update in place; batch methods refit on everything seen so far.
+- ``partial_fit(frames, scenario=None)`` feeds more frames of the same flight. The sequential filter
+  (``pf``: also ``update(position, counts, duration)`` per measurement) updates in place; the others refit
+  on everything seen so far (``multi-pf`` recomputes every particle's eq. 3.11 intensity from all data anyway).
 
 Localizers get the operator's knowledge (``Scenario``) and the frames, never the truth: the
 isolation RadInterAct-style benchmarks rely on.

@@ -72,8 +72,7 @@ def separate_intensities(positions: np.ndarray, apparent: np.ndarray, background
 class MultiSourceParticleFilter(Localizer):
     """Paper 004 multi-source particle filter (see module docstring)."""
 
-    name = "multi-pf"
-    sequential = True
+    name = "multi-pf"  # partial_fit refits: every new dwell changes all particles' eq. 3.11 intensities
 
     def __init__(self, n_particles: int = 5000, max_sources: int = 2, detect_sigma: float = 8.0,
                  resample_fraction: float = 0.3, jitter_start: float = 0.5, jitter_end: float = 0.05,
