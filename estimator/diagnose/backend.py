@@ -1,0 +1,92 @@
+"""The measurement model diagnose fits: the estimator's composable model, or the local stand-in.
+
+``estimator.model`` / ``estimator.mle`` are the project's model and Poisson maximum-likelihood fit. If they are
+missing (an older checkout) diagnose falls back to ``estimator.diagnose.standin``, which has the same API.
+``gain_drift`` is never part of the count model: total counts barely change when the gain drifts, so it lives
+in ``estimator.spectral`` and its likelihood is a separate factor.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from radseek.dataset import EFFECTS, Frames, Scenario
+
+SPECTRAL_EFFECTS = ("gain_drift",)
+
+
+def load_backend(prefer: str = "auto") -> tuple[Any, Callable[..., Any], str]:
+    if prefer != "standin":
+        try:
+            from estimator.mle import fit
+            from estimator.model import MeasurementModel
+
+            return MeasurementModel, fit, "estimator.model"
+        except ImportError:
+            if prefer == "estimator":
+                raise
+    from estimator.diagnose.standin import MeasurementModel, fit
+
+    return MeasurementModel, fit, "stand-in"
+
+
+def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(count-model effects, spectral effects), in vocabulary order, duplicates removed."""
+    effects = list(dict.fromkeys(effects))
+    for e in effects:
+        if e not in EFFECTS:
+            raise ValueError(f"unknown effect {e!r}; known: {', '.join(EFFECTS)}")
+    count = tuple(e for e in EFFECTS if e in effects and e not in SPECTRAL_EFFECTS)
+    spec = tuple(e for e in EFFECTS if e in effects and e in SPECTRAL_EFFECTS)
+    return count, spec
+
+
+def progress(msg: str, quiet: bool = False) -> None:
+    if not quiet:
+        print(f"[diagnose {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+@dataclass
+class CountFitter:
+    """Fits count models by effect set (cached), with pose uncertainty, reporting progress on stderr."""
+
+    scenario: Scenario
+    frames: Frames
+    n_starts: int = 8
+    seed: int = 0
+    quiet: bool = False
+    prefer: str = "auto"
+
+    def __post_init__(self) -> None:
+        self.model_cls, self._fit, self.backend = load_backend(self.prefer)
+        self._cache: dict[tuple[str, ...], Any] = {}
+
+    def model(self, effects: tuple[str, ...]) -> Any:
+        return self.model_cls(self.scenario, effects=tuple(effects))
+
+    def fit(self, effects: tuple[str, ...], init: dict[str, float] | None = None, n_starts: int | None = None,
+            label: str = "", cache: bool = True) -> Any:
+        """Fit the model with ``effects``; the best fit per effect set is kept and returned next time."""
+        key = tuple(e for e in EFFECTS if e in effects)
+        if cache and key in self._cache:
+            return self._cache[key]
+        t0 = time.perf_counter()
+        model = self.model(key)
+        names = set(model.param_names)
+        init = {k: float(v) for k, v in (init or {}).items() if k in names}
+        res = self._fit(model, self.frames, n_starts=n_starts or self.n_starts, seed=self.seed,
+                        pose_uncertainty=True, init=init or None)
+        progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
+                 f"({time.perf_counter() - t0:.1f} s)", self.quiet)
+        if key not in self._cache or res.nll < self._cache[key].nll:
+            self._cache[key] = res
+        return res
+
+
+def describe(effects: Iterable[str]) -> str:
+    effects = list(effects)
+    return "baseline" + "".join(f" + {e}" for e in effects)

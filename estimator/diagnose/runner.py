@@ -1,0 +1,188 @@
+"""The diagnose loop: fit the current model, compare with the data, find what is missing, add it, compare again.
+
+Everything here reads the dataset's frames and scenario only; ``truth`` (when the dataset has one) is used for
+one thing, the source error in the report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from estimator.diagnose.backend import SPECTRAL_EFFECTS, CountFitter, describe, progress, split_effects
+from estimator.diagnose.explain import feature_of
+from estimator.diagnose.features import Features, compute_features
+from estimator.diagnose.residuals import GoodnessOfFit, Trend, aggregate, goodness_of_fit, pearson, segments, trend
+from estimator.diagnose.selection import Selection, forward_select
+from estimator.spectral import SpectralFit, SpectralModel
+from radseek.dataset import Dataset, Truth
+
+SPECTRAL_FEATURE = "spectral channel over time"
+
+
+@dataclass
+class ModelReport:
+    """One fitted model with its comparison to the measurements."""
+
+    effects: tuple[str, ...]  # count effects + spectral effects
+    fit: Any
+    gof: GoodnessOfFit  # per frame
+    gof_segments: GoodnessOfFit  # per dwell / 1 s transit segment
+    features: Features
+    trends: dict[str, Trend]
+    segment_labels: np.ndarray
+    segment_pearson: np.ndarray
+    residual_rms: float  # RMS of per-segment Pearson residuals (1 if the model is right)
+    spectral: SpectralFit | None
+    spectral_dev_per_dof: float
+    sources: list[dict[str, float]]
+    source_error_m: float | None
+    effect_params: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def frame_pearson(self) -> np.ndarray:
+        return pearson(self.n, self.fit.expected)
+
+    @property
+    def n(self) -> np.ndarray:
+        return self.features.extra_counts  # type: ignore[attr-defined]
+
+
+def sources_of(fit: Any) -> list[dict[str, float]]:
+    v = fit.values
+    out = [{"x": float(v["x"]), "y": float(v["y"]), "z": float(v.get("z", 0.0)), "cps_at_1m": float(v["cps_at_1m"])}]
+    if "second_source.x" in v:
+        out.append({"x": float(v["second_source.x"]), "y": float(v["second_source.y"]),
+                    "z": float(v.get("second_source.z", 0.0)), "cps_at_1m": float(v["second_source.cps_at_1m"])})
+    return out
+
+
+def source_error(sources: list[dict[str, float]], truth: Truth | None) -> float | None:
+    """3-D distance from the fitted primary source to the nearest true source (truth.json, reporting only)."""
+    if truth is None or not truth.sources:
+        return None
+    p = np.array([sources[0]["x"], sources[0]["y"], sources[0]["z"]])
+    return float(min(np.linalg.norm(p - s.position) for s in truth.all_sources()))
+
+
+def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralFit | None, n_bins: int = 8
+            ) -> ModelReport:
+    f = ds.frames
+    n = f.total_counts.astype(float)
+    mu = np.asarray(fit.expected, dtype=float)
+    k = len(fit.free_names)
+    gof = goodness_of_fit(n, mu, k)
+    lab = segments(f, transit_s=1.0)
+    sn, smu = aggregate(lab, n, mu)
+    gof_seg = goodness_of_fit(sn, smu, k)
+    seg_p = pearson(sn, smu)
+    src = sources_of(fit)
+    feats = compute_features(f, ds.scenario, np.array([src[0]["x"], src[0]["y"], src[0]["z"]]), mu)
+    object.__setattr__(feats, "extra_counts", n)
+    trends = {}
+    for name, values in feats.scalar_features().items():
+        if name in ("x", "y"):
+            continue
+        if name.startswith("wall") and not np.any(values > 0):
+            continue
+        tr = trend(name, values, n, mu, n_bins=n_bins, log=name in ("count rate", "distance"))
+        if tr is not None:
+            trends[name] = tr
+    spec_dev = float("nan")
+    if spectral is not None:
+        spec_dev = spectral.deviance_per_dof if "gain_drift" in effects else spectral.deviance_per_dof_null
+    params = {nm: (float(fit.values[nm]), float(fit.errors.get(nm, float("nan"))))
+              for nm in fit.free_names if "." in nm}
+    if "gain_drift" in effects and spectral is not None:
+        params["gain_drift.percent_per_min"] = (spectral.percent_per_min, spectral.error)
+    return ModelReport(effects, fit, gof, gof_seg, feats, trends, lab, seg_p, float(np.sqrt(np.mean(seg_p**2))),
+                       spectral, spec_dev, src, source_error(src, ds.truth), params)
+
+
+def position_trend(rep: ModelReport) -> tuple[float, int]:
+    """chi2 and dof of the per-dwell residuals (the residual map): the position feature."""
+    g = rep.gof_segments
+    return g.deviance, g.dof
+
+
+def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> str:
+    """The residual feature whose trend the effect removed most (chi2 drop), with the expected one first."""
+    if effect in SPECTRAL_EFFECTS:
+        return SPECTRAL_FEATURE
+    drops = {}
+    for name, tb in before.trends.items():
+        ta = after.trends.get(name)
+        if ta is not None:
+            drops[name] = tb.chi2 - ta.chi2
+    # position: the residual map (per-segment deviance)
+    drops["position"] = (before.gof_segments.deviance - after.gof_segments.deviance) / 4.0
+    if not drops:
+        return feature_of(effect)
+    best = max(drops, key=lambda k: drops[k])
+    expected = [k for k in drops if k.startswith(feature_of(effect)) or
+                (feature_of(effect) == "x" and k == "position")]
+    exp_best = max(expected, key=lambda k: drops[k]) if expected else None
+    # name the feature the physics predicts when it takes at least half of the largest improvement
+    if exp_best is not None and drops[exp_best] > 0 and drops[exp_best] >= 0.5 * drops[best]:
+        return exp_best
+    return best if drops[best] > 0 else feature_of(effect)
+
+
+@dataclass
+class Diagnosis:
+    dataset: Dataset
+    backend: str
+    alpha: float
+    current: ModelReport
+    selection: Selection
+    added: tuple[str, ...]  # --add effects (empty if none)
+    after: ModelReport | None  # model with --add effects, else with the selected missing effects (or None)
+    after_selection: Selection | None  # what is still missing after --add
+    spectral: SpectralFit | None
+
+
+def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = (), alpha: float = 0.01,
+             n_starts: int = 8, seed: int = 0, quiet: bool = False, prefer: str = "auto") -> Diagnosis:
+    count, spec = split_effects(model)
+    add_count, add_spec = split_effects(add)
+    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet, prefer=prefer)
+    progress(f"{ds.name}: {len(ds.frames)} frames, backend {fitter.backend}; fitting {describe((*count, *spec))}",
+             quiet)
+    sm = SpectralModel(ds.scenario.channel_edges_keV)
+    cache: dict[str, SpectralFit] = {}
+
+    def spectral_fit() -> SpectralFit:
+        if "fit" not in cache:
+            cache["fit"] = sm.fit(ds.frames)
+        return cache["fit"]
+
+    base = fitter.fit(count)
+    spectral = spectral_fit() if spec or add_spec else None
+    current = analyse(ds, (*count, *spec), base, spectral)
+    sel = forward_select(fitter, spectral_fit, (*count, *spec), alpha=alpha, quiet=quiet)
+    spectral = cache.get("fit", spectral)
+    if spectral is not None:
+        current = analyse(ds, (*count, *spec), base, spectral)
+    # which residual feature each first-step candidate explains
+    for step in sel.steps:
+        ref = analyse(ds, step.effects, fitter.fit(tuple(e for e in step.effects if e not in SPECTRAL_EFFECTS)),
+                      spectral)
+        for c in step.candidates:
+            if c.effect in SPECTRAL_EFFECTS:
+                c.explains = SPECTRAL_FEATURE
+            else:
+                c.explains = explained_feature(ref, analyse(ds, (*step.effects, c.effect), c.fit, spectral), c.effect)
+    added = tuple(add)
+    after = None
+    after_sel = None
+    target = list(dict.fromkeys((*count, *spec, *add_count, *add_spec))) if add else [*count, *spec, *sel.missing]
+    if add or sel.missing:
+        tc, ts = split_effects(target)
+        progress(f"refitting with {describe((*tc, *ts))}", quiet)
+        after_fit = fitter.fit(tc, init=dict(base.values))
+        after = analyse(ds, (*tc, *ts), after_fit, spectral)
+        if add:
+            after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
+    return Diagnosis(ds, fitter.backend, alpha, current, sel, added, after, after_sel, spectral)

@@ -1,0 +1,213 @@
+"""Which effect is missing: forward selection over the effect vocabulary by likelihood-ratio evidence.
+
+At each step every effect not yet in the model is added in turn to the *current* model (effects interact,
+so candidates are tested conditional on what is already in), each extended model is fitted by Poisson
+maximum likelihood with pose uncertainty, and the likelihood-ratio statistic LR = 2 (nll_current - nll_ext)
+is turned into a p-value with the null distribution that is right for that effect:
+
+- ``dead_time``, ``wall_attenuation``, ``air_attenuation``: one parameter on its boundary (>= 0) under the null,
+  so LR ~ 1/2 chi2_0 + 1/2 chi2_1 (chi-bar-square, Self & Liang 1987): p = 1/2 P(chi2_1 > LR).
+- ``anisotropy``: the fraction is on its boundary and the half-angle is not identified when the fraction is 0
+  (Davies' problem). Conservative: Bonferroni over the ~``ANISO_LOOKS`` distinguishable half-angles
+  (5-90 deg at the 4 deg edge width -> 10), p = min(1, 10 * 1/2 P(chi2_1 > LR)).
+- ``second_source``: the strength is on its boundary and the location is not identified under the null
+  (Davies). Conservative: Bonferroni over the number of distinguishable locations, the search area divided
+  by the squared median detector height above the floor (the width of one source's count-rate hill),
+  p = min(1, M * 1/2 P(chi2_1 > LR)).
+- ``background_gradient``, ``pose_drift``: two unbounded parameters, chi2_2. ``gain_drift``: chi2_1 (spectral
+  likelihood, ``estimator.spectral``).
+
+Several candidates are tested per step, so a candidate is significant when p < alpha / (number of candidates)
+(Bonferroni). Candidates are ranked by this p-value (ties by delta-AIC = AIC_ext - AIC_current, negative
+favours the effect); the best significant one is added and the search repeats, so a second missing effect is
+still found after the first is in. When no candidate is significant the model is called adequate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from estimator.diagnose.backend import SPECTRAL_EFFECTS, CountFitter, progress
+from estimator.diagnose.residuals import aggregate, group_mean, pearson, segments
+from radseek.dataset import EFFECTS, Frames, Scenario
+
+ANISO_LOOKS = 10
+BOUNDARY_ONE = ("dead_time", "wall_attenuation", "air_attenuation")
+
+
+def second_source_looks(scenario: Scenario, frames: Frames) -> int:
+    """Distinguishable second-source locations: search area / (median height above the floor)^2."""
+    area = float(np.prod(np.maximum(scenario.bounds_max[:2] - scenario.bounds_min[:2], 0.1)))
+    h = max(float(np.median(frames.z)) - scenario.source_z, 0.5)
+    return int(np.clip(math.ceil(area / h**2), 4, 5000))
+
+
+def null_log10_p(effect: str, lr: float, k: int, scenario: Scenario, frames: Frames) -> tuple[float, str]:
+    """log10 p-value of LR under the effect's null, and the null's name."""
+    lr = max(float(lr), 0.0)
+    ln10 = math.log(10)
+    if effect in BOUNDARY_ONE:
+        if lr <= 0:
+            return 0.0, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
+        return (math.log(0.5) + stats.chi2.logsf(lr, 1)) / ln10, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
+    if effect in ("anisotropy", "second_source"):
+        looks = ANISO_LOOKS if effect == "anisotropy" else second_source_looks(scenario, frames)
+        name = (f"Bonferroni over {looks} {'half-angles' if effect == 'anisotropy' else 'locations'} x "
+                "(1/2 chi2_0 + 1/2 chi2_1) (Davies: nuisance not identified under the null)")
+        if lr <= 0:
+            return 0.0, name
+        return min(0.0, (math.log(0.5 * looks) + stats.chi2.logsf(lr, 1)) / ln10), name
+    dof = max(k, 1)
+    return stats.chi2.logsf(lr, dof) / ln10, f"chi2_{dof}"
+
+
+@dataclass
+class Candidate:
+    effect: str
+    lr: float
+    n_params: int
+    delta_aic: float
+    log10_p: float
+    null: str
+    params: dict[str, float]
+    errors: dict[str, float]
+    significant: bool = False
+    threshold: float = 0.0  # alpha / number of candidates
+    explains: str = ""  # the residual feature whose trend this effect removes (filled by the runner)
+    fit: Any = field(default=None, repr=False)
+
+    @property
+    def p_value(self) -> float:
+        return 10.0**self.log10_p
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "effect": self.effect,
+            "delta_aic": round(float(self.delta_aic), 3),
+            "lr": round(float(self.lr), 3),
+            "n_params": self.n_params,
+            "p_value": float(self.p_value),
+            "log10_p": round(float(self.log10_p), 3),
+            "null_distribution": self.null,
+            "significant": bool(self.significant),
+            "explains": self.explains,
+            "params": {k: float(v) for k, v in self.params.items()},
+            "errors": {k: float(v) for k, v in self.errors.items()},
+        }
+
+
+@dataclass
+class Step:
+    effects: tuple[str, ...]  # the model the candidates extend
+    candidates: list[Candidate]  # ranked, best first
+    chosen: str | None
+
+
+@dataclass
+class Selection:
+    steps: list[Step]
+    missing: list[str]
+    alpha: float
+
+    @property
+    def first(self) -> list[Candidate]:
+        return self.steps[0].candidates if self.steps else []
+
+
+def excess_seed(frames: Frames, expected: np.ndarray, scenario: Scenario, exclude_xy: np.ndarray | None = None
+                ) -> dict[str, float]:
+    """Start values for a second source at the segment with the largest count excess over the current fit."""
+    lab = segments(frames, transit_s=1.0)
+    n, mu, dur = aggregate(lab, frames.total_counts, expected, frames.duration)
+    x, y, z = (group_mean(lab, v) for v in (frames.x, frames.y, frames.z))
+    score = pearson(n, mu)
+    if exclude_xy is not None:
+        far = np.hypot(x - exclude_xy[0], y - exclude_xy[1]) > 1.0
+        score = np.where(far, score, -np.inf) if far.any() else score
+    i = int(np.argmax(score))
+    h = max(z[i] - scenario.source_z, 0.3)
+    lo, hi = scenario.bounds_min, scenario.bounds_max
+    return {
+        "second_source.x": float(np.clip(x[i], lo[0], hi[0])),
+        "second_source.y": float(np.clip(y[i], lo[1], hi[1])),
+        "second_source.cps_at_1m": float(max((n[i] - mu[i]) / dur[i], 1.0) * h**2),
+    }
+
+
+def _new_params(ext: Any, cur: Any) -> tuple[dict[str, float], dict[str, float], int]:
+    names = [nm for nm in ext.free_names if nm not in set(cur.free_names)]
+    return ({nm: float(ext.values[nm]) for nm in names}, {nm: float(ext.errors.get(nm, float("nan"))) for nm in names},
+            len(names))
+
+
+def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: tuple[str, ...],
+                   alpha: float = 0.01, max_steps: int = 4, quiet: bool = False) -> Selection:
+    """Forward selection from the effects ``start`` (count effects plus possibly ``gain_drift``).
+
+    ``spectral_fit()`` returns the ``estimator.spectral.SpectralFit`` (with drift profiled), computed lazily.
+    """
+    scenario, frames = fitter.scenario, fitter.frames
+    count = tuple(e for e in start if e not in SPECTRAL_EFFECTS)
+    spec = tuple(e for e in start if e in SPECTRAL_EFFECTS)
+    steps: list[Step] = []
+    missing: list[str] = []
+    for _ in range(max_steps):
+        cur = fitter.fit(count)
+        todo = [e for e in EFFECTS if e not in count and e not in spec]
+        if not scenario.walls:
+            todo = [e for e in todo if e != "wall_attenuation"]
+        if not todo:
+            break
+        cands: list[Candidate] = []
+        for e in todo:
+            if e in SPECTRAL_EFFECTS:
+                progress("testing gain_drift (spectral model, 32 channels)", quiet)
+                sf = spectral_fit()
+                lp, null = null_log10_p(e, sf.lr, 1, scenario, frames)
+                cands.append(Candidate(e, sf.lr, 1, 2 - sf.lr, lp, null, {"gain_drift.percent_per_min":
+                                       sf.percent_per_min}, {"gain_drift.percent_per_min": sf.error}, fit=sf))
+                continue
+            # start from the current optimum (the effect at its default); a second source also gets starts
+            # from the grid cells that best explain what the current model leaves (and one at the largest
+            # residual excess), since its location is not identified by the current fit
+            init = dict(cur.values)
+            ext = fitter.fit((*count, e), init=init, n_starts=1, label=f"{'+'.join(count) or 'baseline'} + {e}")
+            if e == "second_source":
+                seed = dict(init, **excess_seed(frames, cur.expected, scenario,
+                                                np.array([cur.values["x"], cur.values["y"]])))
+                alt = fitter.fit((*count, e), init=seed, n_starts=1, label=f"{e} (from the residual excess)",
+                                 cache=False)
+                grid = fitter.fit((*count, e), init={k: v for k, v in init.items() if not k.startswith("second")},
+                                  n_starts=2, label=f"{e} (grid starts)", cache=False)
+                ext = min((ext, alt, grid), key=lambda r: r.nll)
+            elif e == "anisotropy":
+                alt = fitter.fit((*count, e), init=dict(init, **{"anisotropy.half_angle_deg": 60.0}), n_starts=1,
+                                 label=f"{e} (wide cone start)", cache=False)
+                ext = min((ext, alt), key=lambda r: r.nll)
+            lr = max(2.0 * (cur.nll - ext.nll), 0.0)
+            params, errors, k = _new_params(ext, cur)
+            lp, null = null_log10_p(e, lr, k, scenario, frames)
+            cands.append(Candidate(e, lr, k, 2 * k - lr, lp, null, params, errors, fit=ext))
+        thr = alpha / len(cands)
+        for c in cands:
+            c.threshold = thr
+            c.significant = c.log10_p < math.log10(thr)
+        cands.sort(key=lambda c: (c.log10_p, c.delta_aic))
+        chosen = cands[0].effect if cands and cands[0].significant else None
+        steps.append(Step((*count, *spec), cands, chosen))
+        if chosen is None:
+            break
+        missing.append(chosen)
+        progress(f"step {len(steps)}: {chosen} is missing (p = {cands[0].p_value:.2g} < {thr:.2g}); searching on",
+                 quiet)
+        if chosen in SPECTRAL_EFFECTS:
+            spec = (*spec, chosen)
+        else:
+            count = tuple(e for e in EFFECTS if e in (*count, chosen))
+    return Selection(steps, missing, alpha)
