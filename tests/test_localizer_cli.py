@@ -71,3 +71,40 @@ def test_compare_writes_plot_and_identical_runs_have_zero_kl(tmp_path, capsys):
     hist = compare_cli.replay(a, n_particles=2000)
     t, kl = compare_cli.kl_curve(hist, hist)
     assert np.allclose(kl, 0.0, atol=1e-9) and len(t) == len(hist)
+
+
+@pytest.fixture(scope="module")
+def simulated_lattice():
+    from detector_fw_sim.scene import load_scene
+    from detector_fw_sim.simulate import simulate_flight
+
+    return simulate_flight(load_scene(), path="lattice", seed=3)
+
+
+SETTINGS = {"pf": {"n_particles": 5000}, "multi-pf": {"n_particles": 1000},
+            "gp": {"n_restarts": 1, "n_posterior_samples": 20}, "mle": {"n_starts": 1}, "sphere": {}}
+
+
+@pytest.mark.parametrize("method", list(SETTINGS))
+def test_every_method_on_a_simulated_flight(method, simulated_lattice):
+    from estimator.localizers import make_localizer
+
+    loc = make_localizer(method, **SETTINGS[method]).fit(simulated_lattice)
+    err = localize_cli.match_errors(loc.sources_, simulated_lattice.truth)[0]
+    assert err["position_error_m"] < (0.5 if method == "gp" else 0.15)
+    assert abs(err["intensity_error_rel"]) < 0.15
+    est = loc.to_estimate(t=1.0)
+    assert est.method == method and len(est.covariance) == 4
+
+
+def test_every_method_on_every_shared_dataset(shared_datasets):
+    from estimator.localizers import make_localizer
+    from radseek.dataset import read_dataset
+
+    fast = {**SETTINGS, "mle": {"n_starts": 1, "pose_uncertainty": False, "compute_crlb": False}}
+    for name in sorted(p.name for p in shared_datasets.iterdir() if (p / "frames.csv").exists()):
+        ds = read_dataset(shared_datasets / name)
+        for method, st in fast.items():
+            loc = make_localizer(method, **st).fit(ds)
+            assert loc.sources_ and all(np.isfinite(list(s.values())).all() for s in loc.sources_), (name, method)
+            assert np.isfinite(loc.covariance_).all(), (name, method)
