@@ -108,3 +108,23 @@ def test_every_method_on_every_shared_dataset(shared_datasets):
             loc = make_localizer(method, **st).fit(ds)
             assert loc.sources_ and all(np.isfinite(list(s.values())).all() for s in loc.sources_), (name, method)
             assert np.isfinite(loc.covariance_).all(), (name, method)
+
+
+def test_nan_pose_and_negative_counts_are_rejected_with_row_and_column(tmp_path, capsys):
+    ds = lattice_flight(0)
+    path = write_dataset(tmp_path / "bad", ds.frames, ds.scenario)
+    lines = (path / "frames.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[5].split(",")
+    row[header.index("x")] = "nan"
+    lines[5] = ",".join(row)
+    (path / "frames.csv").write_text("\n".join(lines) + "\n")
+    assert localize_cli.main([str(path), "--method", "sphere"]) == 2
+    err = capsys.readouterr().err
+    assert "frames.csv" in err and "row 6" in err and "'x'" in err
+    row[header.index("x")] = "1.0"
+    row[header.index("c03")] = "-4"
+    lines[5] = ",".join(row)
+    (path / "frames.csv").write_text("\n".join(lines) + "\n")
+    assert localize_cli.main([str(path), "--method", "sphere"]) == 2
+    assert "'c03'" in capsys.readouterr().err
