@@ -39,15 +39,8 @@ class ModelReport:
     spectral_dev_per_dof: float
     sources: list[dict[str, float]]
     source_error_m: float | None
+    counts: np.ndarray  # (N,) observed total counts per frame
     effect_params: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    @property
-    def frame_pearson(self) -> np.ndarray:
-        return pearson(self.n, self.fit.expected)
-
-    @property
-    def n(self) -> np.ndarray:
-        return self.features.extra_counts  # type: ignore[attr-defined]
 
 
 def sources_of(fit: Any) -> list[dict[str, float]]:
@@ -80,7 +73,6 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     seg_p = pearson(sn, smu)
     src = sources_of(fit)
     feats = compute_features(f, ds.scenario, np.array([src[0]["x"], src[0]["y"], src[0]["z"]]), mu)
-    object.__setattr__(feats, "extra_counts", n)
     trends = {}
     for name, values in feats.scalar_features().items():
         if name in ("x", "y"):
@@ -98,7 +90,7 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     if "gain_drift" in effects and spectral is not None:
         params["gain_drift.percent_per_min"] = (spectral.percent_per_min, spectral.error)
     return ModelReport(effects, fit, gof, gof_seg, feats, trends, lab, seg_p, float(np.sqrt(np.mean(seg_p**2))),
-                       spectral, spec_dev, src, source_error(src, ds.truth), params)
+                       spectral, spec_dev, src, source_error(src, ds.truth), n, params)
 
 
 def position_trend(rep: ModelReport) -> tuple[float, int]:

@@ -1,0 +1,101 @@
+"""``radseek diagnose DATASET``: compare the measurement model with a flight, see where it fails, learn which
+physical effect is missing, add it and watch the error fall.
+
+    radseek diagnose DATASET [--model EFFECT ...] [--add EFFECT ...] [--json] [--out DIR] [--alpha 0.01]
+
+Progress goes to stderr; the report (text, or JSON with --json) to stdout; PNG plots to --out
+(default ./diagnose-<dataset name>/). Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from radseek.dataset import EFFECTS, DatasetError, read_dataset
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="radseek diagnose",
+        description="Fit the measurement model to a dataset, compare with the measurements, find the missing "
+        "physical effect (forward selection by likelihood ratio) and show what adding it changes.",
+    )
+    p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json, optional truth.json)")
+    p.add_argument("--model", nargs="+", action="extend", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help="effects already in the model (default: the baseline, sources + constant background)")
+    p.add_argument("--add", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help="refit with this effect added and show before/after (repeatable)")
+    p.add_argument("--json", action="store_true", help="print a machine-readable JSON report")
+    p.add_argument("--out", type=Path, default=None, help="folder for the PNG plots (default ./diagnose-<name>/)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level for naming an effect (0.01)")
+    p.add_argument("--starts", type=int, default=8, help="multi-start count of the model fit (8)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    return p
+
+
+def _clean(o: Any) -> Any:
+    """JSON-safe: NaN/inf -> None, numpy scalars -> float."""
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    if hasattr(o, "item") and not isinstance(o, str):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if not 0 < args.alpha < 1:
+        print("radseek diagnose: --alpha must be in (0, 1)", file=sys.stderr)
+        return 2
+    try:
+        ds = read_dataset(args.dataset)
+    except DatasetError as exc:
+        print(f"radseek diagnose: {exc}", file=sys.stderr)
+        return 2
+    from estimator.diagnose.backend import progress
+    from estimator.diagnose.report import json_report, text_report
+    from estimator.diagnose.runner import diagnose
+
+    added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
+    d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts, seed=args.seed,
+                 quiet=args.quiet)
+    plots: list[str] = []
+    if not args.no_plots:
+        from estimator.diagnose import plots as P
+
+        out = args.out or Path.cwd() / f"diagnose-{ds.name}"
+        out.mkdir(parents=True, exist_ok=True)
+        progress(f"writing plots to {out}", args.quiet)
+        cur = d.current
+        plots.append(str(P.plot_features(cur, out / "residuals_vs_features.png")))
+        plots.append(str(P.plot_map(cur, out / "residual_map.png", ds.scenario)))
+        if d.spectral is not None:
+            plots.append(str(P.plot_spectral(d.spectral, out / "spectral_residuals.png", null=True)))
+        if d.after is not None:
+            tag = "after" if d.added else "with_missing"
+            a = d.after
+            plots.append(str(P.plot_features(a, out / f"residuals_vs_features_{tag}.png")))
+            plots.append(str(P.plot_map(a, out / f"residual_map_{tag}.png", ds.scenario)))
+            plots.append(str(P.plot_before_after(cur, a, out / f"before_after_{tag}.png")))
+            if "gain_drift" in a.effects and d.spectral is not None:
+                plots.append(str(P.plot_spectral(d.spectral, out / f"spectral_residuals_{tag}.png", null=False)))
+    if args.json:
+        print(json.dumps(_clean(json_report(d, plots)), indent=2))
+    else:
+        print(text_report(d, plots), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
