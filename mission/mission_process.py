@@ -249,6 +249,10 @@ class MissionRunner:
             t_landed = self._now(stream)
             watcher.cancel()
             await conn.close()
+            for sub in subs:  # stop recording before counting, so the summary matches the files
+                sub.undeclare()
+            subs = []
+            recorder.close()
             summary = {
                 "reason": decision.reason,
                 "dwell_points": len(self.brain.history),

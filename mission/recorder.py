@@ -8,7 +8,8 @@ Frames that carry no usable measurement — flagged stale-pose (the emulator had
 published zero counts) or CRC-damaged — are not measurements of the field at any pose, so writing
 them to ``frames.csv`` would make every reader see false zero-count frames. They go, with their flags,
 to ``frames_flagged.csv`` beside it (same columns plus ``flags``); ``frames.csv`` also gains a
-``flags`` column (readers ignore unknown columns). So every received frame is in the dataset, and
+``flags`` and a ``seq`` column (readers ignore unknown columns). So every received frame is in the
+dataset, and
 ``received == rows(frames.csv) + rows(frames_flagged.csv)`` always holds.
 """
 
@@ -79,7 +80,7 @@ class FlightRecorder:
         self.path = Path(path)
         self.path.mkdir(parents=True, exist_ok=True)
         write_json(self.path / "scenario.json", scenario.to_dict())
-        self._frames = FrameWriter(self.path)
+        self._frames = FrameWriter(self.path, extra_columns=("seq", "flags"))
         self._flagged_fh = open(self.path / "frames_flagged.csv", "w", newline="")  # noqa: SIM115
         self._flagged = csv.writer(self._flagged_fh)
         self._flagged.writerow([*COLUMNS, "flags", "seq"])
@@ -99,7 +100,7 @@ class FlightRecorder:
             assert pose is not None
             self._frames.write_frame(
                 hist.t, hist.duration, (pose.x, pose.y, pose.z), pose.yaw, (pose.var_x, pose.var_y, pose.var_z),
-                dwell, hist.counts,
+                dwell, hist.counts, extra=(hist.seq, hist.flags),
             )
             return True
         self.flagged += 1

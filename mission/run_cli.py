@@ -24,6 +24,7 @@ from datetime import datetime
 from pathlib import Path
 
 from radseek import topics
+from radseek.simclock import ZenohClock
 
 PY = sys.executable
 
@@ -46,6 +47,18 @@ class Stack:
         proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         self.procs[name] = proc
         return proc
+
+    def wait_for_line(self, name: str, text: str, timeout_s: float) -> None:
+        """Block until process ``name`` has logged ``text`` (RuntimeError if it exits or times out)."""
+        deadline = time.monotonic() + timeout_s
+        log = self.logs / f"{name}.log"
+        while time.monotonic() < deadline:
+            if text in log.read_text(errors="replace"):
+                return
+            if self.procs[name].poll() is not None:
+                raise RuntimeError(f"{name} exited with {self.procs[name].returncode}: see {log}")
+            time.sleep(0.05)
+        raise RuntimeError(f"{name} did not get ready in {timeout_s:g} s: see {log}")
 
     def stop(self) -> None:
         for name in reversed(list(self.procs)):
@@ -130,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=900.0, help="wall seconds before the run is abandoned")
     p.add_argument("--vehicle-arg", action="append", default=[], help="extra argument for radseek vehicle")
     p.add_argument("--detector-arg", action="append", default=[], help="extra argument for radseek detector")
+    p.add_argument("--kill-detector-at", type=float, metavar="T",
+                   help="fault injection: kill -9 the detector at sim time T and start it again")
     p.add_argument("-q", "--quiet", action="store_true", help="no live progress")
     args = p.parse_args(argv)
     speedup = 1.0 if args.realtime else args.speedup
@@ -156,21 +171,36 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         stack.start("router", _radseek("router", "--listen", endpoint))
+        detector_cmd = _radseek(
+            "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
+            "--connect", endpoint, *args.detector_arg)
+        stack.start("detector", detector_cmd)
+        # the vehicle owns sim time: start it only once the detector has built its response and is
+        # waiting for the clock, so no simulated time passes unmeasured
+        stack.wait_for_line("detector", "waiting for", timeout_s=180.0)
         stack.start("vehicle", _radseek(
             "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
             "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
             "--gcs-local-port", gcs_local, "--max-speed", "1.0", *args.vehicle_arg))
-        stack.start("detector", _radseek(
-            "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
-            "--connect", endpoint, *args.detector_arg))
+
         mission = stack.start("mission", _radseek(
             "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
             "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
             "--max-dwells", str(args.max_dwells)))
         with open_session(connect=endpoint) as session:
             progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
+            clock = ZenohClock(session, topics.DEFAULT_VEHICLE)
+            kill_at = args.kill_detector_at
             try:
                 while mission.poll() is None:
+                    if kill_at is not None and clock.now() >= kill_at:
+                        os.killpg(stack.procs["detector"].pid, signal.SIGKILL)
+                        stack.procs["detector"].wait(10)
+                        print(f"radseek run: fault injected: detector killed at t={clock.now():.1f} s, restarting",
+                              file=sys.stderr)
+                        stack.start("detector-restarted", detector_cmd)
+                        stack.procs["detector"] = stack.procs.pop("detector-restarted")
+                        kill_at = None
                     if time.monotonic() - t0 > args.timeout:
                         print(f"radseek run: abandoned after {args.timeout:g} s wall", file=sys.stderr)
                         break

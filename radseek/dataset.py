@@ -392,14 +392,20 @@ class FrameWriter:
     """Append frames to ``frames.csv`` as they arrive, flushed per row, so a crash loses nothing.
 
     Use as a context manager; ``write_frame`` takes one frame's pose, dwell index and 32 counts.
+    ``extra_columns`` are appended after the standard ones (the format allows added columns; readers
+    ignore them), e.g. the board's ``seq`` and ``flags``; pass their values to ``write_frame(extra=...)``.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, extra_columns: tuple[str, ...] = ()):
         self.path = Path(path)
         self.path.mkdir(parents=True, exist_ok=True)
+        clash = set(extra_columns) & set(COLUMNS)
+        if clash:
+            raise ValueError(f"extra columns {sorted(clash)} would shadow standard ones")
+        self.extra_columns = tuple(extra_columns)
         self._fh = open(self.path / "frames.csv", "w", newline="")  # noqa: SIM115 (closed in close())
         self._csv = csv.writer(self._fh)
-        self._csv.writerow(COLUMNS)
+        self._csv.writerow([*COLUMNS, *self.extra_columns])
         self.rows = 0
 
     def write_frame(
@@ -411,12 +417,15 @@ class FrameWriter:
         variances: tuple[float, float, float],
         dwell: int,
         counts: list[int] | np.ndarray,
+        extra: tuple = (),
     ) -> None:
         counts = np.asarray(counts)
         if counts.shape != (N_CHANNELS,):
             raise ValueError(f"counts must have {N_CHANNELS} channels, got shape {counts.shape}")
+        if len(extra) != len(self.extra_columns):
+            raise ValueError(f"expected values for {self.extra_columns}, got {extra!r}")
         row = np.r_[t, duration, position, yaw, variances, dwell, counts].astype(float)
-        self._csv.writerow(_format_row(row))
+        self._csv.writerow([*_format_row(row), *extra])
         self._fh.flush()
         self.rows += 1
 
