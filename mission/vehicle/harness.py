@@ -66,22 +66,32 @@ class VehicleProcess:
         if "vehicle ready" not in self.banner:
             self.proc.kill()
             raise RuntimeError(f"vehicle did not start: {self.banner}{self.proc.stdout.read()}")
+        self._lines: list[str] = []
+        # drain its output all along: a full pipe would block the vehicle's logging, and so the vehicle
+        self._reader = threading.Thread(target=lambda: self._lines.extend(iter(self.proc.stdout.readline, "")),
+                                        daemon=True)
+        self._reader.start()
         return self
 
     def __exit__(self, *exc) -> None:
         assert self.proc is not None
         self.proc.terminate()
         try:
-            self.output = self.proc.communicate(timeout=10)[0]
+            self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            self.output = self.proc.communicate()[0]
+            self.proc.wait()
+        self._reader.join(5)
+        self.output = "".join(self._lines)
 
 
 class Gcs:
     """A bare pymavlink ground station listening on ``port`` (like QGroundControl on 14550)."""
 
-    def __init__(self, port: int, sysid: int = 255, compid: int = 190, signing_key: bytes | None = None):
+    def __init__(self, port: int, sysid: int = 255, compid: int = 190, signing_key: bytes | None = None,
+                 keepalive: bool = False):
+        self.keepalive = keepalive  # send a 2 Hz HEARTBEAT while polling, like a real GCS
+        self._last_hb = 0.0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.settimeout(0.05)
@@ -105,6 +115,9 @@ class Gcs:
         self.close()
 
     def poll(self, timeout: float = 0.05) -> list:
+        if self.keepalive and self.vehicle_addr is not None and time.monotonic() - self._last_hb > 0.5:
+            self._last_hb = time.monotonic()
+            self.heartbeat()
         self.sock.settimeout(timeout)
         out = []
         try:
