@@ -38,7 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="seed of the odometry drift and fault injection (default 0)")
     s.add_argument("--home", default="47.397742,8.545594,488.0", help="home lat,lon,alt_amsl (default PX4 SITL's)")
     s.add_argument("--bounds", help="geofence xmin,ymin,zmin,xmax,ymax,zmax in local ENU m "
-                                    "(default -500,-500,0,500,500,120)")
+                                    "(write --bounds=-5,... for negative values; "
+                                    "default: from --scene, else -500,-500,0,500,500,120)")
+    s.add_argument("--scene", help="scene (bundled name or TOML/JSON file): its x-y bounds plus a 1 m margin "
+                                   "become the geofence, 0-10 m above its top")
     s.add_argument("--max-speed", type=float, default=3.0, help="horizontal speed limit, m/s (default 3)")
     s.add_argument("--max-accel", type=float, default=2.0, help="acceleration limit, m/s^2 (default 2)")
     s.add_argument("--battery-endurance", type=float, default=1200.0,
@@ -57,6 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def scene_fence(scene: str):
+    """Geofence around a detector scene's bounds (the scene module is the other engineer's seam)."""
+    from detector_fw_sim.scene import load_scene
+    from mission.vehicle.geofence import Geofence
+
+    b = load_scene(scene).bounds
+    return Geofence(b.min[0] - 1.0, b.min[1] - 1.0, 0.0, b.max[0] + 1.0, b.max[1] + 1.0, max(b.max[2], 0.0) + 10.0)
+
+
 def config_from_args(args: argparse.Namespace):
     from mission.vehicle.battery import BatteryParams
     from mission.vehicle.failsafe import FailsafeParams
@@ -68,11 +80,17 @@ def config_from_args(args: argparse.Namespace):
     from mission.vehicle.vehicle import VehicleConfig
 
     lat, lon, alt = (float(v) for v in args.home.split(","))
+    if args.bounds:
+        fence = Geofence.parse(args.bounds)
+    elif args.scene:
+        fence = scene_fence(args.scene)
+    else:
+        fence = Geofence()
     return VehicleConfig(
         bind_host=args.bind, remote_host=args.remote_host, api_port=args.api_port, gcs_port=args.gcs_port,
         api_local_port=args.api_local_port, gcs_local_port=args.gcs_local_port, sysid=args.sysid,
         speedup=args.speedup, dt=args.dt, seed=args.seed, home=Home(lat, lon, alt),
-        fence=Geofence.parse(args.bounds) if args.bounds else Geofence(),
+        fence=fence,
         limits=MotionLimits(max_speed_xy=args.max_speed, max_accel=args.max_accel),
         odometry=OdometryParams(sigma_xy=args.drift, sigma_z=args.drift / 3),
         battery=BatteryParams(hover_endurance_s=args.battery_endurance),
