@@ -76,6 +76,15 @@ def _run(method: str, ds, settings: dict[str, Any]) -> dict[str, Any]:
     if getattr(loc, "crlb_pose_", None) is not None:
         c = np.asarray(loc.crlb_pose_)
         out["crlb_pose_xy"] = (float(c[0, 0]), float(c[1, 1]))
+    elif method == "pf" and np.any(ds.frames.pose_variances > 0):
+        # the same pose-aware bound for the PF, at its estimate, with the baseline model (what the PF assumes)
+        from estimator.localizers.mle import pose_aware_crlb
+        from estimator.model import MeasurementModel
+
+        s = loc.sources_[0]
+        theta = {"x": s["x"], "y": s["y"], "cps_at_1m": s["cps_at_1m"], "background_cps": loc.background_}
+        c = pose_aware_crlb(MeasurementModel(ds.scenario), theta, ds.frames)
+        out["crlb_pose_xy"] = (float(c[0, 0]), float(c[1, 1]))
     out["all_errors"] = match_errors(loc.sources_, ds.truth)
     return out
 
