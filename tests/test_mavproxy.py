@@ -25,7 +25,7 @@ def test_mavproxy_lists_the_uploaded_mission():
     with VehicleProcess(api, gcs_port, ["--speedup", "5"]), Gcs(api) as api_client:
         api_client.wait_vehicle()
         assert api_client.upload(items) == M.MAV_MISSION_ACCEPTED
-        script = "sleep 3; echo 'wp list'; sleep 3; echo 'mode'; sleep 1"
+        script = "sleep 2; echo 'wp list'; sleep 2; echo 'mode'; sleep 0.5"
         proc = subprocess.run(f"({script}) | {exe} --master=udpin:127.0.0.1:{gcs_port} --no-state",
                               shell=True, capture_output=True, text=True, timeout=60)
     out = proc.stdout + proc.stderr

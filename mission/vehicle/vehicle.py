@@ -304,8 +304,9 @@ class Vehicle:
                     self.link.send(M.MAVLink_timesync_message(int(self.t * 1e9), msg.ts1), ep)
             else:
                 self.stats["ignored"] += 1
-        except (ValueError, TypeError, OverflowError, IndexError, AttributeError) as exc:
-            log.warning("%s from %d/%d ignored: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(), exc)
+        except Exception as exc:  # noqa: BLE001 - bad input is ignored and logged, never fatal
+            log.warning("%s from %d/%d ignored: %s: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(),
+                        type(exc).__name__, exc)
 
     def _react_to_mission_change(self) -> None:
         if self.protocol.changed:
@@ -324,13 +325,13 @@ class Vehicle:
         self.battery = battery_model.drain(self.battery, dt, nav.armed, nav.in_air, speed, self.cfg.battery)
         for ev in self.failsafe.update(self.t, link_age is not None, link_age or 0.0, self.battery, nav.in_air):
             self.failsafe_active = ev.action is not Action.NONE
-            self.statustext(ev.text, ev.severity)
             if ev.action is Action.HOLD:
                 nav.hold()
             elif ev.action is Action.RTL:
                 nav.rtl()
             elif ev.action is Action.LAND:
                 nav.land()
+            self.statustext(ev.text, ev.severity)  # announced once acted upon
         for kind, data in nav.events:
             if kind == "reached":
                 self.link.send(M.MAVLink_mission_item_reached_message(int(data)))
