@@ -115,7 +115,6 @@ class Link:
                     self.stats.dropped_rx += 1
                     continue
                 self.stats.rx_packets += 1
-                ep.remote = addr  # answer whoever talks to us (PX4 SITL behaviour)
                 try:
                     msgs = ep.mav.parse_buffer(data) or []
                 except Exception as exc:  # noqa: BLE001 - a malformed datagram must never stop the vehicle
@@ -133,6 +132,9 @@ class Link:
                         else:
                             self.stats.bad_data += 1
                         continue
+                    # answer whoever talks to us (PX4 SITL behaviour), but only once it said something
+                    # valid: refused or garbage datagrams must not redirect the vehicle's telemetry
+                    ep.remote = addr
                     ep.peer_seen, ep.last_rx_wall = True, now_wall
                     out.append((ep, m))
         return out
