@@ -33,7 +33,9 @@ async def fly(api_port: int, tmp_path) -> dict:
 
         points = [DwellPoint(8.0, 0.0, 3.0, yaw=0.0, max_dwell_s=600.0), DwellPoint(8.0, 8.0, 3.0, max_dwell_s=2.0)]
         items = build_items(points, home, takeoff_alt=3.0, finish="land")
+        t0 = asyncio.get_running_loop().time()
         await mc.upload(items)
+        out["upload_s"] = asyncio.get_running_loop().time() - t0
         down = await mc.download()
         out["round_trip"] = [(i.command, i.x, i.y, i.param1) for i in down] == \
             [(i.command, i.x, i.y, i.param1) for i in items]
@@ -43,6 +45,7 @@ async def fly(api_port: int, tmp_path) -> dict:
         out["plan_json"] = json.loads(plan.read_text())
 
         await act.arm()
+        t_start = asyncio.get_running_loop().time()
         await mc.start()
         await mc.wait_item(1, timeout_s=10)
         pos = await tel.wait_position(lambda p: np.linalg.norm(p - [8, 0, 3]) < 0.3, timeout_s=10)
@@ -56,6 +59,7 @@ async def fly(api_port: int, tmp_path) -> dict:
         await tel.wait_position(lambda p: np.linalg.norm(p[:2] - [0, 8]) < 0.3, timeout_s=15)
         await mc.wait_finished(timeout_s=20)
         await tel.wait_in_air(False, timeout_s=10)
+        out["flight_wall_s"] = asyncio.get_running_loop().time() - t_start
         out["end_pos"] = await tel.position_enu()
         out["battery1"] = await tel.battery_remaining()
     finally:
@@ -67,6 +71,8 @@ def test_mavsdk_flies_a_mission_with_adaptive_dwell(tmp_path):
     api = free_udp_port()
     with VehicleProcess(api, free_udp_port(), ["--speedup", str(SPEEDUP)]) as vp:
         out = asyncio.run(asyncio.wait_for(fly(api, tmp_path), 90))
+    print(f"MAVSDK: upload of 4 items {out['upload_s'] * 1000:.0f} ms, flight {out['flight_wall_s']:.1f} s wall "
+          f"at x{SPEEDUP:g}, landed at {np.round(out['end_pos'], 2)}, battery {out['battery1']:.3f}")
     assert out["home"].lat_deg == pytest.approx(47.397742, abs=1e-6)
     assert np.linalg.norm(out["start_pos"]) < 0.1
     assert out["battery0"] == pytest.approx(1.0, abs=0.01) and out["mode0"] == "HOLD"
