@@ -4,6 +4,8 @@ timeouts, and the MAV_MISSION_RESULT of each refusal (including the geofence).""
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as M
 
 from mission.vehicle.frames import enu_to_geodetic
@@ -125,3 +127,38 @@ def test_geofence_rejects_items_outside_bounds_per_axis():
             assert types(p.handle(msg, 0))[0] == ("MISSION_ACK", result)
     finally:
         v.link.close()
+
+
+def _random_msg(kind, seq, count, value, mtype):
+    if kind == 0:
+        return count_msg(count, mtype)
+    if kind == 1:
+        x = (seq * 7919 + count) % 2**32 - 2**31  # any int32 lat/lon, most of them invalid
+        return from_gcs(M.MAVLink_mission_item_int_message(1, 1, seq % 8, count % 12, count % 400 if seq % 2 else 16,
+                                                           0, 1, value, value, value, value, x, -x - 1, value, mtype))
+    if kind == 2:
+        return from_gcs(M.MAVLink_mission_request_int_message(1, 1, seq, mtype))
+    if kind == 3:
+        return from_gcs(M.MAVLink_mission_request_list_message(1, 1, mtype))
+    if kind == 4:
+        return from_gcs(M.MAVLink_mission_ack_message(1, 1, count % 16, mtype))
+    return from_gcs(M.MAVLink_mission_clear_all_message(1, 1, mtype))
+
+
+def count_msg(n, mission_type=0):
+    return from_gcs(M.MAVLink_mission_count_message(1, 1, n, mission_type))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 5), st.integers(0, 65535), st.integers(0, 12),
+                          st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32),
+                                    st.integers(-(2**31), 2**31 - 1).map(float)),
+                          st.sampled_from([0, 1, 2, 255])), max_size=40),
+       st.floats(0, 100))
+def test_any_message_sequence_is_answered_never_raises(msgs, t):
+    """Bad input is answered by the protocol (ACK with a result code) or ignored, never an exception."""
+    p = MissionProtocol()
+    for k, (kind, seq, n, value, mtype) in enumerate(msgs):
+        for reply in p.handle(_random_msg(kind, seq, n, value, mtype), t + k * 0.1) + p.poll(t + k * 0.1):
+            assert reply.get_type() in {"MISSION_ACK", "MISSION_REQUEST_INT", "MISSION_COUNT", "MISSION_ITEM_INT"}
+    assert all(isinstance(i.seq, int) for i in p.items) and [i.seq for i in p.items] == list(range(len(p.items)))
