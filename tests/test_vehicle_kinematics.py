@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as M
 
 from mission.vehicle import battery, frames, motion
@@ -189,3 +191,16 @@ def test_rtl_returns_home_lands_and_disarms():
         assert t < 200
     assert max_z == pytest.approx(6.0, abs=0.15)  # climbs to the RTL altitude (small overshoot on the turn)
     assert np.allclose(nav.pos, 0, atol=0.2) and nav.landed
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.tuples(st.floats(-60, 60), st.floats(-60, 60), st.floats(0, 20)), st.floats(0.5, 8), st.floats(0.5, 4))
+def test_any_leg_respects_limits_and_arrives(target, vmax, amax):
+    lim = motion.MotionLimits(max_speed_xy=vmax, max_speed_up=2.0, max_speed_down=1.0, max_accel=amax)
+    t, pos, speeds, accels, _ = fly(list(target), lim, max_t=400)
+    assert np.max(np.linalg.norm(speeds[:, :2], axis=1)) <= vmax + 1e-6
+    assert np.max(speeds[:, 2]) <= 2.0 + 1e-6 and np.min(speeds[:, 2]) >= -1.0 - 1e-6
+    assert np.max(accels) <= amax + 1e-6
+    d = np.linalg.norm(target)
+    # never faster than the straight-line bound of the fastest axis
+    assert t >= d / max(vmax, 2.0) - 1e-6
