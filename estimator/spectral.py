@@ -25,26 +25,29 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
+from scipy.interpolate import PchipInterpolator
 
 from radseek.dataset import Frames
 
 LOW_EXTENSION = 0.2  # the first energy bin reaches this fraction below the threshold
+SUB_BINS = 3  # template bins per channel: a 7 % FWHM photopeak is about one channel wide
 
 
-def energy_bins(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    edges = np.asarray(edges, dtype=float)
-    lo = edges[:-1].copy()
-    hi = edges[1:].copy()
-    lo[0] = edges[0] * (1 - LOW_EXTENSION)
-    return lo, hi
+def energy_bins(edges: np.ndarray, sub: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Template energy bins: each channel split into ``sub`` equal parts, the first reaching below threshold."""
+    edges = np.asarray(edges, dtype=float).copy()
+    edges[0] = edges[0] * (1 - LOW_EXTENSION)
+    fine = np.concatenate([np.linspace(a, b, sub + 1)[:-1] for a, b in zip(edges[:-1], edges[1:], strict=True)]
+                          + [edges[-1:]])
+    return fine[:-1], fine[1:]
 
 
-def response(edges: np.ndarray, gain: np.ndarray) -> np.ndarray:
-    """(G, 32 channels, 32 energy bins): fraction of energy bin j recorded in channel k at gain factor a_g."""
+def response(edges: np.ndarray, gain: np.ndarray, sub: int = 1) -> np.ndarray:
+    """(G, 32 channels, 32 sub energy bins): fraction of energy bin j recorded in channel k at gain a_g."""
     edges = np.asarray(edges, dtype=float)
     a = np.asarray(gain, dtype=float).reshape(-1)
-    lo, hi = energy_bins(edges)
+    lo, hi = energy_bins(edges, sub)
     c = edges[None, :] / a[:, None]  # (G, 33) channel boundaries in deposited energy
     c_lo = c[:, :-1]
     c_hi = c[:, 1:].copy()
@@ -65,19 +68,21 @@ def _poisson_nll(mu: np.ndarray, n: np.ndarray) -> float:
     return float((mu - n * np.log(mu)).sum())
 
 
-def _em(M: np.ndarray, n: np.ndarray, x: tuple, iters: int = 4000, tol: float = 1e-11) -> tuple[float, tuple]:
-    """Poisson NMF by EM (multiplicative updates): mu_gk = A_g (M_g s)_k + B_g (M_g b)_k, all >= 0.
+def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 3000, tol: float = 3e-11
+        ) -> tuple[float, tuple]:
+    """Poisson NMF by EM (multiplicative updates): mu_gk = A_g (Ms_g s)_k + B_g (Mb_g b)_k, all >= 0.
 
     With free group amplitudes this likelihood equals the multinomial one given the group totals (plus a
     constant). Returns (nll, (s, b, A, B)); s, b normalised to unit mass over energy bins.
     """
     s, b, A, B = (np.array(v, dtype=float) for v in x)
-    colsum = M.sum(1)  # (G, j): detected fraction of energy bin j
+    cs = Ms.sum(1)  # (G, j): detected fraction of energy bin j
+    cb = Mb.sum(1)
     prev = np.inf
     nll = np.inf
     for it in range(iters):
-        us = M @ s
-        ub = M @ b
+        us = Ms @ s
+        ub = Mb @ b
         mu = A[:, None] * us + B[:, None] * ub
         R = n / np.maximum(mu, 1e-300)
         if it % 10 == 0:
@@ -85,14 +90,14 @@ def _em(M: np.ndarray, n: np.ndarray, x: tuple, iters: int = 4000, tol: float = 
             if prev - nll < tol * abs(nll):
                 break
             prev = nll
-        A_new = A * (R * us).sum(1) / np.maximum(colsum @ s, 1e-300)
-        B_new = B * (R * ub).sum(1) / np.maximum(colsum @ b, 1e-300)
-        s = s * np.einsum("gk,gkj->j", R * A[:, None], M) / np.maximum(A @ colsum, 1e-300)
-        b = b * np.einsum("gk,gkj->j", R * B[:, None], M) / np.maximum(B @ colsum, 1e-300)
+        A_new = A * (R * us).sum(1) / np.maximum(cs @ s, 1e-300)
+        B_new = B * (R * ub).sum(1) / np.maximum(cb @ b, 1e-300)
+        s = s * np.einsum("gk,gkj->j", R * A[:, None], Ms) / np.maximum(A @ cs, 1e-300)
+        b = b * np.einsum("gk,gkj->j", R * B[:, None], Mb) / np.maximum(B @ cb, 1e-300)
         A, B = A_new, B_new
         ss, sb = s.sum(), b.sum()
         s, b, A, B = s / ss, b / sb, A * ss, B * sb
-    mu = A[:, None] * (M @ s) + B[:, None] * (M @ b)
+    mu = A[:, None] * (Ms @ s) + B[:, None] * (Mb @ b)
     return _poisson_nll(mu, n), (s, b, A, B)
 
 
@@ -143,8 +148,9 @@ def group_frames(frames: Frames, n_groups: int = 40, min_s: float = 3.0) -> np.n
 class SpectralModel:
     """Source + background spectral templates with a linear gain drift; see the module docstring."""
 
-    def __init__(self, edges: np.ndarray):
+    def __init__(self, edges: np.ndarray, sub: int = SUB_BINS):
         self.edges = np.asarray(edges, dtype=float)
+        self.sub = sub
 
     def _prepare(self, frames: Frames, labels: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         labels = group_frames(frames) if labels is None else np.asarray(labels)
@@ -172,23 +178,55 @@ class SpectralModel:
         w = np.clip(1 - rate.min() / np.maximum(rate, 1e-9) * 0.9, 0.02, 0.98)
         return qs, qb, w * rate, (1 - w) * rate
 
-    def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple) -> tuple[float, tuple]:
-        return _em(response(self.edges, 1.0 + pct / 100.0 * t / 60.0), n, x0)
+    def shape(self, q: np.ndarray | None) -> np.ndarray:
+        """(32 sub, 32) within-channel shape of a template: a monotone cubic (PCHIP) through its cumulative
+        mass at the channel edges, so a photopeak keeps its curvature inside a channel when the gain shifts
+        the edges by a fraction of a channel. ``None``: flat within each channel. No free parameters."""
+        k = len(self.edges) - 1
+        lo_c, hi_c = energy_bins(self.edges, 1)
+        lo_f, hi_f = energy_bins(self.edges, self.sub)
+        owner = np.repeat(np.arange(k), self.sub)
+        if q is None:
+            fine = (hi_f - lo_f) / (hi_c - lo_c)[owner]
+        else:
+            knots = np.r_[lo_c[0], hi_c]
+            cdf = np.r_[0.0, np.cumsum(np.maximum(q, 0))]
+            f = PchipInterpolator(knots, cdf)
+            fine = np.maximum(np.diff(f(np.r_[lo_f[0], hi_f])), 0.0)
+            tot = np.bincount(owner, weights=fine, minlength=k)
+            flat = (hi_f - lo_f) / (hi_c - lo_c)[owner]
+            fine = np.where(tot[owner] > 0, fine / np.where(tot[owner] > 0, tot[owner], 1.0), flat)
+        S = np.zeros((len(owner), k))
+        S[np.arange(len(owner)), owner] = fine
+        return S
 
-    def expected(self, x: tuple, pct: float, t: np.ndarray) -> np.ndarray:
+    def _responses(self, pct: float, t: np.ndarray, shapes: tuple[np.ndarray, np.ndarray]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        R = response(self.edges, 1.0 + pct / 100.0 * t / 60.0, self.sub)
+        return R @ shapes[0], R @ shapes[1]
+
+    def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple) -> tuple[float, tuple]:
+        Ms, Mb = self._responses(pct, t, shapes)
+        return _em(Ms, Mb, n, x0)
+
+    def expected(self, x: tuple, pct: float, t: np.ndarray, shapes: tuple) -> np.ndarray:
         s, b, A, B = x
-        M = response(self.edges, 1.0 + pct / 100.0 * t / 60.0)
-        return A[:, None] * (M @ s) + B[:, None] * (M @ b)
+        Ms, Mb = self._responses(pct, t, shapes)
+        return A[:, None] * (Ms @ s) + B[:, None] * (Mb @ b)
 
     def fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
-            max_shift: float = 0.3) -> SpectralFit:
+            max_shift: float = 0.15) -> SpectralFit:
         """Fit with zero drift and (if ``drift``) with the drift profiled over |shift| <= ``max_shift``.
 
-        The profile is searched by successive parabolas through warm-started refits; the zero-drift fit is
-        redone from the best drift solution so that an under-converged null cannot fake evidence.
+        The profile is searched on a grid, then by Brent's method around the best grid point, each point a
+        warm-started refit; the zero-drift fit is redone from the best drift solution so that an
+        under-converged null cannot fake evidence.
         """
         n, t, lab = self._prepare(frames, labels)
-        nll0, x0 = self._fit_at(0.0, n, t, self._start(n))
+        flat = (self.shape(None), self.shape(None))
+        _, xc = self._fit_at(0.0, n, t, self._start(n), flat)
+        shapes = (self.shape(xc[0]), self.shape(xc[1]))
+        nll0, x0 = self._fit_at(0.0, n, t, xc, shapes)
         sat = _poisson_nll(np.maximum(n, 1e-300), n)
         g_, k = n.shape
         dof = max(n.size - g_ - (2 * (k - 1) + g_ - g_), 1)  # group totals fixed; templates 2 (k - 1)
@@ -201,28 +239,20 @@ class SpectralModel:
                 p = float(np.clip(p, -gmax, gmax))
                 if p not in cache:
                     near = min(cache, key=lambda q: abs(q - p))
-                    cache[p] = self._fit_at(p, n, t, cache[near][1])
+                    cache[p] = self._fit_at(p, n, t, cache[near][1], shapes)
                 return cache[p][0]
 
-            h = gmax / 8
-            pts = [-h, 0.0, h]
-            for _ in range(6):
-                pts = sorted(pts, key=prof)[:3]
-                xs = np.array(pts)
-                ys = np.array([prof(p) for p in pts])
-                c2, c1, _c0 = np.polyfit(xs, ys, 2)
-                if c2 <= 0:
-                    nxt = xs[np.argmin(ys)] + (h if c1 < 0 else -h) * 2
-                else:
-                    nxt = -c1 / (2 * c2)
-                nxt = float(np.clip(nxt, -gmax, gmax))
-                if min(abs(nxt - p) for p in cache) < gmax * 1e-4:
-                    break
-                pts.append(nxt)
+            grid = np.linspace(-gmax, gmax, 7)
+            for g in grid:
+                prof(g)
+            i0 = int(np.argmin([prof(g) for g in grid]))
+            lo_b, hi_b = grid[max(i0 - 1, 0)], grid[min(i0 + 1, len(grid) - 1)]
+            optimize.minimize_scalar(prof, bounds=(lo_b, hi_b), method="bounded",
+                                     options={"xatol": (hi_b - lo_b) * 1e-3, "maxiter": 15})
             best = min(cache, key=lambda q: cache[q][0])
             f_best = cache[best][0]
             # redo the null from the best solution: the smaller null nll wins
-            f0b, x0b = self._fit_at(0.0, n, t, cache[best][1])
+            f0b, x0b = self._fit_at(0.0, n, t, cache[best][1], shapes)
             if f0b < nll0:
                 nll0, x0 = f0b, x0b
             if f_best > nll0:
@@ -231,8 +261,8 @@ class SpectralModel:
             curv = (prof(best + hh) - 2 * prof(best) + prof(best - hh)) / hh**2
             err = float(1.0 / np.sqrt(curv)) if curv > 0 else float("nan")
             res = dict(pct=best, err=err, nll=f_best, x=cache[best][1] if best != 0.0 else x0)
-        exp0 = self.expected(x0, 0.0, t)
-        exp1 = self.expected(res["x"], res["pct"], t)
+        exp0 = self.expected(x0, 0.0, t, shapes)
+        exp1 = self.expected(res["x"], res["pct"], t, shapes)
         lr = max(2 * (nll0 - res["nll"]), 0.0)
         s0, b0, A0, B0 = x0
         return SpectralFit(
