@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as M
 
 from mission.vehicle.frames import Home, geodetic_to_enu, yaw_ned_to_enu
 from mission.vehicle.geofence import Geofence
-from mission.vehicle.navigator import Mode, Navigator, mode_from_px4
+from mission.vehicle.navigator import Navigator, mode_from_px4
 
 log = logging.getLogger(__name__)
 FORCE_MAGIC = 21196
@@ -158,5 +158,3 @@ def set_mode_message(msg, nav: Navigator) -> int:
         return M.MAV_RESULT_UNSUPPORTED
     return M.MAV_RESULT_ACCEPTED if nav.set_mode(mode) else M.MAV_RESULT_DENIED
 
-
-__all__ = ["Command", "execute", "set_mode_message", "Mode"]
