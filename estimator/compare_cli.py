@@ -85,7 +85,12 @@ def main(argv: list[str] | None = None) -> int:
             for ax, key in zip(axes[:2], ("total_variance", "entropy"), strict=True):
                 t, v = _series(hist, key)
                 ax.plot(t, v, color=color, lw=1.8 if len(runs) == 1 else 0.6, alpha=1 if len(runs) == 1 else 0.5,
-                        label=name if k == 0 else None)
+                        label=name if k == 0 and len(runs) == 1 else None)
+        if len(runs) > 1:  # runs of one dataset share the update times (same frames): draw their mean thick
+            for ax, key in zip(axes[:2], ("total_variance", "entropy"), strict=True):
+                t, _ = _series(runs[0], key)
+                mean = np.mean([_series(h, key)[1] for h in runs], axis=0)
+                ax.plot(t, mean, color=color, lw=2.2, label=f"{name} (mean of {len(runs)})")
     kls = [kl_curve(ra, rb) for ra, rb in zip(runs_a, runs_b, strict=True)]
     for t, kl in kls:
         axes[2].plot(t, np.where(np.isfinite(kl), kl, np.nan), color="tab:blue", lw=1.2)
