@@ -177,16 +177,19 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
             # from the grid cells that best explain what the current model leaves (and one at the largest
             # residual excess), since its location is not identified by the current fit
             init = dict(cur.values)
-            ext = fitter.fit((*count, e), init=init, n_starts=1, label=f"{'+'.join(count) or 'baseline'} + {e}")
+            label = f"{'+'.join(count) or 'baseline'} + {e}"
             if e == "second_source":
+                # two starts: at the largest residual excess, and at the grid cell that best explains what the
+                # current model leaves (estimator.mle.second_source_starts)
                 seed = dict(init, **excess_seed(frames, cur.expected, scenario,
                                                 np.array([cur.values["x"], cur.values["y"]])))
-                alt = fitter.fit((*count, e), init=seed, n_starts=1, label=f"{e} (from the residual excess)",
-                                 cache=False)
+                ext = fitter.fit((*count, e), init=seed, n_starts=1, label=f"{label} (start at the excess)")
                 grid = fitter.fit((*count, e), init={k: v for k, v in init.items() if not k.startswith("second")},
-                                  n_starts=2, label=f"{e} (grid starts)", cache=False)
-                ext = min((ext, alt, grid), key=lambda r: r.nll)
-            elif e == "anisotropy":
+                                  n_starts=1, label=f"{label} (grid start)", cache=False)
+                ext = min((ext, grid), key=lambda r: r.nll)
+            else:
+                ext = fitter.fit((*count, e), init=init, n_starts=1, label=label)
+            if e == "anisotropy":
                 alt = fitter.fit((*count, e), init=dict(init, **{"anisotropy.half_angle_deg": 60.0}), n_starts=1,
                                  label=f"{e} (wide cone start)", cache=False)
                 ext = min((ext, alt), key=lambda r: r.nll)
