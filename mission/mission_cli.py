@@ -27,6 +27,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stop-sigma", type=float, default=0.10, help="stop when the 1-sigma error ellipse is below, m")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
     p.add_argument("--localizer", default="mle", help="estimator used in flight (default mle)")
+    p.add_argument("--strategy", default="active", choices=("active", "lattice", "lawnmower"),
+                   help="active search (paper 003) or a fixed pattern baseline (default active)")
     zenoh_session.add_arguments(p)
     args = p.parse_args(argv)
 
@@ -40,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     config = SearchConfig(altitude_m=args.altitude, stop_sigma_m=args.stop_sigma,
                           max_dwells=args.max_dwells, max_search_dwells=min(6, args.max_dwells),
-                          localizer=args.localizer)
+                          localizer=args.localizer, strategy=args.strategy)
     settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed)
     with zenoh_session.session_from_args(args) as session:
         summary = run_mission(session, scenario, Path(args.out), config, settings)

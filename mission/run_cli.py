@@ -140,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
     p.add_argument("--vehicle-local-ports", default="14580,18570", help="vehicle's own UDP ports (api,gcs)")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget (default 16)")
+    p.add_argument("--strategy", default="active", choices=("active", "lattice", "lawnmower"),
+                   help="active search (paper 003) or a fixed pattern baseline (default active)")
     p.add_argument("--timeout", type=float, default=900.0, help="wall seconds before the run is abandoned")
     p.add_argument("--vehicle-arg", action="append", default=[], help="extra argument for radseek vehicle")
     p.add_argument("--detector-arg", action="append", default=[], help="extra argument for radseek detector")
@@ -186,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         mission = stack.start("mission", _radseek(
             "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
             "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
-            "--max-dwells", str(args.max_dwells)))
+            "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
         with open_session(connect=endpoint) as session:
             progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
             clock = ZenohClock(session, topics.DEFAULT_VEHICLE)

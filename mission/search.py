@@ -1,9 +1,11 @@
 """The search mission's decisions (paper 003 sec. IV-B), with no I/O: what to fly next and when to stop.
 
-Phases: ``explore`` (frontier exploration until three dwell readings stand above background, paper 003
-sec. IV-B-2, with paper 004's frontier choice), then ``search`` (estimate the source from every frame
-recorded so far, then fly to the next-best dwell point of the random tree scored with eq. 6), until the
-source's 1-sigma position ellipse is smaller than ``stop_sigma_m`` or the dwell budget is spent.
+Strategy ``active`` (paper 003's autonomous search): ``explore`` (frontier exploration until three
+dwell readings stand above background, paper 003 sec. IV-B-2, with paper 004's frontier choice), then
+``search`` (estimate the source from every frame recorded so far, then fly to the next-best dwell point
+of the random tree scored with eq. 6), until the source's 1-sigma position ellipse is smaller than
+``stop_sigma_m`` or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
+``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
 The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
 operator's scenario; it never sees the truth. Two drivers run it: ``mission.mission_process`` over
@@ -18,8 +20,10 @@ from enum import StrEnum
 import numpy as np
 
 from estimator.localizers.base import Localizer, make_localizer
+from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief
 from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
+from planner.dwell_tree import grow_tree, shortcut_path
 from planner.exploration import FrontierConfig, exploration_done, plan_exploration
 from planner.next_best import NextBestConfig, plan_next_dwell
 from planner.occupancy import OccupancyMap
@@ -31,14 +35,20 @@ from radseek.dataset import Frames, Scenario
 class Phase(StrEnum):
     EXPLORE = "explore"
     SEARCH = "search"
+    PATTERN = "pattern"
     DONE = "done"
+
+
+STRATEGIES = ("active", "lattice", "lawnmower")
 
 
 @dataclass(frozen=True)
 class SearchConfig:
     """Mission settings (units in comments)."""
 
+    strategy: str = "active"  # one of STRATEGIES
     altitude_m: float = 1.5  # m above the floor for every dwell point
+    pattern_spacing_m: float | None = None  # lattice / lawnmower spacing (None: a quarter of the bounds)
     stop_sigma_m: float = 0.10  # m: stop when the source's 1-sigma semi-major axis (x-y) is below this
     min_search_dwells: int = 2  # dwell points after exploration before the sigma criterion may stop
     max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
@@ -57,6 +67,8 @@ class SearchConfig:
             raise ValueError("altitude_m and stop_sigma_m must be > 0")
         if not (0 <= self.min_search_dwells <= self.max_search_dwells <= self.max_dwells):
             raise ValueError("need 0 <= min_search_dwells <= max_search_dwells <= max_dwells")
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
 
 
 @dataclass(frozen=True)
@@ -84,6 +96,7 @@ class SearchBrain:
         self.localizer: Localizer | None = None
         self.estimates: list[dict] = []  # one per dwell from the first search estimate on
         self.visited = np.zeros((0, 3))
+        self.pattern: list[np.ndarray] = []
 
     # ---------------------------------------------------------------------------- dwell control
 
@@ -100,6 +113,10 @@ class SearchBrain:
         """The first plan from the take-off pose (x, y, z, yaw)."""
         current = np.asarray(current, dtype=float)
         current = np.r_[current[:2], self.config.altitude_m, current[3]]
+        if self.config.strategy != "active":
+            self.phase = Phase.PATTERN
+            self.pattern = list(self._pattern_points())
+            return self._next_pattern_point(current)
         return self._explore(current, "start: explore until three readings stand above background")
 
     def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames, current: np.ndarray,
@@ -115,6 +132,12 @@ class SearchBrain:
         if self.phase is Phase.SEARCH:
             self.search_dwells += 1
         n_dwells = len(self.history)
+        if self.phase is Phase.PATTERN:
+            belief = self._estimate(frames, current)
+            sigma = self._sigma(belief)
+            if not self.pattern or n_dwells >= self.config.max_dwells:
+                return self._done(f"{self.config.strategy} pattern flown (1-sigma {sigma:.3f} m)")
+            return self._next_pattern_point(current)
         if self.phase is Phase.EXPLORE:
             if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
                 self.phase = Phase.SEARCH
@@ -123,7 +146,7 @@ class SearchBrain:
             else:
                 return self._explore(current, f"explore: {self._above()} of 3 readings above background")
         belief = self._estimate(frames, current)
-        sigma = belief.semi_major_axis() if belief is not None else np.inf
+        sigma = self._sigma(belief)
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
                 sigma < self.config.stop_sigma_m:
             return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
@@ -156,6 +179,47 @@ class SearchBrain:
             return self._done("exploration found no frontier left")
         return Decision(Phase.EXPLORE, plan, reason)
 
+    def _sigma(self, belief: SourceBelief | None) -> float:
+        """1-sigma semi-major axis (m) of a trustworthy estimate, inf otherwise: a fit that did not
+        converge, or whose covariance collapsed (parameters pinned at a bound), proves nothing."""
+        if belief is None or self.localizer is None or not getattr(self.localizer, "info_", {}).get("converged", True):
+            return np.inf
+        sigma = belief.semi_major_axis()
+        return sigma if np.isfinite(sigma) and sigma > 1e-3 else np.inf
+
+    def _pattern_points(self) -> np.ndarray:
+        lo, hi = self.occ.free_min, self.occ.free_max
+        z = float(np.clip(self.config.altitude_m, lo[2], hi[2]))
+        spacing = self.config.pattern_spacing_m or float(np.clip(min(hi[:2] - lo[:2]) / 4, 0.5, 5.0))
+        if self.config.strategy == "lattice":
+            pts = fixed_lattice(np.r_[(lo[:2] + hi[:2]) / 2, z], spacing)
+        else:
+            pts = lawnmower(lo, hi, spacing, z, margin=0.0)
+        return pts[self.occ.points_valid(pts)]
+
+    def _next_pattern_point(self, current: np.ndarray) -> Decision:
+        start = self._at_altitude(current)
+        while self.pattern:
+            target = self.pattern.pop(0)
+            path = self._route(start, target)
+            if path is not None:
+                yaw = np.full((len(path), 1), start[3])
+                plan = DwellPlan(np.r_[target, start[3]][None, :], np.hstack([path, yaw]), self.config.strategy)
+                return Decision(Phase.PATTERN, plan, f"{self.config.strategy}: {len(self.pattern)} points left")
+        return self._done(f"{self.config.strategy} pattern flown")
+
+    def _route(self, start: np.ndarray, target: np.ndarray) -> np.ndarray | None:
+        """Collision-free polyline (k, 3) from start to target: straight if possible, else along a tree."""
+        if self.occ.segment_valid(start[:3], target):
+            return np.vstack([start[:3], target])
+        tree = grow_tree(start, self.occ, self.config.next_best.tree)
+        pos = tree.states[:, :3]
+        order = np.argsort(np.linalg.norm(pos - target, axis=1))
+        for node in order[:50]:
+            if self.occ.segment_valid(pos[node], target):
+                return np.vstack([shortcut_path(tree.path_to(int(node)), self.occ), target])
+        return None
+
     def _done(self, reason: str) -> Decision:
         self.phase = Phase.DONE
         return Decision(Phase.DONE, None, reason)
@@ -164,6 +228,8 @@ class SearchBrain:
         if len(frames) < 10:
             return None
         settings = dict(self.config.localizer_settings)
+        if self.scenario.walls and "effects" not in settings:
+            settings["effects"] = ("wall_attenuation",)  # mapped walls: fit their attenuation too
         loc = make_localizer(self.config.localizer)
         if self.estimates and "init" in loc.get_params():
             prev = self.estimates[-1]
