@@ -34,14 +34,14 @@ def emulated(which: str) -> Iterator[tuple[str, Callable[[], Dataset]]]:
     yield "emu-anisotropy", lambda: simulate_flight(load_scene("spin-anisotropy"), path="spin", seed=5)
     yield "emu-air", lambda: simulate_flight(load_scene("outdoor"), path="lawnmower", seed=5)
     yield "emu-second_source", lambda: simulate_flight(load_scene("two-source"), path="lattice", seed=5)
-    yield "emu-bg_gradient", lambda: simulate_flight(d.with_effect("background_gradient", gx=2.0, gy=-1.0),
-                                                     path="lattice", seed=5)
+    yield "emu-bg_gradient", lambda: simulate_flight(d.with_effect("background_gradient", gx=3.0, gy=-2.0),
+                                                     path="lawnmower", seed=5)
     yield "emu-gain_drift", lambda: simulate_flight(d.with_effect("gain_drift", percent_per_min=1.0), path="lattice",
                                                     seed=5)
     yield "emu-pose_drift", lambda: simulate_flight(d.with_effect("pose_drift", vx=0.003, vy=-0.002), path="lattice",
                                                     seed=5)
     yield "emu-dead_time+bg_gradient", lambda: simulate_flight(
-        load_scene("close-pass-deadtime").with_effect("background_gradient", gx=20.0, gy=-10.0), path="close-pass",
+        load_scene("close-pass-deadtime").with_effect("background_gradient", gx=4.0, gy=-2.0), path="close-pass",
         seed=5)
 
 

@@ -1,0 +1,106 @@
+"""radseek diagnose on data with a hidden effect: the shared reference datasets and emulated flights.
+
+Each full diagnose fits ~15 models with pose uncertainty, so only a few datasets run here (the closing
+table of all shared and emulated datasets is produced by ``python -m estimator.diagnose.evaluate``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from contextlib import redirect_stdout
+
+import pytest
+
+from estimator.diagnose.runner import diagnose
+from estimator.diagnose_cli import main
+from radseek.dataset import read_dataset
+
+
+def _run_cli(argv: list[str]) -> tuple[int, str]:
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        code = main(argv)
+    return code, buf.getvalue()
+
+
+def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_datasets, tmp_path):
+    code, out = _run_cli([str(shared_datasets / "spin-anisotropy"), "--json", "--quiet", "--out", str(tmp_path),
+                          "--starts", "4"])
+    assert code == 0
+    rep = json.loads(out)
+    for key in ("model", "deviance_per_dof", "p_value", "sources", "candidates", "missing"):
+        assert key in rep
+    assert rep["model"] == []
+    assert rep["missing"] == ["anisotropy"]
+    top = rep["candidates"][0]
+    assert top["effect"] == "anisotropy" and top["delta_aic"] < -20 and top["significant"]
+    assert top["explains"] == "bearing"
+    assert 0.3 < top["params"]["anisotropy.fraction"] < 0.7  # truth 0.5
+    after = rep["with_missing"]
+    assert abs(after["deviance_per_dof"] - after["deviance_per_dof_expected"]) < 4 * after["deviance_per_dof_sd"]
+    assert after["deviance_per_dof"] < rep["deviance_per_dof"]
+    assert {"x", "y", "z", "cps_at_1m"} <= set(rep["sources"][0])
+    assert all(p.endswith(".png") for p in rep["plots"]) and (tmp_path / "residual_map.png").exists()
+
+
+def test_cli_add_shows_before_and_after(shared_datasets, tmp_path):
+    code, out = _run_cli([str(shared_datasets / "lattice-clean"), "--add", "air_attenuation", "--quiet", "--out",
+                          str(tmp_path), "--starts", "4"])
+    assert code == 0
+    assert "5. Added: baseline (sources + constant background) + air_attenuation" in out
+    assert "deviance/dof" in out and "->" in out and "air_attenuation.mu_per_m" in out
+    assert "Air itself attenuates" in out  # the physics sentence
+    assert "6. Is anything still missing?" in out and "is adequate" in out
+    assert (tmp_path / "before_after_after.png").exists()
+
+
+def test_bad_input_exits_2(tmp_path, capsys):
+    assert main([str(tmp_path / "nope")]) == 2
+    assert main([str(tmp_path), "--alpha", "2"]) == 2
+
+
+def _sim(effect: str | None, path: str = "lattice", seed: int = 5, **params):
+    from detector_fw_sim.scene import load_scene
+    from detector_fw_sim.simulate import simulate_flight
+
+    scene = load_scene().without_effects()
+    if effect:
+        scene = scene.with_effect(effect, **params)
+    return simulate_flight(scene, path=path, seed=seed)
+
+
+def test_null_emulated_flight_is_called_adequate():
+    d = diagnose(_sim(None, seed=21), quiet=True, n_starts=4)
+    assert d.selection.missing == []
+    assert d.after is None
+
+
+@pytest.mark.parametrize(
+    ("effect", "params", "feature"),
+    [
+        ("background_gradient", {"gx": 3.0, "gy": -2.0}, "position"),
+        ("pose_drift", {"vx": 0.003, "vy": -0.002}, None),
+    ],
+)
+def test_emulated_effect_is_named(effect, params, feature):
+    ds = _sim(effect, path="lawnmower" if effect == "background_gradient" else "lattice", **params)
+    d = diagnose(ds, quiet=True, n_starts=4)
+    assert d.selection.missing[:1] == [effect]
+    top = d.selection.first[0]
+    assert top.effect == effect and top.significant
+    if feature:
+        assert top.explains == feature
+    assert d.after is not None
+    assert abs(d.after.gof.deviance_per_dof - d.after.gof.expected_per_dof) < 4 * d.after.gof.sd_per_dof
+
+
+def test_clean_shared_dataset_reads_without_truth_leak(shared_datasets):
+    # the fit never reads truth: the same answer with the truth removed
+    ds = read_dataset(shared_datasets / "lattice-clean")
+    no_truth = type(ds)(frames=ds.frames, scenario=ds.scenario, truth=None, path=ds.path)
+    from estimator.diagnose.backend import CountFitter
+
+    a = CountFitter(ds.scenario, ds.frames, n_starts=2, quiet=True).fit(())
+    b = CountFitter(no_truth.scenario, no_truth.frames, n_starts=2, quiet=True).fit(())
+    assert a.values == b.values
