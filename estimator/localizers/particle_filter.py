@@ -21,6 +21,16 @@ cloud can only lose diversity, so after each resampling the particles are roughe
 With ``stop_variance`` set the filter stops updating once the total variance (eq. 13) falls below it
 (Algorithm 1's loop condition).
 
+Two further deviations make the filter usable on real flights. Adaptive tempering: when one measurement
+would drop the ESS below ``temper_ess`` x N (a 1 s chunk near a strong source, or an ambiguous start such
+as three collinear dwells), its likelihood is applied in powers phi_1 + phi_2 + ... = 1 with a
+resample-and-roughen between them (at most ``max_tempering_steps``; 1 disables it); without it the cloud
+can collapse onto one mirror mode and never recover. Model effects: with ``effects`` (names of
+:mod:`estimator.model`) the expected counts come from ``MeasurementModel`` with the effect parameters
+fixed at ``effect_params`` (calibrations, e.g. a wall's mu); the PF does not fit them. With walls the
+posterior can be multi-modal (sources behind a wall) and the filter may settle in the wrong mode; prefer
+``mle`` or ``multi-pf`` there (docs/localizers.md).
+
 ``fit`` replays a flight as ~1 Hz measurements (paper 000 measures at 1 Hz): consecutive frames of one
 dwell (or of transit) pooled into chunks of ``chunk_s`` seconds at their mean pose. ``history_`` keeps, per
 update, the metrics of paper 000 (total variance eq. 13, entropy eq. 15, and the Gaussian fit used by
@@ -34,6 +44,7 @@ Poisson likelihood) over (x, y, A, Bg), projected on (x, y, z, A) with z fixed.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -91,7 +102,9 @@ class ParticleFilter(Localizer):
     def __init__(self, n_particles: int = 100_000, activity_shape: float = 2.0, activity_scale: float = 6000.0,
                  background_range: tuple[float, float] = (0.7, 1.3), dead_time_s: float = 0.0,
                  likelihood: str = "poisson", gauss_const: float = 1.0, resample_threshold: float = 0.5,
-                 roughening: float = 0.2, stop_variance: float | None = None, chunk_s: float = 1.0, seed: int = 0):
+                 roughening: float = 0.2, stop_variance: float | None = None, chunk_s: float = 1.0,
+                 effects: Sequence[str] = (), effect_params: Mapping[str, float] | None = None,
+                 max_tempering_steps: int = 8, temper_ess: float = 0.1, seed: int = 0):
         self.n_particles = n_particles
         self.activity_shape = activity_shape
         self.activity_scale = activity_scale
@@ -103,6 +116,10 @@ class ParticleFilter(Localizer):
         self.roughening = roughening
         self.stop_variance = stop_variance
         self.chunk_s = chunk_s
+        self.effects = effects
+        self.effect_params = effect_params
+        self.max_tempering_steps = max_tempering_steps
+        self.temper_ess = temper_ess
         self.seed = seed
 
     # ---------------------------------------------------------------------------- state
@@ -112,6 +129,17 @@ class ParticleFilter(Localizer):
         if self.likelihood not in ("poisson", "gaussian"):
             raise ValueError(f"likelihood must be 'poisson' or 'gaussian', got {self.likelihood!r}")
         n = int(self.n_particles)
+        self._model = None
+        if self.effects:
+            from estimator.model import MeasurementModel
+
+            if "second_source" in self.effects:
+                raise ValueError("pf tracks one source; use multi-pf or mle for second_source")
+            self._model = MeasurementModel(scenario, effects=tuple(self.effects))
+            known = set(self._model.param_names)
+            bad = set(self.effect_params or {}) - known
+            if bad:
+                raise ValueError(f"effect_params {sorted(bad)} not in the model's parameters {sorted(known)}")
         rng = np.random.default_rng(self.seed)
         self.rng_ = rng
         self.scenario_ = scenario
@@ -156,9 +184,24 @@ class ParticleFilter(Localizer):
 
     # --------------------------------------------------------------------------- update
 
-    def expected_counts(self, position: np.ndarray, duration: float) -> np.ndarray:
-        """(N,) expected counts of every particle for one measurement (eq. 9-10)."""
+    def expected_counts(self, position: np.ndarray, duration: float, yaw: float = 0.0, t: float = 0.0
+                        ) -> np.ndarray:
+        """(N,) expected counts of every particle for one measurement (eq. 9-10).
+
+        With ``effects`` the composable :class:`estimator.model.MeasurementModel` computes them instead (effect
+        parameters fixed at ``effect_params`` or the model defaults), vectorised over particles.
+        """
         s = self.state_
+        if self._model is not None:
+            one = Frames(t=np.array([t]), duration=np.array([duration]), x=position[:1], y=position[1:2],
+                         z=position[2:3], yaw=np.array([yaw]), var_x=np.zeros(1), var_y=np.zeros(1),
+                         var_z=np.zeros(1), dwell=np.array([-1]), counts=np.zeros((1, 32), dtype=np.int64))
+            theta = {**(self.effect_params or {}), "x": s[0], "y": s[1], "cps_at_1m": s[2], "background_cps": s[3]}
+            mu = self._model.expected_counts(theta, one)[:, 0]
+            if self.dead_time_s:
+                rate = mu / duration
+                mu = rate * np.exp(-self.dead_time_s * rate) * duration
+            return mu
         d2 = s[0] - position[0]
         d2 *= d2
         dy = s[1] - position[1]
@@ -173,33 +216,71 @@ class ParticleFilter(Localizer):
         lam *= duration
         return lam
 
-    def update(self, position: Any, counts: float, duration: float, t: float | None = None) -> ParticleFilter:
-        """One measurement: ``counts`` (total) in ``duration`` s at detector ``position`` (x, y, z)."""
+    def update(self, position: Any, counts: float, duration: float, t: float | None = None, yaw: float = 0.0
+               ) -> ParticleFilter:
+        """One measurement: ``counts`` (total) in ``duration`` s at detector ``position`` (x, y, z), heading
+        ``yaw`` (used only by a model with anisotropy)."""
         if not hasattr(self, "particles_"):
             raise RuntimeError("call initialize(scenario) or fit() before update()")
         if self.converged_:
             return self
         pos = np.asarray(position, dtype=float)
-        mu = self.expected_counts(pos, duration)
-        if self.likelihood == "poisson":
-            ll = counts * np.log(mu) - mu
+        remaining = 1.0
+        for _ in range(int(self.max_tempering_steps)):
+            ll = self._loglik(pos, counts, duration, yaw, t)
+            phi = self._temper_exponent(ll, remaining)
+            self._apply(phi * ll)
+            remaining -= phi
+            if remaining <= 1e-12:
+                break
+            # adaptive tempering: the rest of this likelihood after a resample-and-roughen of the cloud
+            self._resample()
         else:
-            var = self.gauss_const * mu
-            ll = -0.5 * (counts - mu) ** 2 / var - 0.5 * np.log(var)
-        lw = self.log_weights_
-        lw += ll
-        lw -= lw.max()
-        w = np.exp(lw)
-        w /= w.sum()
-        self.weights_ = w
+            self._apply(remaining * self._loglik(pos, counts, duration, yaw, t))
         self.n_updates_ += 1
         self._meas.append((pos, float(duration), float(counts)))
+        w = self.weights_
         if 1.0 / np.einsum("i,i->", w, w) < self.resample_threshold * len(w):
             self._resample()
         self._record(t if t is not None else float(self.n_updates_))
         if self.stop_variance is not None and self.history_[-1]["total_variance"] < self.stop_variance:
             self.converged_ = True
         return self
+
+    def _loglik(self, pos: np.ndarray, counts: float, duration: float, yaw: float, t: float | None) -> np.ndarray:
+        mu = self.expected_counts(pos, duration, yaw, t if t is not None else 0.0)
+        if self.likelihood == "poisson":
+            return counts * np.log(mu) - mu
+        var = self.gauss_const * mu
+        return -0.5 * (counts - mu) ** 2 / var - 0.5 * np.log(var)
+
+    def _ess(self, lw: np.ndarray) -> float:
+        w = np.exp(lw - lw.max())
+        s = w.sum()
+        return float(s * s / np.einsum("i,i->", w, w))
+
+    def _temper_exponent(self, ll: np.ndarray, remaining: float) -> float:
+        """Largest phi <= remaining keeping ESS(w * L^phi) >= temper_ess * N (bisection on phi)."""
+        target = self.temper_ess * len(ll)
+        lw = self.log_weights_
+        if self.max_tempering_steps <= 1 or self._ess(lw + remaining * ll) >= target:
+            return remaining
+        lo, hi = 0.0, remaining
+        for _ in range(12):
+            mid = 0.5 * (lo + hi)
+            if self._ess(lw + mid * ll) >= target:
+                lo = mid
+            else:
+                hi = mid
+        return max(lo, remaining / 64)
+
+    def _apply(self, ll: np.ndarray) -> None:
+        lw = self.log_weights_
+        lw += ll
+        lw -= lw.max()
+        w = np.exp(lw)
+        w /= w.sum()
+        self.weights_ = w
 
     def _resample(self) -> None:
         rng = self.rng_
@@ -224,8 +305,9 @@ class ParticleFilter(Localizer):
         pos = frames.positions
         tot = frames.total_counts
         for g in chunk_frames(frames, self.chunk_s):
+            yaw = float(np.arctan2(np.sin(frames.yaw[g]).mean(), np.cos(frames.yaw[g]).mean()))
             self.update(pos[g].mean(axis=0), float(tot[g].sum()), float(frames.duration[g].sum()),
-                        t=float(frames.t[g[-1]]))
+                        t=float(frames.t[g[-1]]), yaw=yaw)
         self._summarize()
 
     def _fit(self, frames: Frames, scenario: Scenario) -> None:
