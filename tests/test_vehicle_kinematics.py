@@ -202,5 +202,25 @@ def test_any_leg_respects_limits_and_arrives(target, vmax, amax):
     assert np.max(speeds[:, 2]) <= 2.0 + 1e-6 and np.min(speeds[:, 2]) >= -1.0 - 1e-6
     assert np.max(accels) <= amax + 1e-6
     d = np.linalg.norm(target)
-    # never faster than the straight-line bound of the fastest axis
-    assert t >= d / max(vmax, 2.0) - 1e-6
+    # never faster than the largest speed the horizontal and vertical limits allow together
+    assert t >= d / math.hypot(vmax, 2.0) - 1e-6
+
+
+def test_via_points_are_passed_without_stopping():
+    home = frames.Home()
+    nav = Navigator(home, motion.MotionLimits(max_speed_xy=3.0, max_accel=2.0), NavParams(pass_radius=0.5))
+    nav.pos[2] = 3.0
+    nav.landed = False
+    nav.replace_mission([_wp(0, home, 10, 0, 3.0), _wp(1, home, 10, 10, 3.0), _wp(2, home, 10, 10, 3.0, hold=1.0)])
+    nav.arm()
+    nav.start_mission()
+    t, min_speed_at_corner = 0.0, None
+    while nav.seq < 2:
+        nav.step(t, DT)
+        t += DT
+        if nav.seq == 1 and min_speed_at_corner is None:
+            min_speed_at_corner = float(np.linalg.norm(nav.vel))
+        assert t < 60
+    assert min_speed_at_corner > 0.5  # it did not stop at the via point
+    # faster than two separate rest-to-rest legs
+    assert t < 2 * motion.straight_leg_time(10.0, 3.0, 2.0)

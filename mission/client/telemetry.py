@@ -51,6 +51,11 @@ class TelemetryWatch:
         except TimeoutError:
             raise TelemetryTimeout(f"in_air != {in_air} after {timeout_s:g} s") from None
 
+    async def in_air(self) -> bool:
+        async for v in self._tel.subscribe_in_air():
+            return bool(v)
+        return False
+
     async def armed(self) -> bool:
         async for v in self._tel.subscribe_armed():
             return bool(v)

@@ -63,6 +63,7 @@ class NavParams:
     land_speed: float = 0.7  # m/s, (0.1, 3] [MPC_LAND_SPEED]
     acceptance_radius: float = 0.2  # m, (0.01, 10] [NAV_ACC_RAD]
     disarm_after_land_s: float = 2.0  # s, [0, 60] [COM_DISARM_LAND]
+    pass_radius: float = 0.5  # m, [0, 5]: a waypoint without hold followed by another is passed within this
 
 
 class MissionState:  # MAV_MISSION_STATE
@@ -301,6 +302,8 @@ class Navigator:
         elif self._phase == "hold":
             if self._t >= self._hold_until:
                 self._advance()
+        elif self._passing(item):
+            self._advance()
         elif self._arrived() and self._yaw_done():
             hold = item.param1 if cmd in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME) else 0.0
             if hold > 0:
@@ -308,6 +311,14 @@ class Navigator:
                 self._phase, self._hold_until = "hold", self._t + hold
             else:
                 self._advance()
+
+    def _passing(self, item: MissionItem) -> bool:
+        """A via point (waypoint, no hold, another waypoint next) is passed without stopping."""
+        if item.command != M.MAV_CMD_NAV_WAYPOINT or item.param1 > 0 or self.seq + 1 >= len(self.items):
+            return False
+        if self.items[self.seq + 1].command != M.MAV_CMD_NAV_WAYPOINT:
+            return False
+        return float(np.linalg.norm(self.target - self.pos)) <= max(self.p.pass_radius, self.p.acceptance_radius)
 
     def _yaw_done(self) -> bool:
         return self.target_yaw is None or abs(math.remainder(self.target_yaw - self.yaw, 2 * math.pi)) < 0.02
