@@ -209,7 +209,7 @@ class Vehicle:
             rel = item.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
             p = geodetic_to_enu(self.home, lat, lon, item.z + self.home.alt_m if rel else item.z)
         if item.command == M.MAV_CMD_NAV_LAND:
-            p[2] = max(p[2], self.fence.zmin)  # land altitude is the ground's, not checked
+            p[2] = self.fence.zmin  # a landing ends on the ground: its altitude field is not checked
         axis = self.fence.violated_axis(p)
         if axis is not None:
             log.warning("mission item %d outside the geofence (axis %d): %s", item.seq, axis, np.round(p, 2))
