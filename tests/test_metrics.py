@@ -52,3 +52,25 @@ def test_rejects_bad_weights():
         weighted_mean_cov(np.zeros((3, 2)), np.array([1.0, -1.0, 1.0]))
     with pytest.raises(ValueError):
         weighted_mean_cov(np.zeros((3, 2)), np.zeros(3))
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(-50, 50), st.floats(-50, 50), st.floats(0.1, 10))
+def test_metrics_properties(seed, dx, dy, scale):
+    """KL >= 0 with equality for the same cloud; entropy and total variance are translation invariant;
+    scaling the cloud by s multiplies the total variance by s^2 and adds 2 ln s to the entropy."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(300, 2)) @ rng.normal(size=(2, 2)) + rng.normal(size=2)
+    w = rng.random(300) + 0.01
+    q = rng.normal(size=(300, 2))
+    assert kl_divergence(p, q, w) >= -1e-9
+    assert kl_divergence(p, p, w, w) == pytest.approx(0.0, abs=1e-9)
+    moved = p + [dx, dy]
+    assert total_variance(moved, w) == pytest.approx(total_variance(p, w), rel=1e-6)
+    assert gaussian_entropy(moved, w) == pytest.approx(gaussian_entropy(p, w), abs=1e-6)
+    assert total_variance(scale * p, w) == pytest.approx(scale**2 * total_variance(p, w), rel=1e-6)
+    assert gaussian_entropy(scale * p, w) == pytest.approx(gaussian_entropy(p, w) + 2 * np.log(scale), abs=1e-6)
