@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimator.metrics import gaussian_entropy, kl_divergence, kl_gaussian, total_variance, weighted_mean_cov
 
@@ -52,10 +54,6 @@ def test_rejects_bad_weights():
         weighted_mean_cov(np.zeros((3, 2)), np.array([1.0, -1.0, 1.0]))
     with pytest.raises(ValueError):
         weighted_mean_cov(np.zeros((3, 2)), np.zeros(3))
-
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
 
 
 @settings(max_examples=50, deadline=None)
