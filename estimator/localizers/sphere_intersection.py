@@ -152,12 +152,10 @@ class SphereIntersection(Localizer):
         grid = _intensity_grid(centers, lam, scenario.source_z, scenario.bounds_min, scenario.bounds_max,
                                self.n_spheres)
         pts, ss = intersection_points(centers, lam, grid, z_s, self.n_circle)
-        if not self.plane and len(pts):
-            inside = np.all((pts >= scenario.bounds_min - 1e-9) & (pts <= scenario.bounds_max + 1e-9), axis=1)
-            pts, ss = pts[inside], ss[inside]
-        else:
-            inside = np.all((pts[:, :2] >= scenario.bounds_min[:2]) & (pts[:, :2] <= scenario.bounds_max[:2]), axis=1)
-            pts, ss = pts[inside], ss[inside]
+        axes = 2 if self.plane else 3  # on the floor plane z is fixed; in 3-D the whole box bounds the source
+        lo, hi = scenario.bounds_min[:axes] - 1e-9, scenario.bounds_max[:axes] + 1e-9
+        inside = np.all((pts[:, :axes] >= lo) & (pts[:, :axes] <= hi), axis=1)
+        pts, ss = pts[inside], ss[inside]
         if len(pts) == 0:
             return None
         # lines 7-14: expected reading at every dwell point and its PDF under N(lambda_k, sigma_k)
