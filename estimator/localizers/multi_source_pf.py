@@ -13,7 +13,9 @@ the measurements minus the sources already found (eq. 4.11). The weight of a par
 the Gaussian-approximated Poisson likelihoods of all measurements (eq. 3.12-3.15, in counts:
 N(n_k; mu_k, mu_k) with mu_k = T_k (I^i g_ik + lambda_b)); since I^i is recomputed from all data, the
 product is evaluated over the whole history at every step (equivalent to Algorithm 3.1's recursive
-product for the current intensities).
+product for the current intensities). Extensions: the squared residual has a Huber tail beyond
+``robust_sigma`` (a reading dominated by another source must not drag this one), and ``intensity="wls"``
+replaces eq. 3.11 by the likelihood-optimal closed form (sec. 3.2.2.2's "optimisation method").
 
 Resampling (sec. 3.2.4): the ``resample_fraction`` lowest-weight particles, and any of zero weight, are
 replaced by roulette-wheel draws among the others plus Gaussian jitter N(0, mag^2) (eq. 3.16-3.17), with mag
@@ -26,7 +28,8 @@ reading still exceeds the background by ``detect_sigma`` (up to ``max_sources``)
 are then separated (eq. 4.16): the thesis solves the M x M linear system I'_i = sum_j I_j / d_ij^2 + lambda_b
 (:func:`separate_intensities`); with measurements at arbitrary poses the same coupling is the weighted
 least-squares system (G^T W G) I = G^T W (z - lambda_b), G_kj = exp(-mu L_kj) / d_kj^2, which the
-localizer solves (it reduces to eq. 4.16 when each source has one measurement at 1 m).
+localizer solves (it reduces to eq. 4.16 when each source has one measurement at 1 m). A later source whose
+separated intensity is below 3 sigma is dropped (a residue of model mismatch, not a source).
 """
 
 from __future__ import annotations
