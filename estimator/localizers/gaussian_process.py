@@ -20,6 +20,9 @@ Intensity (not part of paper 001, which only locates): given the peak positions,
 weighted least squares of the readings on the inverse-square gains. Position uncertainty: the spread of
 the arg-max of ``n_posterior_samples`` posterior draws of the field in a window around each peak (the
 GP's own uncertainty about where the peak is). No CRLB.
+
+Measurement points are the dwells; with ``use_transit`` (``"auto"``: when the flight spent more time in
+transit than dwelling, i.e. a survey) the transit frames are added as ``chunk_s`` chunks at their mean pose.
 """
 
 from __future__ import annotations
@@ -110,8 +113,9 @@ class GaussianProcessLocalizer(Localizer):
     name = "gp"
 
     def __init__(self, n_sources: int | str = 1, max_sources: int = 2, peak_fraction: float = 0.3,
-                 transform: str = "log", grid_step: float = 0.05, use_transit: bool = False, chunk_s: float = 2.0,
-                 n_restarts: int = 4, n_posterior_samples: int = 200, min_frames: int = 5, seed: int = 0):
+                 transform: str = "log", grid_step: float = 0.05, use_transit: bool | str = "auto",
+                 chunk_s: float = 5.0, n_restarts: int = 4, n_posterior_samples: int = 200, min_frames: int = 5,
+                 seed: int = 0):
         self.n_sources = n_sources
         self.max_sources = max_sources
         self.peak_fraction = peak_fraction
@@ -125,7 +129,10 @@ class GaussianProcessLocalizer(Localizer):
         self.seed = seed
 
     def _readings(self, frames: Frames, bg: float) -> tuple[Any, np.ndarray, np.ndarray]:
-        meas = (summarize_chunks(frames, self.chunk_s) if self.use_transit
+        transit = self.use_transit
+        if transit == "auto":  # a survey (more time in transit than dwelling) is read along the path
+            transit = frames.duration[frames.dwell < 0].sum() > frames.duration[frames.dwell >= 0].sum()
+        meas = (summarize_chunks(frames, self.chunk_s) if transit
                 else summarize_dwells(frames, min_frames=self.min_frames))
         rate, sig = meas.rate, meas.rate_sigma
         if self.transform == "none":
