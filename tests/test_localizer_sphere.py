@@ -80,3 +80,14 @@ def test_too_few_readings_raises():
     frames = dwell_frames(np.array([[1, 1, 1.5], [9, 7, 1.5]]), [(5, 4, 0, 100.0)], 30.0, rng=np.random.default_rng(0))
     with pytest.raises(ValueError, match="3 dwell points"):
         make_localizer("sphere").fit(frames, scenario_for())
+
+
+def test_partial_fit_of_a_batch_method_refits_on_everything_seen():
+    ds = lattice_flight(2)
+    m = np.arange(len(ds.frames)) < len(ds.frames) // 2
+    loc = make_localizer("sphere").partial_fit(ds.frames.select(m), ds.scenario).partial_fit(ds.frames.select(~m))
+    full = make_localizer("sphere").fit(ds)
+    np.testing.assert_allclose(loc.position_, full.position_)
+    assert len(loc.frames_seen_) == len(ds.frames)
+    est = loc.to_estimate(t=3.0)
+    assert est.method == "sphere" and est.sources[0]["cps_at_1m"] == loc.sources_[0]["cps_at_1m"]
