@@ -146,10 +146,22 @@ def deviance_moments(mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------------- starts
 
 
-def pooled(frames: Frames, size: int = 10) -> Frames:
+def pooled(frames: Frames, size: int = 10, dwells_only: bool = False) -> Frames:
     """Consecutive frames of the same dwell index pooled ``size`` at a time (counts and durations
-    summed, poses averaged): a ~10x cheaper stand-in for the start-point search, not for fitting."""
-    run = np.cumsum(np.r_[True, frames.dwell[1:] != frames.dwell[:-1]])
+    summed, poses and variances averaged). For the start-point search everything is pooled; with
+    ``dwells_only`` transit frames stay single, so a model whose rate depends on the pose only (no
+    yaw or time effects) loses nothing but the within-dwell pose jitter: a cheap in-flight refit."""
+    if dwells_only:
+        moving = frames.dwell < 0
+        if moving.all():
+            return frames
+        keyed = np.where(moving, np.arange(len(frames)) * size, 0)  # each transit frame its own chunk
+        return _pool(frames, size, keyed)
+    return _pool(frames, size, np.zeros(len(frames), dtype=int))
+
+
+def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
+    run = np.cumsum(np.r_[True, (frames.dwell[1:] != frames.dwell[:-1]) | (salt[1:] != salt[:-1])])
     within = np.arange(len(frames)) - np.r_[0, np.flatnonzero(np.diff(run)) + 1].repeat(np.diff(
         np.r_[0, np.flatnonzero(np.diff(run)) + 1, len(frames)]))
     key = np.cumsum(np.r_[True, (run[1:] != run[:-1]) | (within[1:] // size != within[:-1] // size)]) - 1

@@ -42,7 +42,7 @@ class MissionSettings:
     vehicle: str = topics.DEFAULT_VEHICLE
     seed: int = 0
     connect_timeout_s: float = 60.0
-    leg_timeout_s: float = 120.0  # wall s to reach a dwell point before giving up on it
+    leg_speed_m_s: float = 1.0  # expected cruise speed: a leg may take 3 x distance / speed + 30 s (sim)
 
 
 async def _in_air(tel: TelemetryWatch) -> bool:
@@ -115,6 +115,8 @@ class MissionRunner:
         self.log: list[dict] = []
         self.t_start: float | None = None
         self.battery = math.nan
+        self.abort_reason: str | None = None  # set when the vehicle leaves the search (failsafe, landed)
+        self.airborne = False
 
     async def _watch(self, tel: TelemetryWatch, stream: _Stream) -> None:
         """Background: keep the battery level and log every STATUSTEXT (failsafes say why here)."""
@@ -126,8 +128,16 @@ class MissionRunner:
         async def texts() -> None:
             async for severity, text in tel.status_texts():
                 self._event(stream, "statustext", severity=severity, text=text)
+                if text.lower().startswith("failsafe") and self.abort_reason is None:
+                    self.abort_reason = f"vehicle failsafe: {text}"
 
-        await asyncio.gather(battery(), texts())
+        async def in_air() -> None:
+            async for flying in tel._tel.subscribe_in_air():
+                if self.airborne and not flying and self.abort_reason is None:
+                    self.abort_reason = "vehicle landed"
+                self.airborne = self.airborne or flying
+
+        await asyncio.gather(battery(), texts(), in_air())
 
     # ------------------------------------------------------------------------------ publishing
 
@@ -148,13 +158,14 @@ class MissionRunner:
 
     # ------------------------------------------------------------------------------ flying
 
-    async def _arrive(self, stream: _Stream, target: np.ndarray) -> bool:
+    async def _arrive(self, stream: _Stream, target: np.ndarray, path_length: float) -> bool:
         """Wait until the estimated position has stayed within ARRIVE_RADIUS_M of target for
-        ARRIVE_SETTLE_S of sim time."""
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.settings.leg_timeout_s
+        ARRIVE_SETTLE_S of sim time; False after 3 x the expected flight time + 30 s of sim time, or
+        when the vehicle left the search (failsafe, landed)."""
+        t0 = self._now(stream)
+        limit = 3.0 * path_length / self.settings.leg_speed_m_s + 30.0
         inside_since: float | None = None
-        while loop.time() < deadline:
+        while self._now(stream) - t0 < limit and self.abort_reason is None:
             p = stream.pose()
             if p is not None:
                 if math.dist((p.x, p.y, p.z), target[:3]) < ARRIVE_RADIUS_M:
@@ -167,15 +178,20 @@ class MissionRunner:
         return False
 
     async def _dwell(self, stream: _Stream):
-        """Feed histograms that start after arrival to the dwell controller until it is satisfied."""
+        """Feed histograms that start after arrival to the dwell controller until it is satisfied
+        (None if the vehicle left the search meanwhile)."""
         while not stream.queue.empty():  # frames integrated while still moving do not count
             stream.queue.get_nowait()
         self.brain.begin_dwell()
-        while True:
-            hist = await stream.queue.get()
+        while self.abort_reason is None:
+            try:
+                hist = await asyncio.wait_for(stream.queue.get(), 1.0)
+            except TimeoutError:
+                continue
             status = self.brain.on_frame(hist)
             if status.done:
                 return status
+        return None
 
     async def run(self) -> dict:
         loop = asyncio.get_running_loop()
@@ -208,7 +224,7 @@ class MissionRunner:
             self.t_start = self._now(stream)
             current = self._current(stream)
             decision = self.brain.start(current)
-            while decision.plan is not None:
+            while decision.plan is not None and self.abort_reason is None:
                 self._publish_plan(stream, decision)
                 plan = decision.plan
                 points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
@@ -218,12 +234,16 @@ class MissionRunner:
                 await mission.start()  # (re)enter AUTO.MISSION at the new first item
                 self.publish_state(stream, decision.phase.value,
                                    f"flying to dwell point {len(self.brain.history)}: {decision.reason}")
-                if not await self._arrive(stream, d):
+                if not await self._arrive(stream, d, plan.path_length() + 0.5):
+                    if self.abort_reason is not None:
+                        break
                     self._event(stream, "leg_timeout", target=d.tolist())
                 with stream.lock:
                     stream.dwell_index = len(self.brain.history)
                 self.publish_state(stream, "dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
                 status = await self._dwell(stream)
+                if status is None:
+                    break
                 p = stream.pose()
                 position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
                 self._event(stream, "dwell", index=stream.dwell_index, position=position.tolist(),
@@ -236,7 +256,10 @@ class MissionRunner:
                     self._publish_estimate(stream)
                 self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
                             estimate=self.brain.estimate)
-            self.publish_state(stream, "rtl", f"search done: {decision.reason}")
+            reason = decision.reason if self.abort_reason is None else f"search aborted: {self.abort_reason}"
+            if self.abort_reason is not None:
+                self._event(stream, "abort", reason=self.abort_reason)
+            self.publish_state(stream, "rtl", f"search done: {reason}")
             t_done = self._now(stream)
             try:
                 await actions.return_to_launch()
@@ -254,7 +277,7 @@ class MissionRunner:
             subs = []
             recorder.close()
             summary = {
-                "reason": decision.reason,
+                "reason": reason,
                 "dwell_points": len(self.brain.history),
                 "search_dwell_points": self.brain.search_dwells,
                 "mission_time_s": t_done - (self.t_start or 0.0),

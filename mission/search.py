@@ -20,6 +20,7 @@ from enum import StrEnum
 import numpy as np
 
 from estimator.localizers.base import Localizer, make_localizer
+from estimator.mle import pooled
 from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief
 from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
@@ -236,7 +237,8 @@ class SearchBrain:
             settings["init"] = {k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")}
         loc.set_params(**{k: v for k, v in settings.items() if k in loc.get_params()})
         try:
-            loc.fit(frames, self.scenario)
+            # in-flight models depend on the pose only: 1 s chunks of a dwell lose nothing but jitter
+            loc.fit(pooled(frames, 10, dwells_only=True), self.scenario)
         except (ValueError, np.linalg.LinAlgError, RuntimeError):
             return None
         self.localizer = loc
