@@ -148,12 +148,17 @@ class Trend:
         return float(stats.chi2.logsf(self.chi2, self.dof) / np.log(10)) if self.dof > 0 else 0.0
 
 
-def trend(name: str, feature: np.ndarray, n: np.ndarray, mu: np.ndarray, n_bins: int = 8, log: bool = False
-          ) -> Trend | None:
+def trend(name: str, feature: np.ndarray, n: np.ndarray, mu: np.ndarray, n_bins: int = 8, log: bool = False,
+          zero_bin: bool = False) -> Trend | None:
     """Bin frames into quantiles of ``feature`` (or equal steps of its log, for scale-like features such as
-    rate and distance, so the few high-rate frames get bins of their own) and test observed vs expected."""
+    rate and distance, so the few high-rate frames get bins of their own) and test observed vs expected.
+    ``zero_bin``: exact zeros get a bin of their own and the positive values share the others (wall paths)."""
     feature = np.asarray(feature, dtype=float)
-    if log and np.all(feature > 0):
+    if zero_bin and np.any(feature > 0) and np.any(feature <= 0):
+        pos = feature[feature > 0]
+        inner = np.unique(np.quantile(pos, np.linspace(0, 1, n_bins)))
+        qs = np.unique(np.r_[0.0, inner[0] * (1 - 1e-9), inner[1:]])
+    elif log and np.all(feature > 0):
         lf = np.log(feature)
         qs = np.unique(np.exp(np.linspace(lf.min(), lf.max(), n_bins + 1)))
     else:

@@ -79,7 +79,8 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
             continue
         if name.startswith("wall") and not np.any(values > 0):
             continue
-        tr = trend(name, values, n, mu, n_bins=n_bins, log=name in ("count rate", "distance"))
+        tr = trend(name, values, n, mu, n_bins=n_bins, log=name in ("count rate", "distance"),
+                   zero_bin=name.startswith("wall"))
         if tr is not None:
             trends[name] = tr
     spec_dev = float("nan")
