@@ -123,6 +123,18 @@ def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> s
     return best if drops[best] > 0 else feature_of(effect)
 
 
+def _fill_explains(ds: Dataset, fitter: CountFitter, sel: Selection, spectral: SpectralFit | None) -> None:
+    """Which residual feature each candidate explains: compare its trends with the model it extends."""
+    for step in sel.steps:
+        ref = analyse(ds, step.effects, fitter.fit(tuple(e for e in step.effects if e not in SPECTRAL_EFFECTS)),
+                      spectral)
+        for c in step.candidates:
+            if c.effect in SPECTRAL_EFFECTS:
+                c.explains = SPECTRAL_FEATURE
+            else:
+                c.explains = explained_feature(ref, analyse(ds, (*step.effects, c.effect), c.fit, spectral), c.effect)
+
+
 @dataclass
 class Diagnosis:
     dataset: Dataset
@@ -158,15 +170,7 @@ def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = ()
     spectral = cache.get("fit", spectral)
     if spectral is not None:
         current = analyse(ds, (*count, *spec), base, spectral)
-    # which residual feature each first-step candidate explains
-    for step in sel.steps:
-        ref = analyse(ds, step.effects, fitter.fit(tuple(e for e in step.effects if e not in SPECTRAL_EFFECTS)),
-                      spectral)
-        for c in step.candidates:
-            if c.effect in SPECTRAL_EFFECTS:
-                c.explains = SPECTRAL_FEATURE
-            else:
-                c.explains = explained_feature(ref, analyse(ds, (*step.effects, c.effect), c.fit, spectral), c.effect)
+    _fill_explains(ds, fitter, sel, spectral)
     added = tuple(add)
     after = None
     after_sel = None
@@ -178,4 +182,5 @@ def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = ()
         after = analyse(ds, (*tc, *ts), after_fit, spectral)
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
+            _fill_explains(ds, fitter, after_sel, cache.get("fit", spectral))
     return Diagnosis(ds, fitter.backend, alpha, current, sel, added, after, after_sel, spectral)
