@@ -118,3 +118,12 @@ def test_every_effect_has_physics_and_a_feature():
     assert set(PHYSICS) == set(EFFECTS)
     for e in EFFECTS:
         assert len(physics(e)) > 60 and feature_of(e)
+
+
+def test_tail_p_values_stay_finite_for_ranking():
+    from estimator.diagnose.selection import chi2_logsf
+
+    assert np.isclose(chi2_logsf(1000.0, 1), stats.chi2.logsf(1000.0, 1))
+    assert math.isfinite(chi2_logsf(5291.0, 1)) and chi2_logsf(6000.0, 1) < chi2_logsf(5291.0, 1)
+    lp, _ = null_log10_p("second_source", 5291.0, 3, _scenario(), _frames())
+    assert math.isfinite(lp) and lp < -1000

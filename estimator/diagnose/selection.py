@@ -48,6 +48,15 @@ def second_source_looks(scenario: Scenario, frames: Frames) -> int:
     return int(np.clip(math.ceil(area / h**2), 4, 5000))
 
 
+def chi2_logsf(x: float, k: int) -> float:
+    """log P(chi2_k > x), finite far in the tail (scipy underflows to -inf beyond x ~ 1500)."""
+    v = float(stats.chi2.logsf(x, k))
+    if math.isfinite(v):
+        return v
+    # leading term of the upper incomplete gamma function's asymptotic series
+    return -x / 2 + (k / 2 - 1) * math.log(x / 2) - math.lgamma(k / 2)
+
+
 def null_log10_p(effect: str, lr: float, k: int, scenario: Scenario, frames: Frames) -> tuple[float, str]:
     """log10 p-value of LR under the effect's null, and the null's name."""
     lr = max(float(lr), 0.0)
@@ -55,16 +64,16 @@ def null_log10_p(effect: str, lr: float, k: int, scenario: Scenario, frames: Fra
     if effect in BOUNDARY_ONE:
         if lr <= 0:
             return 0.0, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
-        return (math.log(0.5) + stats.chi2.logsf(lr, 1)) / ln10, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
+        return (math.log(0.5) + chi2_logsf(lr, 1)) / ln10, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
     if effect in ("anisotropy", "second_source"):
         looks = ANISO_LOOKS if effect == "anisotropy" else second_source_looks(scenario, frames)
         name = (f"Bonferroni over {looks} {'half-angles' if effect == 'anisotropy' else 'locations'} x "
                 "(1/2 chi2_0 + 1/2 chi2_1) (Davies: nuisance not identified under the null)")
         if lr <= 0:
             return 0.0, name
-        return min(0.0, (math.log(0.5 * looks) + stats.chi2.logsf(lr, 1)) / ln10), name
+        return min(0.0, (math.log(0.5 * looks) + chi2_logsf(lr, 1)) / ln10), name
     dof = max(k, 1)
-    return stats.chi2.logsf(lr, dof) / ln10, f"chi2_{dof}"
+    return chi2_logsf(lr, dof) / ln10, f"chi2_{dof}"
 
 
 @dataclass
