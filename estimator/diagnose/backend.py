@@ -11,8 +11,10 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
+
+import numpy as np
 
 from radseek.dataset import EFFECTS, Frames, Scenario
 
@@ -45,6 +47,41 @@ def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, .
     return count, spec
 
 
+def split_transit_legs(frames: Frames, turn_deg: float = 25.0, k: int = 3) -> Frames:
+    """Frames whose transit runs are split into straight legs (dwell -1 / -2 alternating per leg).
+
+    The estimator's fit gives every dwell and every contiguous transit run one uncertain position offset.
+    A navigation error is not constant over a transit run that turns (a low pass, a lawnmower line and its
+    turn): with one offset per run, the leftover pose error of a run near a strong source is structured in
+    time and a time-like effect (pose_drift) takes it up. Splitting the runs at turns (the direction of motion,
+    smoothed over +-k frames, changes by more than ``turn_deg``) gives each leg its own offset. Only the
+    ``dwell`` column changes, and only for transit frames.
+    """
+    dw = np.asarray(frames.dwell).copy()
+    moving = dw < 0
+    if not moving.any() or len(frames) < 2 * k + 2:
+        return frames
+    pos = frames.positions
+    n = len(frames)
+    i = np.arange(n)
+    v = pos[np.minimum(i + k, n - 1)] - pos[np.maximum(i - k, 0)]
+    u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+    before = u[np.maximum(i - k, 0)]
+    after = u[np.minimum(i + k, n - 1)]
+    run_start = np.r_[True, moving[1:] != moving[:-1]]
+    run = np.cumsum(run_start)
+    inside = (run[np.maximum(i - 2 * k, 0)] == run) & (run[np.minimum(i + 2 * k, n - 1)] == run)
+    turning = (np.einsum("ij,ij->i", before, after) < np.cos(np.radians(turn_deg))) & moving & inside
+    # a leg boundary in the middle of each contiguous turning stretch
+    edges = np.diff(np.r_[0, turning.astype(int), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    cut = np.zeros(n, dtype=bool)
+    cut[(starts + ends) // 2] = True
+    leg = np.cumsum(cut | run_start)
+    dw[moving] = -1 - (leg[moving] % 2)
+    return replace(frames, dwell=dw)
+
+
 def progress(msg: str, quiet: bool = False) -> None:
     if not quiet:
         print(f"[diagnose {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
@@ -61,8 +98,11 @@ class CountFitter:
     quiet: bool = False
     prefer: str = "auto"
 
+    split_legs: bool = True
+
     def __post_init__(self) -> None:
         self.model_cls, self._fit, self.backend = load_backend(self.prefer)
+        self.fit_frames = split_transit_legs(self.frames) if self.split_legs else self.frames
         self._cache: dict[tuple[str, ...], Any] = {}
 
     def model(self, effects: tuple[str, ...]) -> Any:
@@ -78,7 +118,7 @@ class CountFitter:
         model = self.model(key)
         names = set(model.param_names)
         init = {k: float(v) for k, v in (init or {}).items() if k in names}
-        res = self._fit(model, self.frames, n_starts=n_starts or self.n_starts, seed=self.seed,
+        res = self._fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
                         pose_uncertainty=True, init=init or None)
         progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
                  f"({time.perf_counter() - t0:.1f} s)", self.quiet)
