@@ -127,3 +127,22 @@ def test_tail_p_values_stay_finite_for_ranking():
     assert math.isfinite(chi2_logsf(5291.0, 1)) and chi2_logsf(6000.0, 1) < chi2_logsf(5291.0, 1)
     lp, _ = null_log10_p("second_source", 5291.0, 3, _scenario(), _frames())
     assert math.isfinite(lp) and lp < -1000
+
+
+def test_transit_runs_split_at_turns_only():
+    from estimator.diagnose.backend import split_transit_legs
+
+    # dwell 0 (20 frames), an L-shaped transit (2 x 30 frames at 0.1 m/frame), dwell 1 (20 frames)
+    leg1 = np.column_stack([np.arange(30) * 0.1, np.zeros(30)])
+    leg2 = np.column_stack([np.full(30, 3.0), np.arange(1, 31) * 0.1])
+    xy = np.vstack([np.zeros((20, 2)), leg1, leg2, np.tile([3.0, 3.0], (20, 1))])
+    n = len(xy)
+    dwell = np.r_[np.zeros(20), -np.ones(60), np.ones(20)].astype(int)
+    z = np.zeros(n)
+    f = Frames(t=np.arange(1, n + 1) * 0.1, duration=np.full(n, 0.1), x=xy[:, 0], y=xy[:, 1], z=z + 1.5, yaw=z,
+               var_x=z + 1e-3, var_y=z + 1e-3, var_z=z, dwell=dwell, counts=np.ones((n, 32), dtype=int))
+    out = split_transit_legs(f).dwell
+    assert np.array_equal(out[:20], dwell[:20]) and np.array_equal(out[80:], dwell[80:])
+    transit = out[20:80]
+    assert set(transit) == {-1, -2} and np.count_nonzero(np.diff(transit)) == 1  # one cut, at the corner
+    assert 45 <= 20 + int(np.flatnonzero(np.diff(transit))[0]) <= 55
