@@ -75,8 +75,10 @@ class GoodnessOfFit:
     p_value: float  # one-sided, normal approximation with the exact moments
 
 
-def goodness_of_fit(n: np.ndarray, mu: np.ndarray, n_params: int) -> GoodnessOfFit:
-    d = float(unit_deviance(n, mu).sum())
+def goodness_of_fit(n: np.ndarray, mu: np.ndarray, n_params: int, penalty: float = 0.0) -> GoodnessOfFit:
+    """Deviance (plus ``penalty``: the pose offsets' sum delta^T Sigma^-1 delta, which makes a fit with
+    Gaussian random offsets comparable to one without: its expectation is still about N - k)."""
+    d = float(unit_deviance(n, mu).sum()) + max(float(penalty), 0.0)
     m, v = deviance_moments(mu)
     dof = max(len(np.atleast_1d(n)) - n_params, 1)
     expected = float(m.sum()) - n_params

@@ -14,7 +14,16 @@ import numpy as np
 from estimator.diagnose.backend import SPECTRAL_EFFECTS, CountFitter, describe, progress, split_effects
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
-from estimator.diagnose.residuals import GoodnessOfFit, Trend, aggregate, goodness_of_fit, pearson, segments, trend
+from estimator.diagnose.residuals import (
+    GoodnessOfFit,
+    Trend,
+    aggregate,
+    goodness_of_fit,
+    pearson,
+    segments,
+    trend,
+    unit_deviance,
+)
 from estimator.diagnose.selection import Selection, forward_select
 from estimator.spectral import SpectralFit, SpectralModel
 from radseek.dataset import Dataset, Truth
@@ -66,7 +75,10 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     n = f.total_counts.astype(float)
     mu = np.asarray(fit.expected, dtype=float)
     k = len(fit.free_names)
-    gof = goodness_of_fit(n, mu, k)
+    # the fit's deviance includes the pose offsets' penalty; keep it so that E[deviance] ~ N - k still holds
+    penalty = float(getattr(fit, "deviance", 0.0)) - float(unit_deviance(n, mu).sum()) if hasattr(fit, "deviance") \
+        else 0.0
+    gof = goodness_of_fit(n, mu, k, penalty=max(penalty, 0.0))
     lab = segments(f, transit_s=1.0)
     sn, smu = aggregate(lab, n, mu)
     gof_seg = goodness_of_fit(sn, smu, k)
