@@ -34,6 +34,7 @@ from detector_fw_sim.board import Board
 from detector_fw_sim.frame_codec import FRAME_SIZE, FrameConsumer, encode_frame
 from detector_fw_sim.frame_codec import frame_to_histogram as _to_histogram
 from radseek import topics
+from radseek.pose_history import PoseHistory
 from radseek.simclock import Clock
 
 if TYPE_CHECKING:
@@ -127,11 +128,14 @@ class Counters:
 
 
 class TruthPoseFollower:
-    """Keeps the latest valid ``sim/truth_pose``; bad messages are counted and dropped."""
+    """Keeps a short history of valid ``sim/truth_pose`` messages; bad messages are counted and dropped.
+
+    Frames take the true pose interpolated at their mid-time: at 20x a frame may be produced well after
+    its interval ended, and the latest pose would then place its counts further along the path."""
 
     def __init__(self, session: zenoh.Session, vehicle: str, counters: Counters):
         self._lock = threading.Lock()
-        self._latest: topics.TruthPose | None = None
+        self._history: PoseHistory[topics.TruthPose] = PoseHistory(keep_s=30.0)
         self._counters = counters
         self._sub = session.declare_subscriber(topics.key(topics.SIM_TRUTH_POSE, vehicle), self._on_pose)
 
@@ -142,13 +146,13 @@ class TruthPoseFollower:
             with self._lock:
                 self._counters.bad_pose_msgs += 1
             return
-        with self._lock:
-            if self._latest is None or msg.t >= self._latest.t:
-                self._latest = msg
+        self._history.add(msg)
 
     def latest(self) -> topics.TruthPose | None:
-        with self._lock:
-            return self._latest
+        return self._history.latest()
+
+    def at(self, t: float, max_gap_s: float) -> topics.TruthPose | None:
+        return self._history.at(t, max_gap_s)
 
     def undeclare(self) -> None:
         self._sub.undeclare()
@@ -173,11 +177,15 @@ class DetectorProcess:
         self.stop_event = threading.Event()
 
     # -- one frame -------------------------------------------------------------------------------
-    def _pose_for(self, t_end: float) -> np.ndarray | None:
+    def _pose_for(self, t_start: float, t_end: float) -> np.ndarray | None:
+        """The true pose at the frame's mid-time; None (stale) when no pose arrived for stale_after_s."""
         if self.config.fixed_pose is not None:
             return np.asarray(self.config.fixed_pose, dtype=float)
-        msg = self._poses.latest() if self._poses else None
-        if msg is None or t_end - msg.t > self.config.stale_after_s:
+        last = self._poses.latest() if self._poses else None
+        if last is None or t_end - last.t > self.config.stale_after_s:
+            return None
+        msg = self._poses.at(0.5 * (t_start + t_end), self.config.stale_after_s)
+        if msg is None:
             return None
         return np.array([msg.x, msg.y, msg.z, msg.yaw])
 
@@ -188,7 +196,7 @@ class DetectorProcess:
             self.counters.dropout_frames += 1
             self.state = "dropout"
             return
-        pose = self._pose_for(t1)
+        pose = self._pose_for(t0, t1)
         live: float | None = None
         if pose is None:
             counts = np.zeros(topics.N_CHANNELS, dtype=np.int64)  # no pose: invent nothing

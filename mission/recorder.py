@@ -15,62 +15,17 @@ dataset, and
 
 from __future__ import annotations
 
-import bisect
 import csv
 import math
 from pathlib import Path
 
 from radseek import topics
 from radseek.dataset import COLUMNS, FrameWriter, Scenario, write_json
+from radseek.pose_history import PoseHistory
 
 UNUSABLE = topics.FLAG_STALE_POSE | topics.FLAG_CRC_ERROR
 
-
-class PoseHistory:
-    """Estimated poses by sim time; linear interpolation, yaw unwrapped. Keeps a bounded window."""
-
-    def __init__(self, keep_s: float = 60.0):
-        self.keep_s = keep_s
-        self._t: list[float] = []
-        self._p: list[topics.Pose] = []
-
-    def add(self, pose: topics.Pose) -> None:
-        if self._t and pose.t < self._t[-1]:
-            return  # out of order: the newer estimate wins
-        self._t.append(pose.t)
-        self._p.append(pose)
-        cut = bisect.bisect_left(self._t, pose.t - self.keep_s)
-        if cut:
-            del self._t[:cut], self._p[:cut]
-
-    def __len__(self) -> int:
-        return len(self._t)
-
-    def at(self, t: float, max_gap_s: float = 1.0) -> topics.Pose | None:
-        """The pose at ``t``, or None when no estimate lies within ``max_gap_s`` of it."""
-        if not self._t:
-            return None
-        i = bisect.bisect_left(self._t, t)
-        if i < len(self._t) and self._t[i] == t:
-            return self._p[i]
-        if i == 0 or i == len(self._t):
-            j = 0 if i == 0 else len(self._t) - 1
-            return self._p[j] if abs(self._t[j] - t) <= max_gap_s else None
-        a, b = self._p[i - 1], self._p[i]
-        if b.t - a.t > 2 * max_gap_s:
-            return None
-        w = (t - a.t) / (b.t - a.t)
-        dyaw = math.remainder(b.yaw - a.yaw, 2 * math.pi)
-
-        def lerp(u: float, v: float) -> float:
-            return u + w * (v - u)
-
-        return topics.Pose(
-            t=t, x=lerp(a.x, b.x), y=lerp(a.y, b.y), z=lerp(a.z, b.z),
-            yaw=math.remainder(a.yaw + w * dyaw, 2 * math.pi),
-            var_x=lerp(a.var_x, b.var_x), var_y=lerp(a.var_y, b.var_y), var_z=lerp(a.var_z, b.var_z),
-            var_yaw=lerp(a.var_yaw, b.var_yaw),
-        )
+__all__ = ["FlightRecorder", "PoseHistory", "flagged_rows"]
 
 
 class FlightRecorder:
