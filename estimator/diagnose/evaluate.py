@@ -19,14 +19,14 @@ from radseek.dataset import Dataset, read_dataset
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
 
 
-def emulated(which: str) -> Iterator[tuple[str, Callable[[], Dataset]]]:
+def emulated(which: str, null_seeds: tuple[int, ...] = (11, 12, 13)) -> Iterator[tuple[str, Callable[[], Dataset]]]:
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight
 
     d = load_scene().without_effects()
     if which == "null":
         for path in ("lattice", "lawnmower", "spin", "close-pass"):
-            for seed in (11, 12, 13):
+            for seed in null_seeds:
                 yield f"null-{path}-{seed}", lambda p=path, s=seed: simulate_flight(d, path=p, seed=s)
         return
     yield "emu-dead_time", lambda: simulate_flight(load_scene("close-pass-deadtime"), path="close-pass", seed=5)
@@ -97,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", choices=["shared", "effects", "null"], action="append")
     p.add_argument("--jsonl", type=Path, default=None, help="also append one JSON row per dataset here")
     p.add_argument("--starts", type=int, default=8)
+    p.add_argument("--null-seeds", type=int, nargs="+", default=[11, 12, 13])
     args = p.parse_args(argv)
     which = args.only or ["shared", "effects", "null"]
     jobs: list[tuple[str, Callable[[], Dataset]]] = []
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     if "effects" in which:
         jobs += list(emulated("effects"))
     if "null" in which:
-        jobs += list(emulated("null"))
+        jobs += list(emulated("null", tuple(args.null_seeds)))
     rows = []
     for name, make in jobs:
         r = row(name, make(), args.starts)
