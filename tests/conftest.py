@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -21,3 +24,23 @@ def shared_datasets() -> Path:
     if not SHARED_DATASETS.is_dir():
         pytest.fail(f"shared datasets not found at {SHARED_DATASETS}: clone next to shared/")
     return SHARED_DATASETS
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def router():
+    """A real `radseek router` on a free loopback port; yields its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert "listening" in proc.stdout.readline()
+        yield endpoint
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -7,7 +7,6 @@ import os
 import queue
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -26,25 +25,6 @@ from radseek.simclock import ClockPublisher, FreeRunningClock
 from radseek.zenoh_session import open_session
 
 SPEEDUP = 10.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def router():
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        assert "listening" in proc.stdout.readline()
-        yield endpoint
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 class Proc:

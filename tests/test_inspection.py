@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 import subprocess
 import sys
 import threading
@@ -23,25 +22,6 @@ from radseek.zenoh_session import open_session
 
 REPO = Path(__file__).resolve().parents[1]
 ZENOH_CLI = Path(sys.executable).with_name("zenoh")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def router():
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        assert "listening" in proc.stdout.readline()
-        yield endpoint
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def histogram(seq: int, counts=None, flags: int = 0) -> topics.Histogram:

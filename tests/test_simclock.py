@@ -1,7 +1,5 @@
 """The shared simulation clock, over a real zenoh router on loopback."""
 
-import subprocess
-import sys
 import time
 
 import pytest
@@ -16,21 +14,6 @@ def test_free_running_clock_scales_wall_time():
     assert 1.0 <= clock.now() < 1.6
     with pytest.raises(ValueError):
         FreeRunningClock(speedup=0)
-
-
-@pytest.fixture
-def router():
-    port = 17447
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "radseek.cli", "router", "--listen", f"tcp/127.0.0.1:{port}"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )
-    try:
-        assert "listening" in proc.stdout.readline()
-        yield f"tcp/127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def test_follower_tracks_owner_and_stalls_with_it(router):
