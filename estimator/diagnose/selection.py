@@ -15,7 +15,7 @@ is turned into a p-value with the null distribution that is right for that effec
   by the squared median detector height above the floor (the width of one source's count-rate hill),
   p = min(1, M * 1/2 P(chi2_1 > LR)).
 - ``background_gradient``, ``pose_drift``: two unbounded parameters, chi2_2. ``gain_drift``: chi2_1 (spectral
-  likelihood, ``estimator.spectral``).
+  likelihood, ``estimator.spectral``), on LR divided by the spectral fit's over-dispersion when it exceeds 1.
 
 Several candidates are tested per step, so a candidate is significant when p < alpha / (number of candidates)
 (Bonferroni). Candidates are ranked by this p-value (ties by delta-AIC = AIC_ext - AIC_current, negative
@@ -178,8 +178,11 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
             if e in SPECTRAL_EFFECTS:
                 progress("testing gain_drift (spectral model, 32 channels)", quiet)
                 sf = spectral_fit()
-                lp, null = null_log10_p(e, sf.lr, 1, scenario, frames)
-                cands.append(Candidate(e, sf.lr, 1, 2 - sf.lr, lp, null, {"gain_drift.percent_per_min":
+                lr_q = sf.lr_scaled  # quasi-likelihood: scaled by the no-drift fit's over-dispersion
+                lp, null = null_log10_p(e, lr_q, 1, scenario, frames)
+                if sf.dispersion > 1:
+                    null += f" on LR / {sf.dispersion:.2f} (spectral over-dispersion)"
+                cands.append(Candidate(e, lr_q, 1, 2 - lr_q, lp, null, {"gain_drift.percent_per_min":
                                        sf.percent_per_min}, {"gain_drift.percent_per_min": sf.error}, fit=sf))
                 continue
             # start from the current optimum (the effect at its default); a second source also gets starts
