@@ -19,7 +19,14 @@ from radseek.dataset import Dataset, read_dataset
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
 
 
-def emulated(which: str, null_seeds: tuple[int, ...] = (11, 12, 13)) -> Iterator[tuple[str, Callable[[], Dataset]]]:
+def emulated(which: str, null_seeds: tuple[int, ...] = (11, 12, 13), names: list[str] | None = None
+             ) -> Iterator[tuple[str, Callable[[], Dataset]]]:
+    for name, make in _emulated(which, null_seeds):
+        if not names or name in names:
+            yield name, make
+
+
+def _emulated(which: str, null_seeds: tuple[int, ...]) -> Iterator[tuple[str, Callable[[], Dataset]]]:
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight
 
@@ -40,6 +47,11 @@ def emulated(which: str, null_seeds: tuple[int, ...] = (11, 12, 13)) -> Iterator
                                                     seed=5)
     yield "emu-pose_drift", lambda: simulate_flight(d.with_effect("pose_drift", vx=0.003, vy=-0.002), path="lattice",
                                                     seed=5)
+    yield "emu-anisotropy+bg_gradient", lambda: simulate_flight(
+        d.with_effect("anisotropy", fraction=0.5, half_angle_deg=30.0).with_effect("background_gradient", gx=3.0,
+                                                                                  gy=-2.0), path="lawnmower", seed=5)
+    yield "emu-second_source+bg_gradient", lambda: simulate_flight(
+        load_scene("two-source").with_effect("background_gradient", gx=3.0, gy=-2.0), path="lawnmower", seed=5)
     yield "emu-dead_time+bg_gradient", lambda: simulate_flight(
         load_scene("close-pass-deadtime").with_effect("background_gradient", gx=4.0, gy=-2.0), path="close-pass",
         seed=5)
@@ -98,15 +110,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jsonl", type=Path, default=None, help="also append one JSON row per dataset here")
     p.add_argument("--starts", type=int, default=8)
     p.add_argument("--null-seeds", type=int, nargs="+", default=[11, 12, 13])
+    p.add_argument("--names", nargs="+", default=None, help="only these emulated datasets")
     args = p.parse_args(argv)
     which = args.only or ["shared", "effects", "null"]
     jobs: list[tuple[str, Callable[[], Dataset]]] = []
     if "shared" in which:
         jobs += [(n, lambda n=n: read_dataset(args.shared / n)) for n in SHARED if (args.shared / n).is_dir()]
     if "effects" in which:
-        jobs += list(emulated("effects"))
+        jobs += list(emulated("effects", names=args.names))
     if "null" in which:
-        jobs += list(emulated("null", tuple(args.null_seeds)))
+        jobs += list(emulated("null", tuple(args.null_seeds), names=args.names))
     rows = []
     for name, make in jobs:
         r = row(name, make(), args.starts)
