@@ -104,3 +104,18 @@ def test_clean_shared_dataset_reads_without_truth_leak(shared_datasets):
     a = CountFitter(ds.scenario, ds.frames, n_starts=2, quiet=True).fit(())
     b = CountFitter(no_truth.scenario, no_truth.frames, n_starts=2, quiet=True).fit(())
     assert a.values == b.values
+
+
+def test_two_missing_effects_are_both_found_one_after_the_other():
+    from detector_fw_sim.scene import load_scene
+    from detector_fw_sim.simulate import simulate_flight
+
+    scene = (load_scene().without_effects().with_effect("anisotropy", fraction=0.5, half_angle_deg=30.0)
+             .with_effect("background_gradient", gx=3.0, gy=-2.0))
+    ds = simulate_flight(scene, path="lawnmower", seed=5)
+    d = diagnose(ds, quiet=True, n_starts=4)
+    assert d.selection.missing == ["anisotropy", "background_gradient"]
+    assert d.selection.steps[1].effects == ("anisotropy",)  # the second is tested given the first
+    assert d.after is not None and d.after.effects == ("anisotropy", "background_gradient")
+    assert d.after.source_error_m < d.current.source_error_m
+    assert abs(d.after.gof.deviance_per_dof - d.after.gof.expected_per_dof) < 4 * d.after.gof.sd_per_dof
