@@ -1,7 +1,7 @@
 """radseek diagnose on data with a hidden effect: the shared reference datasets and emulated flights.
 
 Each full diagnose fits ~15 models with pose uncertainty, so only a few datasets run here (the closing
-table of all shared and emulated datasets is produced by ``python -m estimator.diagnose.evaluate``).
+table of all shared and emulated datasets is produced by ``python benchmarks/diagnose_evaluate.py``).
 """
 
 from __future__ import annotations

@@ -1,7 +1,5 @@
-"""The measurement model diagnose fits: the estimator's composable model, or the local stand-in.
-
-``estimator.model`` / ``estimator.mle`` are the project's model and Poisson maximum-likelihood fit. If they are
-missing (an older checkout) diagnose falls back to ``estimator.diagnose.standin``, which has the same API.
+"""The measurement model diagnose fits: the estimator's composable model (``estimator.model``) and its Poisson
+maximum-likelihood fit (``estimator.mle``), with a cache of fits per effect set.
 ``gain_drift`` is never part of the count model: total counts barely change when the gain drifts, so it lives
 in ``estimator.spectral`` and its likelihood is a separate factor.
 """
@@ -21,19 +19,11 @@ from radseek.dataset import EFFECTS, Frames, Scenario
 SPECTRAL_EFFECTS = ("gain_drift",)
 
 
-def load_backend(prefer: str = "auto") -> tuple[Any, Callable[..., Any], str]:
-    if prefer != "standin":
-        try:
-            from estimator.mle import fit
-            from estimator.model import MeasurementModel
+def load_backend() -> tuple[Any, Callable[..., Any], str]:
+    from estimator.mle import fit
+    from estimator.model import MeasurementModel
 
-            return MeasurementModel, fit, "estimator.model"
-        except ImportError:
-            if prefer == "estimator":
-                raise
-    from estimator.diagnose.standin import MeasurementModel, fit
-
-    return MeasurementModel, fit, "stand-in"
+    return MeasurementModel, fit, "estimator.model"
 
 
 def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -96,12 +86,11 @@ class CountFitter:
     n_starts: int = 8
     seed: int = 0
     quiet: bool = False
-    prefer: str = "auto"
 
     split_legs: bool = True
 
     def __post_init__(self) -> None:
-        self.model_cls, self._fit, self.backend = load_backend(self.prefer)
+        self.model_cls, self._fit, self.backend = load_backend()
         self.fit_frames = split_transit_legs(self.frames) if self.split_legs else self.frames
         self._cache: dict[tuple[str, ...], Any] = {}
 

@@ -161,10 +161,10 @@ class Diagnosis:
 
 
 def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = (), alpha: float = 0.01,
-             n_starts: int = 8, seed: int = 0, quiet: bool = False, prefer: str = "auto") -> Diagnosis:
+             n_starts: int = 8, seed: int = 0, quiet: bool = False) -> Diagnosis:
     count, spec = split_effects(model)
     add_count, add_spec = split_effects(add)
-    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet, prefer=prefer)
+    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet)
     progress(f"{ds.name}: {len(ds.frames)} frames, backend {fitter.backend}; fitting {describe((*count, *spec))}",
              quiet)
     sm = SpectralModel(ds.scenario.channel_edges_keV)

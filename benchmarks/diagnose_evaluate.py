@@ -2,7 +2,7 @@
 source error before -> after), over the shared reference datasets, emulated flights with each effect, and
 null flights (no effect: how many false alarms).
 
-    python -m estimator.diagnose.evaluate [--shared DIR] [--only shared|effects|null] [--jsonl FILE]
+    python benchmarks/diagnose_evaluate.py [--shared DIR] [--only shared|effects|null] [--jsonl FILE]
 """
 
 from __future__ import annotations
