@@ -78,7 +78,7 @@ def profile_offsets(
 
     Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty sum delta^T Sigma^-1 delta).
     """
-    n = frames.total_counts
+    n = model.observed_counts(frames)
     mu0 = model.expected_counts(theta, frames)
     inv_var = 1.0 / np.maximum(groups.variance, _NO_VARIANCE)
     active = groups.variance > _NO_VARIANCE
@@ -191,7 +191,7 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
     gy = np.linspace(sc.bounds_min[1], sc.bounds_max[1], n_grid)
     xx, yy = (a.ravel() for a in np.meshgrid(gx, gy))
     z = model.param("z").value
-    n = frames.total_counts.astype(float)
+    n = model.observed_counts(frames).astype(float)
     tdur = frames.duration
     d2 = ((frames.positions[None, :, :] - np.stack([xx, yy, np.full_like(xx, z)], 1)[:, None, :]) ** 2).sum(-1)
     u = tdur / np.maximum(d2, 0.05**2)  # (P, N) counts per unit cps_at_1m
@@ -236,7 +236,7 @@ def second_source_starts(
     z = model.param("second_source.z").value
     d2 = ((frames.positions[None, :, :] - np.stack([xx, yy, np.full_like(xx, z)], 1)[:, None, :]) ** 2).sum(-1)
     u = frames.duration / np.maximum(d2, 0.05**2)
-    n = frames.total_counts.astype(float)
+    n = model.observed_counts(frames).astype(float)
     s2 = np.full(len(xx), 10.0)
     for _ in range(25):
         mu = mu0 + s2[:, None] * u
@@ -308,7 +308,7 @@ class FitResult:
 
 def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed: dict[str, float],
                groups: PoseGroups | None):
-    n = frames.total_counts
+    n = model.observed_counts(frames)
 
     def nll(*values: float) -> float:
         theta = {**fixed, **dict(zip(names, values, strict=True))}
@@ -375,7 +375,7 @@ def fit(
     best.hesse()
     values = {**fixed, **dict(zip(names, (float(v) for v in best.values), strict=True))}
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)
-    n = frames.total_counts
+    n = model.observed_counts(frames)
     if groups is not None:
         offsets, mu, penalty = profile_offsets(model, values, frames, groups)
         pose_offsets = offsets

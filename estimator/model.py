@@ -230,7 +230,7 @@ assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS)
 class MeasurementModel:
     """Baseline count model composed with effects; pure and vectorised over hypotheses."""
 
-    def __init__(self, scenario: Scenario, effects: Sequence[str] = ()):
+    def __init__(self, scenario: Scenario, effects: Sequence[str] = (), channels: Sequence[int] | None = None):
         for name in effects:
             if name in SPECTRAL_ONLY:
                 raise ValueError(f"{name} changes only the spectrum, not total counts: use estimator.spectral")
@@ -238,6 +238,11 @@ class MeasurementModel:
                 raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECT_PARTS))}")
         self.scenario = scenario
         self.effects: tuple[str, ...] = tuple(dict.fromkeys(effects))
+        if channels is not None:
+            channels = tuple(sorted({int(k) for k in channels}))
+            if not channels or channels[0] < 0 or channels[-1] >= len(scenario.channel_edges_keV) - 1:
+                raise ValueError(f"channels must be comparator channels 0..31, got {channels}")
+        self.channels: tuple[int, ...] | None = channels
         self._parts = [EFFECT_PARTS[n]() for n in self.effects]
         self._walls = wall_arrays(scenario.walls)
         lo, hi = scenario.bounds_min, scenario.bounds_max
@@ -252,7 +257,29 @@ class MeasurementModel:
         self.params: list[Param] = base + [p for part in self._parts for p in part.params(scenario)]
 
     def __repr__(self) -> str:
-        return f"MeasurementModel(effects={list(self.effects)})"
+        window = "" if self.channels is None else f", channels={list(self.channels)}"
+        return f"MeasurementModel(effects={list(self.effects)}{window})"
+
+    def observed_counts(self, frames: Frames) -> np.ndarray:
+        """The counts this model explains: all 32 channels summed, or only the chosen window.
+
+        With a window (e.g. the Cs-137 photopeak), ``cps_at_1m`` and ``background_cps`` are the window's
+        rates; scattered photons (walls, air, the floor) leave the photopeak, so a peak window is less
+        biased by scatter than the total. Dead time still acts on the window by the factor of the total
+        true rate, which the window model approximates by its own rate (a lower bound on the loss).
+        """
+        if self.channels is None:
+            return frames.total_counts
+        return frames.counts[:, list(self.channels)].sum(axis=1)
+
+    @staticmethod
+    def window_channels(scenario: Scenario, lo_keV: float, hi_keV: float) -> tuple[int, ...]:
+        """Comparator channels overlapping the energy window [lo_keV, hi_keV)."""
+        e = scenario.channel_edges_keV
+        k = np.flatnonzero((e[1:] > lo_keV) & (e[:-1] < hi_keV))
+        if len(k) == 0:
+            raise ValueError(f"no channel overlaps {lo_keV}-{hi_keV} keV (edges {e[0]:.0f}-{e[-1]:.0f} keV)")
+        return tuple(int(i) for i in k)
 
     @property
     def param_names(self) -> list[str]:
@@ -269,11 +296,11 @@ class MeasurementModel:
         raise KeyError(f"{self!r} has no parameter {name!r}")
 
     def with_effect(self, name: str) -> MeasurementModel:
-        return MeasurementModel(self.scenario, (*self.effects, name))
+        return MeasurementModel(self.scenario, (*self.effects, name), self.channels)
 
     def with_params(self, **changes: dict[str, Any]) -> MeasurementModel:
         """A copy with some Param fields changed, e.g. ``with_params(z={"fixed": False})``."""
-        m = MeasurementModel(self.scenario, self.effects)
+        m = MeasurementModel(self.scenario, self.effects, self.channels)
         m.params = [replace(p, **changes[p.name]) if p.name in changes else p for p in self.params]
         return m
 

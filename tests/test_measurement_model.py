@@ -105,3 +105,23 @@ def test_bad_effect_names_and_spectral_only_effects_are_refused():
         MeasurementModel(scenario(), ["gain_drift"])
     with pytest.raises(KeyError, match="no parameter"):
         MeasurementModel(scenario()).expected_counts({"tau": 1.0}, frames([[1, 1, 1]]))
+
+
+def test_photopeak_window_uses_only_its_channels(shared_datasets):
+    from estimator.localizers.base import make_localizer
+    from radseek.dataset import read_dataset
+
+    ds = read_dataset(shared_datasets / "lattice-wall")
+    k = MeasurementModel.window_channels(ds.scenario, 600, 720)
+    edges = ds.scenario.channel_edges_keV
+    assert all(edges[i] < 720 and edges[i + 1] > 600 for i in k) and len(k) == 3
+    m = MeasurementModel(ds.scenario, ["wall_attenuation"], channels=k)
+    assert np.array_equal(m.observed_counts(ds.frames), ds.frames.counts[:, list(k)].sum(1))
+    # the window fit localises the same source from ~1/3 of the counts; its cps_at_1m is the peak's share
+    total = make_localizer("mle", effects=("wall_attenuation",), n_starts=3).fit(ds)
+    peak = make_localizer("mle", effects=("wall_attenuation",), n_starts=3, energy_window_keV=(600, 720)).fit(ds)
+    s = ds.truth.sources[0]
+    assert np.hypot(peak.sources_[0]["x"] - s.x, peak.sources_[0]["y"] - s.y) < 0.15
+    assert 0.1 < peak.sources_[0]["cps_at_1m"] / total.sources_[0]["cps_at_1m"] < 0.6
+    with pytest.raises(ValueError, match="no channel"):
+        MeasurementModel.window_channels(ds.scenario, 5000, 6000)

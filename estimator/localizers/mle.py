@@ -13,7 +13,9 @@ nuisance with the dataset's reported variance (:func:`pose_aware_crlb`), which i
 using uncertain poses can actually reach.
 
 A ``second_source`` effect gives a second entry in ``sources_``. ``fixed`` pins parameters at given
-values (e.g. ``{"dead_time.tau_s": 1.2e-5}`` for a calibrated detector).
+values (e.g. ``{"dead_time.tau_s": 1.2e-5}`` for a calibrated detector). ``energy_window_keV=(lo, hi)``
+fits only the counts of the channels overlapping that window (e.g. the Cs-137 photopeak, 600-720 keV);
+``cps_at_1m`` is then the window's rate at 1 m.
 """
 
 from __future__ import annotations
@@ -93,7 +95,7 @@ class MaximumLikelihood(Localizer):
 
     def __init__(self, effects: Sequence[str] = (), n_starts: int = 8, seed: int = 0, pose_uncertainty: bool = True,
                  fixed: Mapping[str, float] | None = None, init: Mapping[str, float] | None = None,
-                 compute_crlb: bool = True):
+                 compute_crlb: bool = True, energy_window_keV: Sequence[float] | None = None):
         self.effects = effects
         self.n_starts = n_starts
         self.seed = seed
@@ -101,11 +103,16 @@ class MaximumLikelihood(Localizer):
         self.fixed = fixed
         self.init = init
         self.compute_crlb = compute_crlb
+        self.energy_window_keV = energy_window_keV
 
     def model_for(self, scenario: Scenario):
         from estimator.model import MeasurementModel
 
-        model = MeasurementModel(scenario, effects=tuple(self.effects))
+        channels = None
+        if self.energy_window_keV is not None:
+            lo, hi = self.energy_window_keV
+            channels = MeasurementModel.window_channels(scenario, float(lo), float(hi))
+        model = MeasurementModel(scenario, effects=tuple(self.effects), channels=channels)
         if self.fixed:
             model = model.with_params(**{k: {"value": float(v), "fixed": True} for k, v in self.fixed.items()})
         return model
