@@ -14,6 +14,7 @@ MAVLink and zenoh, and ``mission.offline`` in-process for seeded benchmarks.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -31,6 +32,7 @@ from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.geometry import path_lengths
 
 
 class Phase(StrEnum):
@@ -149,7 +151,7 @@ class SearchBrain:
         belief = self._estimate(frames, current)
         sigma = self._sigma(belief)
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
-                sigma < self.config.stop_sigma_m:
+                sigma < self.config.stop_sigma_m and self._stable():
             return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
         if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
             return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m)")
@@ -186,7 +188,16 @@ class SearchBrain:
         if belief is None or self.localizer is None or not getattr(self.localizer, "info_", {}).get("converged", True):
             return np.inf
         sigma = belief.semi_major_axis()
-        return sigma if np.isfinite(sigma) and sigma > 1e-3 else np.inf
+        # per-dwell pose offsets of centimetres make a millimetre ellipse a numerical artefact, not certainty
+        return sigma if np.isfinite(sigma) and sigma > 5e-3 else np.inf
+
+    def _stable(self) -> bool:
+        """The last two estimates agree within 2 combined sigmas: a small ellipse around an estimate that
+        is still jumping between likelihood modes (few dwells, all on one side) is not a found source."""
+        if len(self.estimates) < 2:
+            return False
+        a, b = self.estimates[-2], self.estimates[-1]
+        return math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 2 * math.hypot(a["sigma_m"], b["sigma_m"])
 
     def _pattern_points(self) -> np.ndarray:
         lo, hi = self.occ.free_min, self.occ.free_max
@@ -225,22 +236,38 @@ class SearchBrain:
         self.phase = Phase.DONE
         return Decision(Phase.DONE, None, reason)
 
+    def _fit(self, frames: Frames, settings: dict) -> Localizer | None:
+        loc = make_localizer(self.config.localizer)
+        loc.set_params(**{k: v for k, v in settings.items() if k in loc.get_params()})
+        try:
+            loc.fit(frames, self.scenario)
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+            return None
+        return loc
+
     def _estimate(self, frames: Frames, current: np.ndarray) -> SourceBelief | None:
         if len(frames) < 10:
             return None
+        # in-flight models depend on the pose only: 1 s chunks of a dwell lose nothing but jitter
+        frames = pooled(frames, 10, dwells_only=True)
         settings = dict(self.config.localizer_settings)
-        if self.scenario.walls and "effects" not in settings:
-            settings["effects"] = ("wall_attenuation",)  # mapped walls: fit their attenuation too
-        loc = make_localizer(self.config.localizer)
-        if self.estimates and "init" in loc.get_params():
+        if self.estimates:
             prev = self.estimates[-1]
             settings["init"] = {k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")}
-        loc.set_params(**{k: v for k, v in settings.items() if k in loc.get_params()})
-        try:
-            # in-flight models depend on the pose only: 1 s chunks of a dwell lose nothing but jitter
-            loc.fit(pooled(frames, 10, dwells_only=True), self.scenario)
-        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+        loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
+        if loc is None:
             return None
+        if self.scenario.walls and "effects" not in self.config.localizer_settings:
+            # a mapped wall matters only if a recorded line of sight to the source crosses it: then fit its
+            # attenuation too (mu is unidentifiable otherwise); keep the wall-free fit if that one fails
+            # (asked of every point within 1 m of the wall-free estimate, which a wall itself may have biased)
+            src = np.array([loc.sources_[0][k] for k in ("x", "y", "z")])
+            around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
+            if path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0:
+                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",),
+                                            "init": {**loc.sources_[0], "background_cps": loc.background_}})
+                if walled is not None:  # even unconverged: _sigma() then refuses to call it confident
+                    loc = walled
         self.localizer = loc
         src = loc.sources_[0]
         cov = np.asarray(loc.covariance_, dtype=float)[:3, :3]
@@ -249,7 +276,8 @@ class SearchBrain:
         w, v = np.linalg.eigh(cov)
         cov = (v * np.clip(w, 0, None)) @ v.T
         self.estimates.append({"dwell": len(self.history), **src, "background_cps": float(loc.background_),
-                               "sigma_m": float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))})
+                               "sigma_m": float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0))),
+                               "effects": list(getattr(loc, "effects", ()))})
         return SourceBelief(np.array([src["x"], src["y"], src["z"]]), cov, max(src["cps_at_1m"], 1e-3),
                             max(float(loc.background_), 0.0))
 
