@@ -264,8 +264,13 @@ class SearchBrain:
             src = np.array([loc.sources_[0][k] for k in ("x", "y", "z")])
             around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
             if path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0:
-                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",),
-                                            "init": {**loc.sources_[0], "background_cps": loc.background_}})
+                # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
+                # local optimum of the walled model (mu = 0), so starting only there never leaves it
+                prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
+                init = ({k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")} if prev else
+                        {**loc.sources_[0], "background_cps": loc.background_})
+                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
+                                            "n_starts": max(settings.get("n_starts", 3), 5)})
                 if walled is not None:  # even unconverged: _sigma() then refuses to call it confident
                     loc = walled
         self.localizer = loc
