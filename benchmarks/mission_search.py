@@ -1,5 +1,5 @@
 """Whole-search benchmark (issue 6 targets): the active search of paper 003 against the 9-point lattice and
-the lawnmower, over seeded flights of the in-process driver (mission.offline: the same brain, estimator and
+the lawnmower, over seeded flights of the in-process driver (launch.offline: the same brain, estimator and
 planner as `radseek run`, the emulator for counts, odometry drift as on the mock vehicle).
 
 Reports per scene and strategy: median and 90th-percentile position error, median dwell points (and, for
@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from detector_fw_sim.scene import load_scene
-from mission.offline import fly_offline
+from launch.offline import fly_offline
 from mission.search import STRATEGIES, SearchConfig
 
 

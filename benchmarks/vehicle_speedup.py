@@ -20,8 +20,8 @@ import time
 
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.frames import Home, enu_to_geodetic
-from mission.vehicle.harness import Gcs, VehicleProcess, free_udp_port, item
+from radseek.coordinates import Home, enu_to_geodetic
+from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port, item
 
 
 def mission(home: Home) -> list:

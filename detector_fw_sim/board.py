@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from detector_fw_sim.frame_codec import (
+from radseek.board_wire import (
     COUNT_MAX,
     N_CHANNELS,
     STATUS_SATURATED,

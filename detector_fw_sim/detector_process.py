@@ -31,9 +31,9 @@ import zenoh
 
 from detector_fw_sim import transport
 from detector_fw_sim.board import Board
-from detector_fw_sim.frame_codec import FRAME_SIZE, FrameConsumer, encode_frame
-from detector_fw_sim.frame_codec import frame_to_histogram as _to_histogram
 from radseek import topics
+from radseek.board_wire import FRAME_SIZE, FrameConsumer, encode_frame
+from radseek.board_wire import frame_to_histogram as _to_histogram
 from radseek.pose_history import PoseHistory
 from radseek.simclock import Clock
 

@@ -2,7 +2,7 @@
 
 This is the simulator side (it sees the scene's truth); the brain it drives sees only the scenario,
 the estimated poses and the histograms, exactly as over MAVLink and zenoh. The vehicle flies on its
-own pose estimate like the mock autopilot (``mission.vehicle.odometry``: the truth is the estimate
+own pose estimate like the mock autopilot (``vehicle_sim.odometry``: the truth is the estimate
 minus a random-walk drift that grows with distance flown), at constant speed with a yaw-rate limit.
 Used for benchmarks (error vs dwell points against the baselines) and fast end-to-end tests; the
 real stack is ``radseek run``.
@@ -18,9 +18,9 @@ import numpy as np
 from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
 from mission.search import Decision, Phase, SearchBrain, SearchConfig
-from mission.vehicle.odometry import Odometry, OdometryParams
 from radseek import topics
 from radseek.dataset import COLUMNS, Dataset, Frames
+from vehicle_sim.odometry import Odometry, OdometryParams
 
 FRAME_S = 0.1
 

@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
         return 1
     write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
-    from mission.report import write_report
+    from launch.report import write_report
 
     summary = write_report(out, wall_time_s=wall, speedup=speedup)
     print(json.dumps({k: summary[k] for k in ("error_m", "dwell_points", "mission_time_s")}, default=float))

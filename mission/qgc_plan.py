@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from mission.vehicle.frames import Home
+from radseek.coordinates import Home
 
 MAV_AUTOPILOT_PX4 = 12
 MAV_TYPE_QUADROTOR = 2

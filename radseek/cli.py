@@ -11,10 +11,10 @@ import sys
 
 # name -> (module, one-line description)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "run": ("mission.run_cli", "fly a search mission against the mock vehicle and write a report"),
+    "run": ("launch.run_cli", "fly a search mission against the mock vehicle and write a report"),
     "router": ("radseek.router_cli", "run the zenoh router on tcp/127.0.0.1:7447 (loopback only)"),
     "detector": ("detector_fw_sim.detector_cli", "run the emulated 32-channel spectroscopy board"),
-    "vehicle": ("mission.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
+    "vehicle": ("vehicle_sim.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
     "mission": ("mission.mission_cli", "run the mission process (dwell control, estimator, planner)"),
     "topics": ("radseek.inspect_cli", "list live radseek zenoh keys with their rates"),
     "echo": ("radseek.echo_cli", "print messages on a zenoh key readably"),
@@ -22,8 +22,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "localize": ("estimator.localize_cli", "estimate source position and strength from a dataset"),
     "compare": ("estimator.compare_cli", "compare two flights' particle-filter runs (paper 000 metrics)"),
     "diagnose": ("estimator.diagnose_cli", "compare model and measurements, find the missing effect"),
-    "replay": ("mission.replay_cli", "re-run the estimator on a recorded flight"),
-    "plan": ("planner.plan_cli", "plan the next dwell points for a scene and print/plot them"),
+    "replay": ("estimator.replay_cli", "re-run the estimator on a recorded flight"),
+    "plan": ("launch.plan_cli", "plan the next dwell points for a scene and print/plot them"),
 }
 
 

@@ -109,7 +109,7 @@ class Formatter:
 
     def _body(self, topic: str | None, payload: bytes) -> str:
         if topic == topics.RAW_FRAME:
-            from detector_fw_sim.frame_codec import decode_frame  # the driver; imported only when needed
+            from radseek.board_wire import decode_frame  # the driver; imported only when needed
 
             f = decode_frame(payload)
             return self.spectrum_line(f.seq, None, f.duration, f.counts, f.flags) + f" board={f.board_time:.3f}s"
@@ -150,7 +150,7 @@ def echo_stream(path: str, fmt: Formatter, count: int = 0, chunk: int = 64) -> i
     Returns the number of frames printed; corrupted and truncated frames are counted and reported at
     the end (and as they are found), never fatal.
     """
-    from detector_fw_sim.frame_codec import FrameStreamDecoder
+    from radseek.board_wire import FrameStreamDecoder
 
     dec = FrameStreamDecoder()
     shown, dropped = 0, 0

@@ -141,7 +141,7 @@ def topics_markdown() -> str:
             lines.append(f"| `{f.name}` | `{f.type}` | {f'`{default}`' if default else 'required'} | {note} |")
     lines += ["", f"## `{topics.RAW_FRAME}`", "",
               "One board frame per message, bytes as on the wire: see docs/frame-format.md. Decode it with",
-              "`detector_fw_sim.frame_codec.decode_frame` (raises `FrameError` on a truncated or corrupted frame).", ""]
+              "`radseek.board_wire.decode_frame` (raises `FrameError` on a truncated or corrupted frame).", ""]
     return "\n".join(lines)
 
 

@@ -2,7 +2,7 @@
 
 Keys live under ``radseek/<vehicle>/``. Payloads are UTF-8 JSON objects so that any third-party
 tool (``zenoh-cli``, Foxglove, a ROS bridge) can read them; the raw detector frame is the board's
-binary encoding (see ``detector_fw_sim.frame_codec``). Frames: local ENU metres, yaw in radians
+binary encoding (see ``radseek.board_wire``). Frames: local ENU metres, yaw in radians
 counter-clockwise from +x (east); times in simulation seconds from the shared clock.
 
 Topics whose name starts with ``sim/`` carry the simulated world's truth: only the detector
@@ -55,7 +55,7 @@ MISSION_STATE = "mission/state"
 ESTIMATE = "estimate"
 PLAN = "plan"
 
-# Histogram.flags bits (mirrors the board's status byte, detector_fw_sim.frame_codec)
+# Histogram.flags bits (mirrors the board's status byte, radseek.board_wire)
 FLAG_SATURATED = 0x01  # a comparator counter wrapped or the input stage saturated
 FLAG_STALE_POSE = 0x02  # no true pose arrived recently: the emulator sent zero counts, do not use
 FLAG_GAP = 0x04  # one or more frames were lost before this one (sequence jump)

@@ -19,8 +19,8 @@ import pytest
 from detector_fw_sim.board import Board
 from detector_fw_sim.detector_cli import build_parser
 from detector_fw_sim.detector_process import FaultConfig, inject
-from detector_fw_sim.frame_codec import FRAME_SIZE, FrameError, decode_frame, encode_frame
 from radseek import topics
+from radseek.board_wire import FRAME_SIZE, FrameError, decode_frame, encode_frame
 from radseek.simclock import ClockPublisher, FreeRunningClock
 from radseek.zenoh_session import open_session
 

@@ -10,7 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from detector_fw_sim.board import FRAME_PERIOD_S, Board, clamp_counts
-from detector_fw_sim.frame_codec import (
+from radseek import topics
+from radseek.board_wire import (
     COUNT_MAX,
     FRAME_SIZE,
     STATUS_SATURATED,
@@ -27,7 +28,6 @@ from detector_fw_sim.frame_codec import (
     encode_frame,
     frame_to_histogram,
 )
-from radseek import topics
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from detector_fw_sim.board import Board
-from detector_fw_sim.frame_codec import encode_frame, frame_to_histogram
 from radseek import topics
+from radseek.board_wire import encode_frame, frame_to_histogram
 from radseek.echo_cli import BLOCKS, Formatter, flag_text, resolve_key, sparkline
 from radseek.inspect_cli import KeyStats, table, topics_markdown
 from radseek.zenoh_session import open_session

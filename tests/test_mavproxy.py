@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.harness import Gcs, VehicleProcess, free_udp_port, item
+from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port, item
 
 pytestmark = pytest.mark.slow
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"

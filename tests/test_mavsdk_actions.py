@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mission.client import action, connection, telemetry
-from mission.vehicle.harness import VehicleProcess, free_udp_port
+from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 pytestmark = pytest.mark.slow
 

@@ -12,7 +12,7 @@ import pytest
 from mission.client import action, connection, mission_upload, telemetry
 from mission.client.mission_upload import DwellPoint, build_items
 from mission.qgc_plan import write_plan
-from mission.vehicle.harness import VehicleProcess, free_udp_port
+from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 pytestmark = pytest.mark.slow
 SPEEDUP = 20.0

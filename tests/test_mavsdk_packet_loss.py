@@ -8,7 +8,7 @@ import pytest
 
 from mission.client import action, connection, mission_upload
 from mission.client.mission_upload import DwellPoint, build_items
-from mission.vehicle.harness import VehicleProcess, free_udp_port
+from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 pytestmark = pytest.mark.slow
 

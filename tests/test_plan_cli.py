@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from planner import plan_cli
+from launch import plan_cli
 from planner.occupancy import OccupancyMap
 from radseek.dataset import Scenario, Wall, read_scenario, write_json
 from radseek.topics import Plan

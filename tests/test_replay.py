@@ -4,7 +4,7 @@ import json
 import subprocess
 import sys
 
-from mission.replay_cli import replay
+from estimator.replay_cli import replay
 from radseek.dataset import read_dataset
 
 

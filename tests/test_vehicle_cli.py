@@ -4,8 +4,8 @@ import hashlib
 
 import pytest
 
-from mission import vehicle_cli
-from mission.vehicle.link import load_signing_key
+from vehicle_sim import vehicle_cli
+from vehicle_sim.link import load_signing_key
 
 
 def cfg(*argv):

@@ -9,10 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle import battery, frames, motion
-from mission.vehicle.mission_protocol import MissionItem
-from mission.vehicle.navigator import Mode, Navigator, NavParams
-from mission.vehicle.odometry import Odometry, OdometryParams, propagate
+from radseek import coordinates as frames
+from vehicle_sim import battery, motion
+from vehicle_sim.mission_protocol import MissionItem
+from vehicle_sim.navigator import Mode, Navigator, NavParams
+from vehicle_sim.odometry import Odometry, OdometryParams, propagate
 
 DT = 0.05
 

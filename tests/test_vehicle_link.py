@@ -8,9 +8,9 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.geofence import Geofence
-from mission.vehicle.harness import Gcs, VehicleThread, free_udp_port, thread_config
-from mission.vehicle.navigator import Mode, px4_custom_mode
+from vehicle_sim.geofence import Geofence
+from vehicle_sim.harness import Gcs, VehicleThread, free_udp_port, thread_config
+from vehicle_sim.navigator import Mode, px4_custom_mode
 
 TELEMETRY = {"HEARTBEAT", "SYS_STATUS", "BATTERY_STATUS", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE",
              "ODOMETRY", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "HOME_POSITION"}

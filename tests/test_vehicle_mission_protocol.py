@@ -8,11 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.frames import enu_to_geodetic
-from mission.vehicle.geofence import Geofence
-from mission.vehicle.harness import item, thread_config
-from mission.vehicle.mission_protocol import MissionProtocol
-from mission.vehicle.vehicle import Vehicle
+from radseek.coordinates import enu_to_geodetic
+from vehicle_sim.geofence import Geofence
+from vehicle_sim.harness import item, thread_config
+from vehicle_sim.mission_protocol import MissionProtocol
+from vehicle_sim.vehicle import Vehicle
 
 GCS = (255, 190)
 

@@ -7,9 +7,9 @@ import numpy as np
 
 from mission.client.mission_upload import DwellPoint, build_items
 from mission.qgc_plan import write_plan
-from mission.vehicle.frames import Home
-from mission.vehicle.harness import thread_config
-from mission.vehicle.vehicle import Vehicle
+from radseek.coordinates import Home
+from vehicle_sim.harness import thread_config
+from vehicle_sim.vehicle import Vehicle
 
 
 def test_plan_file_is_qgc_mission_v2(tmp_path):

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.harness import Gcs, VehicleProcess, free_udp_port
 from radseek import topics
 from radseek.zenoh_session import open_session
+from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
 pytestmark = pytest.mark.slow
 

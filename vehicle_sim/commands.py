@@ -18,9 +18,9 @@ from typing import Protocol
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.frames import Home, geodetic_to_enu, yaw_ned_to_enu
-from mission.vehicle.geofence import Geofence
-from mission.vehicle.navigator import Navigator, mode_from_px4
+from radseek.coordinates import Home, geodetic_to_enu, yaw_ned_to_enu
+from vehicle_sim.geofence import Geofence
+from vehicle_sim.navigator import Navigator, mode_from_px4
 
 log = logging.getLogger(__name__)
 FORCE_MAGIC = 21196

@@ -15,7 +15,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-from mission.vehicle.vehicle import Vehicle, VehicleConfig  # noqa: E402
+from vehicle_sim.vehicle import Vehicle, VehicleConfig  # noqa: E402
 
 
 def free_udp_port() -> int:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mission.vehicle.frames import wrap_pi
+from radseek.coordinates import wrap_pi
 
 BRAKE_FRACTION = 0.8
 

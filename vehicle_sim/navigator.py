@@ -21,9 +21,9 @@ from enum import Enum
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle import motion
-from mission.vehicle.frames import Home, geodetic_to_enu, yaw_ned_to_enu
-from mission.vehicle.mission_protocol import GLOBAL_FRAMES, MissionItem
+from radseek.coordinates import Home, geodetic_to_enu, yaw_ned_to_enu
+from vehicle_sim import motion
+from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem
 
 
 class Mode(Enum):

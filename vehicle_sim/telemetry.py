@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle.frames import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
-from mission.vehicle.navigator import Mode, px4_custom_mode
+from radseek.coordinates import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
+from vehicle_sim.navigator import Mode, px4_custom_mode
 
 GRAVITY = 9.80665
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT

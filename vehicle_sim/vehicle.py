@@ -17,17 +17,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from mission.vehicle import battery as battery_model
-from mission.vehicle import commands, telemetry
-from mission.vehicle.failsafe import Action, Failsafe, FailsafeParams
-from mission.vehicle.frames import Home, geodetic_to_enu
-from mission.vehicle.geofence import Geofence
-from mission.vehicle.link import Endpoint, Link
-from mission.vehicle.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
-from mission.vehicle.motion import MotionLimits
-from mission.vehicle.navigator import Mode, Navigator, NavParams
-from mission.vehicle.odometry import Odometry, OdometryParams
-from mission.vehicle.params import Param, ParamTable
+from radseek.coordinates import Home, geodetic_to_enu
+from vehicle_sim import battery as battery_model
+from vehicle_sim import commands, telemetry
+from vehicle_sim.failsafe import Action, Failsafe, FailsafeParams
+from vehicle_sim.geofence import Geofence
+from vehicle_sim.link import Endpoint, Link
+from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
+from vehicle_sim.motion import MotionLimits
+from vehicle_sim.navigator import Mode, Navigator, NavParams
+from vehicle_sim.odometry import Odometry, OdometryParams
+from vehicle_sim.params import Param, ParamTable
 
 log = logging.getLogger(__name__)
 

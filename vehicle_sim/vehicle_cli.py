@@ -63,21 +63,21 @@ def build_parser() -> argparse.ArgumentParser:
 def scene_fence(scene: str):
     """Geofence around a detector scene's bounds (the scene module is the other engineer's seam)."""
     from detector_fw_sim.scene import load_scene
-    from mission.vehicle.geofence import Geofence
+    from vehicle_sim.geofence import Geofence
 
     b = load_scene(scene).bounds
     return Geofence(b.min[0] - 1.0, b.min[1] - 1.0, 0.0, b.max[0] + 1.0, b.max[1] + 1.0, max(b.max[2], 0.0) + 10.0)
 
 
 def config_from_args(args: argparse.Namespace):
-    from mission.vehicle.battery import BatteryParams
-    from mission.vehicle.failsafe import FailsafeParams
-    from mission.vehicle.frames import Home
-    from mission.vehicle.geofence import Geofence
-    from mission.vehicle.link import load_signing_key
-    from mission.vehicle.motion import MotionLimits
-    from mission.vehicle.odometry import OdometryParams
-    from mission.vehicle.vehicle import VehicleConfig
+    from radseek.coordinates import Home
+    from vehicle_sim.battery import BatteryParams
+    from vehicle_sim.failsafe import FailsafeParams
+    from vehicle_sim.geofence import Geofence
+    from vehicle_sim.link import load_signing_key
+    from vehicle_sim.motion import MotionLimits
+    from vehicle_sim.odometry import OdometryParams
+    from vehicle_sim.vehicle import VehicleConfig
 
     lat, lon, alt = (float(v) for v in args.home.split(","))
     if args.bounds:
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr,
                         format="%(asctime)s vehicle %(levelname)s %(message)s")
-    from mission.vehicle.vehicle import Vehicle
+    from vehicle_sim.vehicle import Vehicle
 
     try:
         cfg = config_from_args(args)

@@ -8,7 +8,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.plugins.action import ActionError
 
 from mission.client.connection import Connection
-from mission.vehicle.frames import enu_to_geodetic, yaw_enu_to_ned
+from radseek.coordinates import enu_to_geodetic, yaw_enu_to_ned
 
 
 class ActionFailed(Exception):

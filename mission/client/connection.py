@@ -10,7 +10,7 @@ from mavsdk.asyncio import Configuration, Mavsdk
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.component_type import ComponentType
 
-from mission.vehicle.frames import Home
+from radseek.coordinates import Home
 
 DEFAULT_URL = "udpin://0.0.0.0:14540"  # PX4 SITL's API port: the vehicle sends there
 

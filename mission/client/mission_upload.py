@@ -21,7 +21,7 @@ from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 from mavsdk.plugins.mission_raw import MissionItem, MissionRawError
 
 from mission.client.connection import Connection
-from mission.vehicle.frames import Home, enu_to_geodetic, yaw_enu_to_ned
+from radseek.coordinates import Home, enu_to_geodetic, yaw_enu_to_ned
 
 MAV_FRAME_MISSION = 2
 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6

@@ -9,7 +9,7 @@ import numpy as np
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from mission.client.connection import Connection
-from mission.vehicle.frames import geodetic_to_enu
+from radseek.coordinates import geodetic_to_enu
 
 
 class TelemetryTimeout(Exception):
