@@ -29,6 +29,7 @@ from scipy import stats
 
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames
+from radseek.frame_record import COUNT_DTYPE
 
 OFFSET_STEP_M = 1e-3
 _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
@@ -173,12 +174,11 @@ def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
 
     counts = np.zeros((n, frames.counts.shape[1]))
     np.add.at(counts, key, frames.counts)
-    rows = np.column_stack([
-        np.bincount(key, weights=frames.t, minlength=n) / cnt, np.bincount(key, weights=frames.duration, minlength=n),
-        mean(frames.x), mean(frames.y), mean(frames.z), mean(frames.yaw), mean(frames.var_x), mean(frames.var_y),
-        mean(frames.var_z), np.bincount(key, weights=frames.dwell, minlength=n) / cnt, counts,
-    ])
-    return Frames.from_rows(rows)
+    return Frames(
+        t=mean(frames.t), duration=np.bincount(key, weights=frames.duration, minlength=n), x=mean(frames.x),
+        y=mean(frames.y), z=mean(frames.z), yaw=mean(frames.yaw), var_x=mean(frames.var_x), var_y=mean(frames.var_y),
+        var_z=mean(frames.var_z), dwell=mean(frames.dwell).astype(int), counts=counts.astype(COUNT_DTYPE),
+    )
 
 
 def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:

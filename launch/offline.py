@@ -19,7 +19,8 @@ from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
 from mission.search import Decision, Phase, SearchBrain, SearchConfig
 from radseek import topics
-from radseek.dataset import COLUMNS, Dataset, Frames
+from radseek.dataset import Dataset, Frames
+from radseek.frame_record import FrameRecord
 from vehicle_sim.odometry import Odometry, OdometryParams
 
 FRAME_S = 0.1
@@ -55,13 +56,14 @@ class _Flight:
 
     def __init__(self, scene: Scene, start: np.ndarray, seed: int, speed: float, yaw_rate_max: float,
                  odometry: OdometryParams | None):
+        self.channel_edges_keV = scene.scenario().channel_edges_keV
         self.emulator = DetectorEmulator(scene, seed=seed)
         self.odo = Odometry(odometry, seed=seed + 1)
         self.est = np.asarray(start, dtype=float).copy()  # (4,) estimated pose: what the vehicle flies on
         self.t = 0.0
         self.speed = speed
         self.yaw_rate_max = yaw_rate_max
-        self.rows: list[np.ndarray] = []
+        self.records: list[FrameRecord] = []
         self.true_path: list[np.ndarray] = []
         self.seq = 0
 
@@ -74,11 +76,14 @@ class _Flight:
         counts = self.emulator.draw(mid, self.t + FRAME_S / 2, FRAME_S)
         self.t += FRAME_S
         var = self.odo.var
-        self.rows.append(np.r_[self.t, FRAME_S, self.est[:3], self.est[3], var[:3], dwell, counts])
-        self.true_path.append(mid)
         self.seq += 1
-        return topics.Histogram(seq=self.seq, board_time=self.t, t=self.t, duration=FRAME_S,
+        hist = topics.Histogram(seq=self.seq, board_time=self.t, t=self.t, duration=FRAME_S,
                                 counts=[int(c) for c in counts])
+        pose = topics.Pose(t=self.t, x=float(self.est[0]), y=float(self.est[1]), z=float(self.est[2]),
+                           yaw=float(self.est[3]), var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]))
+        self.records.append(FrameRecord.from_histogram(hist, pose, dwell, self.channel_edges_keV))
+        self.true_path.append(mid)
+        return hist
 
     def fly_to(self, target: np.ndarray) -> np.ndarray:
         """Fly (estimated frame) to target (x, y, z, yaw), recording transit frames; returns visited xyz."""
@@ -103,7 +108,7 @@ class _Flight:
         return np.array(visited).reshape(-1, 3)
 
     def frames(self) -> Frames:
-        return Frames.from_rows(np.array(self.rows).reshape(-1, len(COLUMNS)))
+        return Frames.from_records(self.records)
 
 
 def fly_offline(scene: Scene, config: SearchConfig | None = None, seed: int = 0,

@@ -30,7 +30,8 @@ from mission.client.telemetry import TelemetryWatch
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Decision, Phase, SearchBrain, SearchConfig
 from radseek import topics
-from radseek.dataset import COLUMNS, Frames, Scenario
+from radseek.dataset import Frames, Scenario
+from radseek.frame_record import FrameRecord
 
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
@@ -62,7 +63,7 @@ class _Stream:
         self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
         self.lock = threading.Lock()
         self.dwell_index = -1
-        self.rows: list[np.ndarray] = []
+        self.records: list[FrameRecord] = []  # the usable ones, for the estimator
         self.bad_payloads = 0
         self.latest_pose: topics.Pose | None = None
 
@@ -84,15 +85,14 @@ class _Stream:
             return
         with self.lock:
             pose = self.poses.at(hist.t - hist.duration / 2)
-            usable = self.recorder.record(hist, pose, self.dwell_index)
-            if usable and pose is not None:
-                self.rows.append(np.r_[hist.t, hist.duration, pose.x, pose.y, pose.z, pose.yaw, pose.var_x,
-                                       pose.var_y, pose.var_z, self.dwell_index, hist.counts])
+            record = FrameRecord.from_histogram(hist, pose, self.dwell_index, self.recorder.channel_edges_keV)
+            if self.recorder.write(record):
+                self.records.append(record)
         self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
 
     def frames(self) -> Frames:
         with self.lock:
-            return Frames.from_rows(np.array(self.rows).reshape(-1, len(COLUMNS)))
+            return Frames.from_records(self.records)
 
     def pose(self) -> topics.Pose | None:
         with self.lock:

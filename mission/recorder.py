@@ -4,26 +4,23 @@ dataset as it arrives (radseek-dataset/1), so a crash loses nothing already rece
 The join takes the pose at the middle of the frame's integration interval (``t - duration/2``),
 interpolated linearly between the estimated poses received from the vehicle (yaw unwrapped).
 
-Frames that carry no usable measurement — flagged stale-pose (the emulator had no true pose and
-published zero counts) or CRC-damaged — are not measurements of the field at any pose, so writing
-them to ``frames.csv`` would make every reader see false zero-count frames. They go, with their flags,
-to ``frames_flagged.csv`` beside it (same columns plus ``flags``); ``frames.csv`` also gains a
-``flags`` and a ``seq`` column (readers ignore unknown columns). So every received frame is in the
-dataset, and
+Frames that carry no usable measurement (``radseek.frame_record.usable``: flagged stale-pose, the
+emulator had no true pose and published zero counts, or CRC-damaged, or received with no pose estimate)
+are not measurements of the field at any pose, so writing them to ``frames.csv`` would make every reader
+see false zero-count frames. They go, with their flags, to ``frames_flagged.csv`` beside it (same
+columns plus ``flags`` and ``seq``); ``frames.csv`` also gains a ``seq`` and a ``flags`` column (readers
+ignore unknown columns). So every received frame is in the dataset, and
 ``received == rows(frames.csv) + rows(frames_flagged.csv)`` always holds.
 """
 
 from __future__ import annotations
 
-import csv
-import math
 from pathlib import Path
 
 from radseek import topics
-from radseek.dataset import COLUMNS, FrameWriter, Scenario, write_json
+from radseek.dataset import FrameWriter, Scenario, write_json
+from radseek.frame_record import FrameRecord
 from radseek.pose_history import PoseHistory
-
-UNUSABLE = topics.FLAG_STALE_POSE | topics.FLAG_CRC_ERROR
 
 __all__ = ["FlightRecorder", "PoseHistory", "flagged_rows"]
 
@@ -35,10 +32,9 @@ class FlightRecorder:
         self.path = Path(path)
         self.path.mkdir(parents=True, exist_ok=True)
         write_json(self.path / "scenario.json", scenario.to_dict())
+        self.channel_edges_keV = scenario.channel_edges_keV
         self._frames = FrameWriter(self.path, extra_columns=("seq", "flags"))
-        self._flagged_fh = open(self.path / "frames_flagged.csv", "w", newline="")  # noqa: SIM115
-        self._flagged = csv.writer(self._flagged_fh)
-        self._flagged.writerow([*COLUMNS, "flags", "seq"])
+        self._flagged = FrameWriter(self.path, extra_columns=("flags", "seq"), filename="frames_flagged.csv")
         self.received = 0
         self.flagged = 0
         self.no_pose = 0
@@ -49,27 +45,22 @@ class FlightRecorder:
 
     def record(self, hist: topics.Histogram, pose: topics.Pose | None, dwell: int) -> bool:
         """Record one frame; True if it went to frames.csv (usable), False if to frames_flagged.csv."""
+        return self.write(FrameRecord.from_histogram(hist, pose, dwell, self.channel_edges_keV))
+
+    def write(self, record: FrameRecord) -> bool:
+        """Write one frame record; True if it went to frames.csv (usable), False if to frames_flagged.csv."""
         self.received += 1
-        usable = pose is not None and not (hist.flags & UNUSABLE)
-        if usable:
-            assert pose is not None
-            self._frames.write_frame(
-                hist.t, hist.duration, (pose.x, pose.y, pose.z), pose.yaw, (pose.var_x, pose.var_y, pose.var_z),
-                dwell, hist.counts, extra=(hist.seq, hist.flags),
-            )
+        if record.usable:
+            self._frames.write(record)
             return True
         self.flagged += 1
-        self.no_pose += pose is None
-        p = pose or topics.Pose(t=hist.t, x=math.nan, y=math.nan, z=math.nan, yaw=math.nan)
-        row = [hist.t, hist.duration, p.x, p.y, p.z, p.yaw, p.var_x, p.var_y, p.var_z, dwell, *hist.counts]
-        self._flagged.writerow([*(f"{v:.6g}" if isinstance(v, float) else v for v in row), hist.flags, hist.seq])
-        self._flagged_fh.flush()
+        self.no_pose += not record.has_pose
+        self._flagged.write(record)
         return False
 
     def close(self) -> None:
         self._frames.close()
-        if not self._flagged_fh.closed:
-            self._flagged_fh.close()
+        self._flagged.close()
 
     def __enter__(self) -> FlightRecorder:
         return self

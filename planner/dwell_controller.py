@@ -7,9 +7,10 @@ and longer times in the presence of stronger fields".
 
 ``DwellController`` is a pure state machine fed one histogram frame at a time (sim time only, no I/O):
 
-* the dwell clock is the summed ``duration`` of *usable* frames: stale-pose, CRC-error and saturated
-  frames are not counted (neither counts nor time), and a ``FLAG_GAP`` frame is counted but the lost
-  frames before it add no time, so a gap pauses the timer instead of inflating it;
+* the dwell clock is the summed ``duration`` of frames usable as a rate (``radseek.frame_record.usable_rate``):
+  stale-pose, CRC-error and saturated frames are not counted (neither counts nor time), and a ``FLAG_GAP``
+  frame is counted but the lost frames before it add no time, so a gap pauses the timer instead of
+  inflating it;
 * the running mean rate is m = N / T (N counts, T dwell-clock time); its derivative is the slope of m
   over the last ``deriv_lag_s`` of dwell-clock time, dm/dt = (m(T) - m(T - L)) / L;
 * the threshold is y_thres = max(deriv_threshold_cps_per_s, k_sigma * sigma_m / t_thres) with
@@ -32,10 +33,8 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from radseek.topics import FLAG_CRC_ERROR, FLAG_SATURATED, FLAG_STALE_POSE, Histogram
-
-#: frames carrying any of these flags are not counted
-REJECT_FLAGS = FLAG_STALE_POSE | FLAG_CRC_ERROR | FLAG_SATURATED
+from radseek.frame_record import usable_rate
+from radseek.topics import Histogram
 
 
 @dataclass(frozen=True)
@@ -49,7 +48,6 @@ class DwellConfig:
     k_sigma: float = 0.6  # >= 0: Poisson-scaled threshold, in standard errors of the mean per t_thres
     deriv_lag_s: float = 1.0  # s, > 0: lag of the running-mean slope
     t_timeout: float = 60.0  # s of elapsed sim time, >= t_max: give up waiting for usable frames
-    reject_flags: int = REJECT_FLAGS
 
     def __post_init__(self) -> None:
         if not (0 <= self.t_min <= self.t_max):
@@ -112,7 +110,7 @@ class DwellController:
         if self._t_start is None:
             self._t_start = t - duration
         elapsed = t - self._t_start
-        if flags & cfg.reject_flags:
+        if not usable_rate(flags):
             self._rejected += 1
         else:
             # FLAG_GAP frames are valid: the lost frames before them simply add no dwell-clock time

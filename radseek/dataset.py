@@ -16,17 +16,24 @@ import csv
 import io
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from radseek.frame_record import (
+    CHANNEL_COLUMNS,
+    COLUMNS,
+    COUNT_DTYPE,
+    POSE_COLUMNS,
+    FrameRecord,
+    Spectrum,
+)
+from radseek.topics import N_CHANNELS
+
 FORMAT = "radseek-dataset/1"
-N_CHANNELS = 32
-CHANNEL_COLUMNS = [f"c{k:02d}" for k in range(N_CHANNELS)]
-POSE_COLUMNS = ["t", "duration", "x", "y", "z", "yaw", "var_x", "var_y", "var_z", "dwell"]
-COLUMNS = POSE_COLUMNS + CHANNEL_COLUMNS
 
 #: The fixed names of physical effects beyond the baseline model (dataset-format.md) and their
 #: parameter keys in truth.json. New effects may be added; these keep their meaning.
@@ -149,7 +156,7 @@ class Frames:
     var_y: np.ndarray
     var_z: np.ndarray
     dwell: np.ndarray  # int, -1 while moving
-    counts: np.ndarray  # (n, 32) int
+    counts: np.ndarray  # (n, 32) COUNT_DTYPE when read or recorded (simulators may hold expected counts)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -177,7 +184,21 @@ class Frames:
         rows = np.asarray(rows, dtype=float).reshape(-1, len(COLUMNS))
         cols = {name: rows[:, i] for i, name in enumerate(POSE_COLUMNS)}
         cols["dwell"] = cols["dwell"].astype(int)
-        return Frames(**cols, counts=rows[:, len(POSE_COLUMNS) :].astype(np.int64))
+        return Frames(**cols, counts=rows[:, len(POSE_COLUMNS) :].astype(COUNT_DTYPE))
+
+    @staticmethod
+    def from_records(records: Sequence[FrameRecord]) -> Frames:
+        """The columns of a list of frame records (empty list: zero frames)."""
+        cols = {name: np.array([getattr(r, name) for r in records], dtype=float) for name in POSE_COLUMNS}
+        cols["dwell"] = np.array([r.dwell for r in records], dtype=int)
+        counts = np.array([r.counts for r in records], dtype=COUNT_DTYPE).reshape(-1, N_CHANNELS)
+        return Frames(**cols, counts=counts)
+
+    def record(self, i: int, channel_edges_keV: np.ndarray | None = None) -> FrameRecord:
+        """Frame ``i`` as a record (no board sequence number or flags: frames.csv keeps them apart)."""
+        pose = {name: float(getattr(self, name)[i]) for name in POSE_COLUMNS if name not in ("duration", "dwell")}
+        spectrum = Spectrum(self.counts[i], float(self.duration[i]), None, channel_edges_keV)
+        return FrameRecord(spectrum=spectrum, dwell=int(self.dwell[i]), **pose)
 
 
 @dataclass(frozen=True)
@@ -371,61 +392,30 @@ def read_dataset(path: str | Path) -> Dataset:
 # ---------------------------------------------------------------------------------------- writing
 
 
-def _format_row(values: np.ndarray) -> list[str]:
-    out = [
-        f"{values[0]:.4f}",
-        f"{values[1]:.4f}",
-        f"{values[2]:.4f}",
-        f"{values[3]:.4f}",
-        f"{values[4]:.4f}",
-        f"{values[5]:.4f}",
-        f"{values[6]:.3e}",
-        f"{values[7]:.3e}",
-        f"{values[8]:.3e}",
-        str(int(values[9])),
-    ]
-    out += [str(int(c)) for c in values[10:]]
-    return out
-
-
 class FrameWriter:
-    """Append frames to ``frames.csv`` as they arrive, flushed per row, so a crash loses nothing.
+    """Append frame records to ``frames.csv`` as they arrive, flushed per row, so a crash loses nothing.
 
-    Use as a context manager; ``write_frame`` takes one frame's pose, dwell index and 32 counts.
-    ``extra_columns`` are appended after the standard ones (the format allows added columns; readers
-    ignore them), e.g. the board's ``seq`` and ``flags``; pass their values to ``write_frame(extra=...)``.
+    Use as a context manager; ``write`` takes one :class:`radseek.frame_record.FrameRecord`.
+    ``extra_columns`` are record fields appended after the standard columns (the format allows added
+    columns; readers ignore them): the board's ``seq`` and ``flags``.
     """
 
-    def __init__(self, path: str | Path, extra_columns: tuple[str, ...] = ()):
+    EXTRA_FIELDS = ("seq", "flags")
+
+    def __init__(self, path: str | Path, extra_columns: tuple[str, ...] = (), filename: str = "frames.csv"):
         self.path = Path(path)
         self.path.mkdir(parents=True, exist_ok=True)
-        clash = set(extra_columns) & set(COLUMNS)
-        if clash:
-            raise ValueError(f"extra columns {sorted(clash)} would shadow standard ones")
+        unknown = set(extra_columns) - set(self.EXTRA_FIELDS)
+        if unknown:
+            raise ValueError(f"extra columns {sorted(unknown)} are not record fields {self.EXTRA_FIELDS}")
         self.extra_columns = tuple(extra_columns)
-        self._fh = open(self.path / "frames.csv", "w", newline="")  # noqa: SIM115 (closed in close())
+        self._fh = open(self.path / filename, "w", newline="")  # noqa: SIM115 (closed in close())
         self._csv = csv.writer(self._fh)
         self._csv.writerow([*COLUMNS, *self.extra_columns])
         self.rows = 0
 
-    def write_frame(
-        self,
-        t: float,
-        duration: float,
-        position: tuple[float, float, float],
-        yaw: float,
-        variances: tuple[float, float, float],
-        dwell: int,
-        counts: list[int] | np.ndarray,
-        extra: tuple = (),
-    ) -> None:
-        counts = np.asarray(counts)
-        if counts.shape != (N_CHANNELS,):
-            raise ValueError(f"counts must have {N_CHANNELS} channels, got shape {counts.shape}")
-        if len(extra) != len(self.extra_columns):
-            raise ValueError(f"expected values for {self.extra_columns}, got {extra!r}")
-        row = np.r_[t, duration, position, yaw, variances, dwell, counts].astype(float)
-        self._csv.writerow([*_format_row(row), *extra])
+    def write(self, record: FrameRecord) -> None:
+        self._csv.writerow([*record.csv_cells(), *(getattr(record, c) for c in self.extra_columns)])
         self._fh.flush()
         self.rows += 1
 
@@ -449,10 +439,7 @@ def write_dataset(path: str | Path, frames: Frames, scenario: Scenario, truth: T
     path = Path(path)
     with FrameWriter(path) as w:
         for i in range(len(frames)):
-            w.write_frame(
-                frames.t[i], frames.duration[i], (frames.x[i], frames.y[i], frames.z[i]), frames.yaw[i],
-                (frames.var_x[i], frames.var_y[i], frames.var_z[i]), int(frames.dwell[i]), frames.counts[i],
-            )
+            w.write(frames.record(i, scenario.channel_edges_keV))
     write_json(path / "scenario.json", scenario.to_dict())
     if truth is not None:
         write_json(path / "truth.json", truth.to_dict())

@@ -1,0 +1,58 @@
+"""The frame record: one type from histogram + pose + dwell index to a frames.csv row and back."""
+
+import math
+
+import numpy as np
+import pytest
+
+from radseek import topics
+from radseek.dataset import COLUMNS, FrameWriter, Frames, read_frames
+from radseek.frame_record import COUNT_DTYPE, FrameRecord, Spectrum, usable, usable_rate
+
+EDGES = np.linspace(40, 1640, 33)
+
+
+def hist(seq=3, flags=0, counts=None):
+    counts = list(range(32)) if counts is None else counts
+    return topics.Histogram(seq=seq, board_time=1.0, t=2.5, duration=0.1, counts=counts, flags=flags, live_time=0.09)
+
+
+POSE = topics.Pose(t=2.45, x=1.25, y=-2.0, z=1.5, yaw=0.3, var_x=1e-3, var_y=2e-3, var_z=1e-4)
+
+
+def test_a_record_keeps_counts_with_their_edges_and_times_in_the_declared_dtype():
+    r = FrameRecord.from_histogram(hist(), POSE, dwell=4, channel_edges_keV=EDGES)
+    assert r.counts.dtype == COUNT_DTYPE and r.counts.tolist() == list(range(32))
+    assert r.spectrum.realtime == r.duration == 0.1 and r.spectrum.livetime == 0.09
+    np.testing.assert_array_equal(r.spectrum.bin_edges_kev, EDGES)
+    assert r.values() == [2.5, 0.1, 1.25, -2.0, 1.5, 0.3, 1e-3, 2e-3, 1e-4, 4, *range(32)]
+    assert len(r.values()) == len(r.csv_cells()) == len(COLUMNS)
+    with pytest.raises(ValueError, match="32 channels"):
+        Spectrum(np.zeros(31), 0.1)
+    with pytest.raises(ValueError, match="whole numbers"):
+        Spectrum(np.full(32, 0.5), 0.1)
+
+
+def test_records_write_read_and_become_frames_alike(tmp_path):
+    records = [FrameRecord.from_histogram(hist(seq=k, counts=[k] * 32), POSE, dwell=k - 1) for k in range(3)]
+    with FrameWriter(tmp_path, extra_columns=("seq", "flags")) as w:
+        for r in records:
+            w.write(r)
+    read = read_frames(tmp_path / "frames.csv")
+    direct = Frames.from_records(records)
+    for name in Frames.__dataclass_fields__:
+        np.testing.assert_allclose(getattr(read, name), getattr(direct, name), rtol=1e-4, err_msg=name)
+    assert direct.counts.dtype == read.counts.dtype == COUNT_DTYPE
+    assert read.record(2).values() == pytest.approx(records[2].values(), rel=1e-4)
+    assert len(Frames.from_records([])) == 0
+
+
+def test_usable_is_one_function_of_the_flags():
+    assert usable(0) and usable(topics.FLAG_GAP) and usable(topics.FLAG_SATURATED)
+    assert not usable(topics.FLAG_STALE_POSE) and not usable(topics.FLAG_CRC_ERROR)
+    # a saturated frame lost counts: the estimators see it, the dwell clock does not
+    assert usable_rate(0) and usable_rate(topics.FLAG_GAP) and not usable_rate(topics.FLAG_SATURATED)
+    assert not usable_rate(topics.FLAG_STALE_POSE | topics.FLAG_GAP)
+    no_pose = FrameRecord.from_histogram(hist(), None, dwell=0)
+    assert not no_pose.usable and not no_pose.has_pose and math.isnan(no_pose.x)
+    assert FrameRecord.from_histogram(hist(flags=topics.FLAG_SATURATED), POSE, 0).usable
