@@ -5,7 +5,11 @@ PX4-flavoured, since that is the autopilot type announced: arm 400, takeoff 22, 
 hold 17 or DO_SET_MODE AUTO.LOITER, set mode 176 (PX4 main/sub modes), mission start 300 or
 DO_SET_MODE AUTO.MISSION, set current item 224, reposition/go-to 192, change speed 178, plus the
 message services MAVSDK uses (SET_MESSAGE_INTERVAL 511, REQUEST_MESSAGE 512, capabilities 520).
-Unknown commands get MAV_RESULT_UNSUPPORTED; bad parameters MAV_RESULT_DENIED.
+Every command is answered (``answer``): unknown commands get MAV_RESULT_UNSUPPORTED; bad parameters
+MAV_RESULT_DENIED, and a parameter that must be a number but is NaN or infinite is named: its index
+(1-7) goes in the ACK's ``result_param2`` and the reason in a STATUSTEXT. NaN keeps its MAVLink meaning
+("unset": default or keep) only where the command defines it. A failure inside a command is
+MAV_RESULT_FAILED, never silence.
 """
 
 from __future__ import annotations
@@ -35,6 +39,10 @@ class Command:
     alt: float  # m, meaning per frame
     frame: int  # MAV_FRAME_GLOBAL (AMSL) for COMMAND_LONG
 
+    def param(self, index: int) -> float:
+        """MAVLink param ``index`` (1-7); 5-7 are lat, lon, alt."""
+        return (*self.params, self.lat, self.lon, self.alt)[index - 1]
+
     @classmethod
     def from_msg(cls, msg) -> Command:
         p = (float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4))
@@ -45,6 +53,51 @@ class Command:
             return cls(int(msg.command), p, lat, lon, float(msg.z), int(msg.frame))
         return cls(int(msg.command), p, float(msg.param5), float(msg.param6), float(msg.param7),
                    M.MAV_FRAME_GLOBAL)
+
+
+class InvalidParam(ValueError):
+    """A parameter the command cannot use; ``index`` is its MAVLink number (1-7)."""
+
+    def __init__(self, index: int, why: str):
+        super().__init__(f"param{index} {why}")
+        self.index = index
+
+
+def _required(cmd: Command, index: int) -> float:
+    v = cmd.param(index)
+    if not math.isfinite(v):
+        raise InvalidParam(index, f"is {v}, must be a finite number")
+    return v
+
+
+def _optional(cmd: Command, index: int) -> float | None:
+    """NaN means unset (None); infinity is refused."""
+    v = cmd.param(index)
+    if math.isnan(v):
+        return None
+    if not math.isfinite(v):
+        raise InvalidParam(index, f"is {v}, must be a finite number or NaN (unset)")
+    return v
+
+
+@dataclass(frozen=True)
+class Answer:
+    result: int  # MAV_RESULT
+    extra: list  # messages to send after the ACK
+    param: int = 0  # the offending param (1-7), for result_param2
+    reason: str = ""  # why it was refused, for the log and a STATUSTEXT
+
+
+def answer(cmd: Command, svc: Services) -> Answer:
+    """``execute`` made total: whatever the parameters, there is a result to ACK."""
+    try:
+        result, extra = execute(cmd, svc)
+        return Answer(result, [m for m in extra if m is not None])
+    except InvalidParam as exc:
+        return Answer(M.MAV_RESULT_DENIED, [], exc.index, str(exc))
+    except Exception as exc:  # noqa: BLE001 - a command must never go unanswered
+        log.exception("command %d %s failed", cmd.command, cmd.params)
+        return Answer(M.MAV_RESULT_FAILED, [], 0, f"{type(exc).__name__}: {exc}")
 
 
 class Services(Protocol):
@@ -66,21 +119,22 @@ def _alt_to_enu_z(cmd: Command, home: Home) -> float:
 
 
 def execute(cmd: Command, svc: Services) -> tuple[int, list]:
-    """Run one command; returns (MAV_RESULT, extra messages to send after the ACK)."""
+    """Run one command; returns (MAV_RESULT, extra messages to send after the ACK). Raises
+    ``InvalidParam`` for a parameter it cannot use (``answer`` turns that into DENIED)."""
     nav, c = svc.nav, cmd.command
-    p1, p2, p3, p4 = cmd.params
     ok = M.MAV_RESULT_ACCEPTED
     denied = M.MAV_RESULT_DENIED
     if c == M.MAV_CMD_COMPONENT_ARM_DISARM:
+        p1 = _required(cmd, 1)
         if p1 == 1:
             return (ok if nav.arm() else denied), []
         if p1 == 0:
-            return (ok if nav.disarm(force=p2 == FORCE_MAGIC) else denied), []
+            return (ok if nav.disarm(force=cmd.param(2) == FORCE_MAGIC) else denied), []
         return denied, []
     if c == M.MAV_CMD_NAV_TAKEOFF:
         if not nav.armed:
             return M.MAV_RESULT_TEMPORARILY_REJECTED, []
-        alt = _alt_to_enu_z(cmd, svc.home) if math.isfinite(cmd.alt) else None
+        alt = _alt_to_enu_z(cmd, svc.home) if _optional(cmd, 7) is not None else None
         if alt is not None and not svc.fence.contains(np.array([nav.pos[0], nav.pos[1], alt])):
             return denied, []
         return (ok if nav.takeoff(alt) else denied), []
@@ -91,35 +145,33 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
     if c == M.MAV_CMD_NAV_LOITER_UNLIM:
         return (ok if nav.hold() else denied), []
     if c == M.MAV_CMD_DO_SET_MODE:
-        if not (int(p1) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
+        base, main, sub = _required(cmd, 1), _required(cmd, 2), _required(cmd, 3)
+        if not (int(base) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
             return denied, []
-        mode = mode_from_px4(int(p2), int(p3))
+        mode = mode_from_px4(int(main), int(sub))
         if mode is None:
             return M.MAV_RESULT_UNSUPPORTED, []
         return (ok if nav.set_mode(mode) else denied), []
     if c == M.MAV_CMD_MISSION_START:
-        if p1 > 0 and not nav.set_current(int(p1)):
+        first = _optional(cmd, 1)  # NaN: from the current item
+        if first is not None and first > 0 and not nav.set_current(int(first)):
             return denied, []
         return (ok if nav.start_mission() else denied), []
     if c == M.MAV_CMD_DO_SET_MISSION_CURRENT:
-        if not math.isfinite(p1):
-            return denied, []
-        return (ok if nav.set_current(int(p1)) else denied), []
+        return (ok if nav.set_current(int(_required(cmd, 1))) else denied), []
     if c == M.MAV_CMD_DO_REPOSITION:
         return _reposition(cmd, svc), []
     if c == M.MAV_CMD_DO_CHANGE_SPEED:
-        if not (math.isfinite(p2) and 0 < p2 <= 20):
+        speed = _required(cmd, 2)
+        if not 0 < speed <= 20:
             return denied, []
-        nav.limits = nav.limits.with_speed_xy(p2)
+        nav.limits = nav.limits.with_speed_xy(speed)
         return ok, []
     if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
-        if not (math.isfinite(p1) and math.isfinite(p2)):
-            return denied, []
+        p1, p2 = _required(cmd, 1), _required(cmd, 2)
         return (ok if svc.set_message_interval(int(p1), p2) else M.MAV_RESULT_UNSUPPORTED), []
     if c == M.MAV_CMD_REQUEST_MESSAGE:
-        if not math.isfinite(p1):
-            return denied, []
-        msg = svc.message_by_id(int(p1))
+        msg = svc.message_by_id(int(_required(cmd, 1)))
         return (ok, [msg]) if msg is not None else (M.MAV_RESULT_UNSUPPORTED, [])
     if c == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
         return ok, [svc.message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)]
@@ -132,11 +184,12 @@ def _reposition(cmd: Command, svc: Services) -> int:
     if not nav.armed:
         return M.MAV_RESULT_TEMPORARILY_REJECTED
     target = nav.pos.copy()
-    if math.isfinite(cmd.lat) and math.isfinite(cmd.lon):
+    lat, lon, alt, yaw_deg = _optional(cmd, 5), _optional(cmd, 6), _optional(cmd, 7), _optional(cmd, 4)
+    if lat is not None and lon is not None:
         if not (-90 <= cmd.lat <= 90 and -180 <= cmd.lon <= 180):
             return M.MAV_RESULT_DENIED
         target[:2] = geodetic_to_enu(svc.home, cmd.lat, cmd.lon, svc.home.alt_m)[:2]
-    if math.isfinite(cmd.alt):
+    if alt is not None:
         target[2] = _alt_to_enu_z(cmd, svc.home)
     if not svc.fence.contains(target):
         log.warning("reposition to %s outside the geofence: denied", np.round(target, 2))
@@ -144,7 +197,7 @@ def _reposition(cmd: Command, svc: Services) -> int:
     speed = cmd.params[0]
     if math.isfinite(speed) and 0 < speed <= 20:
         nav.limits = nav.limits.with_speed_xy(speed)
-    yaw = yaw_ned_to_enu(math.radians(cmd.params[3])) if math.isfinite(cmd.params[3]) else None
+    yaw = yaw_ned_to_enu(math.radians(yaw_deg)) if yaw_deg is not None else None
     return M.MAV_RESULT_ACCEPTED if nav.goto(target, yaw) else M.MAV_RESULT_DENIED
 
 

@@ -267,13 +267,15 @@ class Vehicle:
                     return
                 self.stats["commands"] += 1
                 cmd = commands.Command.from_msg(msg)
-                result, extra = commands.execute(cmd, self)
-                log.info("command %d %s -> result %d", cmd.command, cmd.params, result)
-                self.link.send(M.MAVLink_command_ack_message(cmd.command, result, 0, 0, msg.get_srcSystem(),
-                                                             msg.get_srcComponent()), ep)
-                for m in extra:
+                ans = commands.answer(cmd, self)  # total: every command gets its ACK
+                log.info("command %d %s -> result %d", cmd.command, cmd.params, ans.result)
+                self.link.send(M.MAVLink_command_ack_message(cmd.command, ans.result, 0, ans.param,
+                                                             msg.get_srcSystem(), msg.get_srcComponent()), ep)
+                if ans.reason:
+                    self.statustext(f"command {cmd.command} refused: {ans.reason}", M.MAV_SEVERITY_WARNING)
+                for m in ans.extra:
                     self.link.send(m, ep)
-                if cmd.command == M.MAV_CMD_DO_SET_MISSION_CURRENT and result == M.MAV_RESULT_ACCEPTED:
+                if cmd.command == M.MAV_CMD_DO_SET_MISSION_CURRENT and ans.result == M.MAV_RESULT_ACCEPTED:
                     self.link.send(telemetry.mission_current(self.snapshot()))
             elif kind in MISSION_MSGS:
                 if not self._for_us(msg):
