@@ -3,11 +3,14 @@ critical battery -> land. Each transition fires once and is announced (STATUSTEX
 
 ``link_age`` is measured on the link's own clock: the ground station is a real-time peer that sends
 heartbeats at 1 Hz of wall time, so at a sim speed-up N a sim-time timeout would fire N times too
-early. Everything else (the hold before RTL) is in sim seconds.
+early. Everything else (the hold before RTL) is in sim seconds. Every event carries the sim time it fired
+at and the link age that caused it, and ``history`` keeps them all, so a test or a log can check the
+transitions against sim time instead of the wall clock.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from enum import Enum
 
@@ -31,6 +34,8 @@ class Event:
     action: Action
     text: str
     severity: int  # MAV_SEVERITY
+    t: float = 0.0  # sim time at which it fired
+    link_age: float = 0.0  # link-clock seconds since the last GCS message, when it fired
 
 
 class Failsafe:
@@ -41,6 +46,7 @@ class Failsafe:
         self.link_lost_since: float | None = None
         self._rtl_for_link = False
         self._battery_level = 0  # 0 ok, 1 low fired, 2 critical fired
+        self.history: list[Event] = []  # every event returned by ``update``, in order
 
     def update(self, t: float, link_seen: bool, link_age: float, battery: float, in_air: bool) -> list[Event]:
         events: list[Event] = []
@@ -66,4 +72,6 @@ class Failsafe:
             elif battery <= self.low and self._battery_level < 1:
                 self._battery_level = 1
                 events.append(Event(Action.RTL, f"Failsafe: battery low ({battery:.0%}), returning to launch", 2))
+        events = [dataclasses.replace(e, t=t, link_age=link_age) for e in events]
+        self.history.extend(events)
         return events
