@@ -1,9 +1,15 @@
 """Interoperability: MAVProxy (headless, on the GCS port) connects to the vehicle process and lists the
-mission that an API client uploaded, item by item."""
+mission that an API client uploaded, item by item.
 
+MAVProxy is driven by what it prints (each command is sent once the output it depends on has appeared),
+not by fixed sleeps, so a slow start on a loaded host only makes the test wait longer."""
+
+import os
 import shutil
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -13,6 +19,7 @@ from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port, item
 
 pytestmark = pytest.mark.slow
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
+WAIT_S = 60.0  # bounds waiting only
 
 
 def test_mavproxy_lists_the_uploaded_mission():
@@ -25,10 +32,37 @@ def test_mavproxy_lists_the_uploaded_mission():
     with VehicleProcess(api, gcs_port, ["--speedup", "5"]), Gcs(api) as api_client:
         api_client.wait_vehicle()
         assert api_client.upload(items) == M.MAV_MISSION_ACCEPTED
-        script = "sleep 2; echo 'wp list'; sleep 2; echo 'mode'; sleep 0.5"
-        proc = subprocess.run(f"({script}) | {exe} --master=udpin:127.0.0.1:{gcs_port} --no-state",
-                              shell=True, capture_output=True, text=True, timeout=60)
-    out = proc.stdout + proc.stderr
+        mavproxy = subprocess.Popen([exe, f"--master=udpin:127.0.0.1:{gcs_port}", "--no-state"],
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True)
+        reader.start()
+
+        def wait_for(cond, what: str) -> None:
+            deadline = time.monotonic() + WAIT_S
+            while not cond("".join(lines)):
+                assert mavproxy.poll() is None, f"MAVProxy exited waiting for {what}:\n{''.join(lines)}"
+                assert time.monotonic() < deadline, f"MAVProxy: no {what} in {WAIT_S} s:\n{''.join(lines)}"
+                time.sleep(0.05)
+
+        try:
+            wait_for(lambda out: "Detected vehicle 1:1" in out, "vehicle detected")
+            mavproxy.stdin.write("wp list\n")
+            mavproxy.stdin.flush()
+            wait_for(lambda out: sum(" p1=" in ln for ln in out.splitlines()) >= 4, "4 listed waypoints")
+            mavproxy.stdin.write("mode\n")
+            mavproxy.stdin.flush()
+            wait_for(lambda out: "Available modes:" in out, "mode list")
+        finally:
+            mavproxy.stdin.close()
+            try:
+                mavproxy.wait(30)
+            except subprocess.TimeoutExpired:
+                mavproxy.kill()
+                mavproxy.wait()
+            reader.join(10)
+    out = "".join(lines)
     print(out)
     assert "Detected vehicle 1:1" in out
     assert "Requesting 4 waypoints" in out
@@ -37,5 +71,6 @@ def test_mavproxy_lists_the_uploaded_mission():
     assert [(int(f[0]), int(f[1])) for f in listed] == [(22, 6), (16, 6), (19, 6), (21, 6)]
     assert float(listed[1][2]) == pytest.approx(lat + 1e-4, abs=1e-7) and listed[1][5] == "p1=42.0"
     assert float(listed[2][4]) == pytest.approx(4.0) and listed[2][5] == "p1=7.0"
-    assert "LOITER" in out and "MISSION" in out  # PX4 mode names from our custom modes
+    modes = out.split("Available modes:", 1)[1].splitlines()[0]
+    assert "LOITER" in modes and "MISSION" in modes  # PX4 mode names from our custom modes
     assert "fence breach" not in out
