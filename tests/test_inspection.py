@@ -22,6 +22,7 @@ from radseek.zenoh_session import open_session
 
 REPO = Path(__file__).resolve().parents[1]
 ZENOH_CLI = Path(sys.executable).with_name("zenoh")
+WAIT_S = 60.0  # wall deadlines only bound waiting; no assertion here is on how long something took
 
 
 def histogram(seq: int, counts=None, flags: int = 0) -> topics.Histogram:
@@ -59,7 +60,7 @@ class Publisher:
         self._th.join(10)
 
 
-def run_cli(*args: str, timeout: float = 30) -> subprocess.CompletedProcess:
+def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "radseek.cli", *args], capture_output=True, text=True,
                           timeout=timeout)
 
@@ -169,31 +170,48 @@ def test_echo_prints_readably_and_survives_bad_messages(router):
     assert any(p.get("counts") == list(range(32)) for p in parsed)
 
 
+def _wait_for(cond, what: str, timeout: float = WAIT_S) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
 def test_topics_lists_live_keys_with_rates(router):
     clock = topics.SimClock(t=1.0, speedup=2.0).to_bytes()
+    duration = 2.0
     with Publisher(router, lambda tick: [(topics.HISTOGRAM, histogram(tick).to_bytes()),
                                          (topics.SIM_CLOCK, clock)]) as pub:
-        time.sleep(0.5)
-        out = run_cli("topics", "--connect", router, "--duration", "2")
-        stamps = list(pub.stamps)
+        _wait_for(lambda: len(pub.stamps) >= 3, "the publisher to publish")
+        w0 = time.monotonic()
+        out = run_cli("topics", "--connect", router, "--duration", str(duration))
+        w1 = time.monotonic()
+        during = [s for s in pub.stamps if w0 <= s <= w1]
     assert out.returncode == 0, out.stderr
     print("\n" + out.stdout)
     rows = {line.split()[0]: line.split() for line in out.stdout.splitlines()[1:]}
     hist = rows["radseek/uav0/detector/histogram"]
     clock_row = rows["radseek/uav0/sim/clock"]
-    # the publisher's own achieved rate (its sleeps run long under load); topics must report it
-    achieved = (len(stamps) - 1) / (stamps[-1] - stamps[0])
-    assert abs(float(hist[2]) - achieved) < 0.15 * achieved, (hist, achieved)
-    assert float(hist[3]) == pytest.approx(float(hist[2]) / 2.0, abs=0.06)  # sim rate at speed-up 2
-    assert hist[-1] == "Histogram" and clock_row[-1] == "SimClock" and int(hist[1]) > 10
+    assert hist[-1] == "Histogram" and clock_row[-1] == "SimClock"
+    n, hz, sim_hz = int(hist[1]), float(hist[2]), float(hist[3])
+    # it saw only what was published while it ran, and enough of it for a rate
+    assert 3 <= n <= len(during) + 1, (n, len(during))
+    # HZ is messages per wall second between first and last arrival, inside the listening window: so
+    # at least (n - 1) / duration, whatever the load (a per-sim-second rate would be half that here)
+    assert hz >= (n - 1) / duration - 0.05, (hist, duration)
+    # the same stream measured at both ends: loose, since arrivals may bunch on a loaded host
+    achieved = (len(during) - 1) / (during[-1] - during[0])
+    assert 0.5 * achieved < hz < 2.0 * achieved, (hist, achieved)
+    assert sim_hz == pytest.approx(hz / 2.0, abs=0.06)  # sim rate at speed-up 2
     empty = run_cli("topics", "--connect", router, "--duration", "0.5")
     assert "no messages" in empty.stdout
 
 
-@pytest.mark.skipif(not ZENOH_CLI.exists() and shutil.which("zenoh") is None, reason="zenoh-cli not installed")
 def test_third_party_zenoh_cli_receives_histograms(router):
     """The PyPI tool zenoh-cli, as a client of our router, prints our JSON histograms."""
     exe = str(ZENOH_CLI) if ZENOH_CLI.exists() else shutil.which("zenoh")
+    assert exe, "zenoh-cli missing: it is a dev dependency (pip install -e '.[dev]', as `make` does)"
     cli = subprocess.Popen(
         [exe, "--mode", "client", "--connect", router, "--cfg", "scouting/multicast/enabled:false",
          "subscribe", "-k", "radseek/**/histogram", "--decoder", "json", "--line", "{key} {value}"],
@@ -204,7 +222,7 @@ def test_third_party_zenoh_cli_receives_histograms(router):
     reader.start()
     try:
         with Publisher(router, lambda tick: [(topics.HISTOGRAM, histogram(tick).to_bytes())]):
-            deadline = time.monotonic() + 20
+            deadline = time.monotonic() + WAIT_S
             while len(lines) < 3 and time.monotonic() < deadline:
                 time.sleep(0.1)
     finally:
