@@ -29,7 +29,7 @@ def flying_setup():
 
 def test_telemetry_streams_and_autopilot_identity(flying_setup):
     vehicle, gcs, _ = flying_setup
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 60  # bounds the wait only
     while not TELEMETRY <= {m.get_type() for m in gcs.received} and time.monotonic() < deadline:
         gcs.poll()
     seen = {m.get_type(): m for m in gcs.received}
@@ -49,13 +49,12 @@ def test_telemetry_streams_and_autopilot_identity(flying_setup):
     assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 9999) == M.MAV_RESULT_UNSUPPORTED
     # SET_MESSAGE_INTERVAL: -1 switches a stream off
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, -1) == M.MAV_RESULT_ACCEPTED
-    time.sleep(0.1)
+    # everything after the ACK was sent after the change: over 1 s of sim time (the stamps of
+    # GLOBAL_POSITION_INT, which stays on) not one ATTITUDE, however slowly the host runs
     gcs.received.clear()
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 0.8:
-        gcs.poll()
+    first = gcs.recv("GLOBAL_POSITION_INT").time_boot_ms
+    gcs.recv("GLOBAL_POSITION_INT", lambda m: m.time_boot_ms >= first + 1000)
     assert "ATTITUDE" not in {m.get_type() for m in gcs.received}
-    assert "GLOBAL_POSITION_INT" in {m.get_type() for m in gcs.received}
 
 
 def test_commands_fly_and_answer(flying_setup):
@@ -64,7 +63,7 @@ def test_commands_fly_and_answer(flying_setup):
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
     assert gcs.recv("HEARTBEAT", lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
     assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
-    gcs.recv("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_IN_AIR, timeout=5)
+    gcs.recv("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_IN_AIR)
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0) == M.MAV_RESULT_DENIED  # in the air
     assert gcs.command(31999) == M.MAV_RESULT_UNSUPPORTED
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0) == M.MAV_RESULT_UNSUPPORTED  # offboard: not offered
@@ -75,12 +74,12 @@ def test_commands_fly_and_answer(flying_setup):
                        home.alt_m + 5) == M.MAV_RESULT_DENIED
     assert gcs.command(M.MAV_CMD_DO_REPOSITION, -1, 0, 0, 90.0, home.lat_deg + 0.0001, home.lon_deg,
                        home.alt_m + 5) == M.MAV_RESULT_ACCEPTED  # 11.1 m north, facing east
-    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.x - 11.12) < 0.3 and abs(m.z + 5) < 0.3, timeout=8)
-    att = gcs.recv("ATTITUDE", lambda m: abs(m.yaw - math.pi / 2) < 0.05, timeout=5)
+    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.x - 11.12) < 0.3 and abs(m.z + 5) < 0.3)
+    att = gcs.recv("ATTITUDE", lambda m: abs(m.yaw - math.pi / 2) < 0.05)
     assert att is not None
     assert gcs.command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH) == M.MAV_RESULT_ACCEPTED
     gcs.recv("HEARTBEAT", lambda m: m.custom_mode == px4_custom_mode(Mode.RTL))
-    gcs.recv("HEARTBEAT", lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, timeout=10)  # landed, disarmed
+    gcs.recv("HEARTBEAT", lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)  # landed, disarmed
     lp = gcs.recv("LOCAL_POSITION_NED")
     assert abs(lp.x) < 0.3 and abs(lp.y) < 0.3 and abs(lp.z) < 0.05
     assert gcs.command(M.MAV_CMD_NAV_LAND) == M.MAV_RESULT_DENIED  # already on the ground
@@ -102,7 +101,7 @@ def test_parameters(flying_setup):
     assert gcs.recv("PARAM_VALUE").param_index == 0
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
     assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_ACCEPTED
-    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.z + 4.0) < 0.25, timeout=8)  # the new takeoff altitude
+    gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.z + 4.0) < 0.25)  # the new takeoff altitude
 
 
 def test_malformed_input_never_stops_the_vehicle(flying_setup):
@@ -135,7 +134,7 @@ def test_signing_refuses_unsigned_and_wrongly_signed_commands():
     gcs_port = free_udp_port()
     cfg = thread_config(free_udp_port(), gcs_port, speedup=5.0, signing_key=key)
     with VehicleThread(cfg) as vehicle, Gcs(gcs_port) as plain:
-        hb = plain.recv("HEARTBEAT", timeout=5)  # we can read its (signed) messages without the key
+        hb = plain.recv("HEARTBEAT")  # we can read its (signed) messages without the key
         assert hb is not None
         plain.send(M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
         with pytest.raises(TimeoutError):
