@@ -113,8 +113,8 @@ class Progress:
         line = f"[t={st.t:6.1f}s] {st.phase:<8s} dwell {st.dwell_index:>2d}  battery {100 * st.battery:3.0f}%"
         if est is not None and est.sources:
             s = est.sources[0]
-            cov = est.covariance
-            sig = math.sqrt(max(cov[0][0] + cov[1][1], 0.0)) if cov else math.nan
+            cov = est.covariance_block(0)
+            sig = math.sqrt(max(cov[0][0] + cov[1][1], 0.0))
             line += f"  estimate ({s['x']:.2f}, {s['y']:.2f}) m  {s['cps_at_1m']:.0f} cps@1m  sigma {sig:.2f} m"
         line += f"  {st.progress}"
         if line != self._last:

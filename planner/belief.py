@@ -42,15 +42,15 @@ class SourceBelief:
         object.__setattr__(self, "covariance", cov)
 
     @classmethod
-    def from_estimate(cls, msg: topics.Estimate, source: int = 0, default_sigma_m: float = 1.0) -> SourceBelief:
-        """The belief of one source of an ``estimate`` message. Its ``covariance[source]`` is the row-major
-        4 x 4 covariance of (x, y, z, cps_at_1m); without one, an isotropic ``default_sigma_m`` is used."""
+    def from_estimate(cls, msg: topics.Estimate, source: int = 0) -> SourceBelief:
+        """The belief of one source of an ``estimate`` message: its position block of
+        ``msg.covariance_block(source)`` (the layout ``radseek.topics.Estimate`` declares). A message
+        that breaks the layout raises ``topics.PayloadError``."""
+        msg.validate()
         s = msg.sources[source]
-        cov = np.eye(3) * default_sigma_m**2
-        if len(msg.covariance) > source and len(msg.covariance[source]) == 16:
-            full = np.asarray(msg.covariance[source], dtype=float).reshape(4, 4)
-            cov = (full[:3, :3] + full[:3, :3].T) / 2
-        return cls(np.array([s["x"], s["y"], s.get("z", 0.0)]), cov, float(s["cps_at_1m"]), float(msg.background_cps))
+        full = np.asarray(msg.covariance_block(source), dtype=float)
+        cov = (full[:3, :3] + full[:3, :3].T) / 2
+        return cls(np.array([s["x"], s["y"], s["z"]]), cov, float(s["cps_at_1m"]), float(msg.background_cps))
 
     def semi_major_axis(self, extra_covariance: np.ndarray | None = None) -> float:
         """Largest semi-axis (m) of the 1-sigma ellipsoid of covariance (+ extra, e.g. the pose's)."""

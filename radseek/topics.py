@@ -222,28 +222,62 @@ class MissionState(_Payload):
     progress: str = ""
 
 
-@dataclass(frozen=True)
-class SourceEstimate:
-    x: float
-    y: float
-    z: float
-    cps_at_1m: float
+#: the state of one source in an ``estimate``, in the order of its covariance block
+ESTIMATE_STATE = ("x", "y", "z", "cps_at_1m")
+#: numbers per source in ``Estimate.covariance`` (and ``crlb``): one row-major 4 x 4 block
+ESTIMATE_BLOCK = len(ESTIMATE_STATE) ** 2
 
 
 @dataclass(frozen=True)
 class Estimate(_Payload):
     """``estimate``: the current source estimate with covariance (and CRLB when known).
 
-    ``covariance`` is the row-major covariance of (x, y, z, cps_at_1m) per source, flattened.
+    ``covariance[i]`` is source i's covariance of (x, y, z, cps_at_1m) as one row-major 4 x 4 block:
+    16 numbers per source, one entry per source (cross-source terms are not sent). ``crlb`` has the same
+    layout, or is null when the method has no bound. Unknown entries are NaN.
     """
 
     TOPIC: ClassVar[str] = ESTIMATE
     t: float
     method: str
-    sources: list[dict[str, float]]
+    sources: list[dict[str, float]]  # per source: x, y, z (m, ENU), cps_at_1m (cps)
     background_cps: float
-    covariance: list[list[float]] = field(default_factory=list)
-    crlb: list[list[float]] | None = None
+    covariance: list[list[float]]  # per source: row-major 4 x 4 of (x, y, z, cps_at_1m), 16 numbers
+    crlb: list[list[float]] | None = None  # same layout as covariance, or null
+
+    def validate(self) -> None:
+        super().validate()
+        if not isinstance(self.sources, list):
+            raise PayloadError(f"{self.TOPIC}: field 'sources' must be a list of objects")
+        for i, src in enumerate(self.sources):
+            if not isinstance(src, dict):
+                raise PayloadError(f"{self.TOPIC}: sources[{i}] must be an object with {', '.join(ESTIMATE_STATE)}")
+            for name in ESTIMATE_STATE:
+                if name not in src:
+                    raise PayloadError(f"{self.TOPIC}: sources[{i}] lacks {name!r}")
+                _check_number(self.TOPIC, f"sources[{i}].{name}", src[name], finite=False)
+        self._check_blocks("covariance", self.covariance)
+        if self.crlb is not None:
+            self._check_blocks("crlb", self.crlb)
+
+    def _check_blocks(self, name: str, blocks: Any) -> None:
+        n = len(self.sources)
+        shape = f"one list of {ESTIMATE_BLOCK} numbers (row-major 4 x 4) per source"
+        if not isinstance(blocks, list) or len(blocks) != n:
+            got = f"{len(blocks)} entries" if isinstance(blocks, list) else type(blocks).__name__
+            raise PayloadError(f"{self.TOPIC}: field {name!r} must hold {shape}: {n} source(s), got {got}")
+        for i, block in enumerate(blocks):
+            if not isinstance(block, list) or len(block) != ESTIMATE_BLOCK:
+                got = f"{len(block)} numbers" if isinstance(block, list) else type(block).__name__
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must hold {shape}; {name}[{i}] has {got}")
+            for k, v in enumerate(block):
+                _check_number(self.TOPIC, f"{name}[{i}][{k}]", v, finite=False)
+
+    def covariance_block(self, source: int = 0) -> list[list[float]]:
+        """Source ``source``'s covariance of (x, y, z, cps_at_1m) as 4 rows of 4."""
+        n = len(ESTIMATE_STATE)
+        flat = self.covariance[source]
+        return [list(flat[n * r:n * (r + 1)]) for r in range(n)]
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from radseek import topics
-from radseek.dataset import COLUMNS, FrameWriter, Frames, read_frames
+from radseek.dataset import COLUMNS, Frames, FrameWriter, read_frames
 from radseek.frame_record import COUNT_DTYPE, FrameRecord, Spectrum, usable, usable_rate
 
 EDGES = np.linspace(40, 1640, 33)

@@ -215,7 +215,7 @@ def test_yaw_sequence_respects_the_rate_limit_and_faces_the_source_when_it_can()
 
 
 def test_belief_from_an_estimate_message():
-    from radseek.topics import Estimate
+    from radseek.topics import Estimate, PayloadError
 
     full = np.diag([0.04, 0.09, 0.01, 400.0])
     full[0, 1] = full[1, 0] = 0.02
@@ -225,6 +225,7 @@ def test_belief_from_an_estimate_message():
     np.testing.assert_allclose(b.mean, [1.0, 2.0, 0.0])
     np.testing.assert_allclose(b.covariance, full[:3, :3])
     assert b.cps_at_1m == 900.0 and b.background_cps == 25.0
-    bare = SourceBelief.from_estimate(Estimate(t=0.0, method="x", sources=msg.sources, background_cps=25.0),
-                                      default_sigma_m=0.5)
-    np.testing.assert_allclose(bare.covariance, np.eye(3) * 0.25)
+    # no silent fallback: a covariance in another layout (here the whole 4 x 4 as rows) is refused
+    with pytest.raises(PayloadError, match="covariance"):
+        SourceBelief.from_estimate(Estimate(t=0.0, method="x", sources=msg.sources, background_cps=25.0,
+                                            covariance=full.tolist()))

@@ -6,9 +6,10 @@
 - ``fit(data, scenario=None) -> self`` with ``data`` a :class:`radseek.dataset.Dataset` (its truth is never
   read) or :class:`radseek.dataset.Frames` plus a :class:`radseek.dataset.Scenario`.
 - Results live in attributes with a trailing underscore, set only by fitting:
-  ``sources_`` (list of ``{"x", "y", "z", "cps_at_1m"}``), ``covariance_`` (row-major over
-  (x, y, z, cps_at_1m) per source, as in :class:`radseek.topics.Estimate`), ``background_`` (cps),
-  ``crlb_`` (same layout as ``covariance_``, or None when the method has no bound).
+  ``sources_`` (list of ``{"x", "y", "z", "cps_at_1m"}``), ``covariance_`` (4M x 4M over
+  (x, y, z, cps_at_1m) of each of the M sources in turn; ``to_estimate`` sends its diagonal 4 x 4 blocks,
+  the layout of :class:`radseek.topics.Estimate`), ``background_`` (cps), ``crlb_`` (same layout as
+  ``covariance_``, or None when the method has no bound).
 - ``partial_fit(frames, scenario=None)`` feeds more frames of the same flight. The sequential filter
   (``pf``: also ``update(position, counts, duration)`` per measurement) updates in place; the others refit
   on everything seen so far (``multi-pf`` recomputes every particle's eq. 3.11 intensity from all data anyway).
@@ -28,7 +29,7 @@ import numpy as np
 
 from estimator.dwell_summary import concat_frames
 from radseek.dataset import Dataset, Frames, Scenario
-from radseek.topics import Estimate
+from radseek.topics import ESTIMATE_STATE, Estimate
 
 __all__ = ["Localizer", "NotFittedError", "clone", "make_localizer", "LOCALIZERS", "as_frames_scenario",
            "source_dict"]
@@ -159,10 +160,26 @@ class Localizer:
         return out
 
     def to_estimate(self, t: float = 0.0) -> Estimate:
-        """The zenoh ``estimate`` payload of the current result."""
-        r = self.result()
-        return Estimate(t=float(t), method=self.name, sources=r["sources"], background_cps=r["background_cps"],
-                        covariance=r["covariance"], crlb=r["crlb"])
+        """The zenoh ``estimate`` payload of the current result: per source, its 4 x 4 block of
+        ``covariance_`` (and ``crlb_``) flattened row-major, as ``radseek.topics.Estimate`` declares."""
+        self._check_fitted()
+        crlb = getattr(self, "crlb_", None)
+        n = len(self.sources_)
+        est = Estimate(t=float(t), method=self.name, sources=[dict(s) for s in self.sources_],
+                       background_cps=float(self.background_), covariance=_source_blocks(self.covariance_, n),
+                       crlb=None if crlb is None else _source_blocks(crlb, n))
+        est.validate()
+        return est
+
+
+def _source_blocks(matrix: Any, n_sources: int) -> list[list[float]]:
+    """The diagonal 4 x 4 blocks of a 4M x 4M matrix, one row-major list of 16 numbers per source."""
+    k = len(ESTIMATE_STATE)
+    m = np.asarray(matrix, dtype=float)
+    if m.shape != (k * n_sources, k * n_sources):
+        raise ValueError(f"expected a {k * n_sources} x {k * n_sources} matrix for {n_sources} source(s), "
+                         f"got shape {m.shape}")
+    return [m[k * i:k * (i + 1), k * i:k * (i + 1)].ravel().tolist() for i in range(n_sources)]
 
 
 def _jsonable(v: Any) -> Any:
