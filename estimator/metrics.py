@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["weighted_mean_cov", "total_variance", "gaussian_entropy", "kl_divergence", "kl_gaussian"]
+__all__ = ["weighted_mean_cov", "total_variance", "total_variance_from_cov", "gaussian_entropy", "entropy_from_cov",
+           "kl_divergence", "kl_gaussian"]
 
 
 def weighted_mean_cov(points: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -50,6 +51,11 @@ def weighted_mean_cov(points: np.ndarray, weights: np.ndarray | None = None) -> 
 def total_variance(points: np.ndarray, weights: np.ndarray | None = None) -> float:
     """Paper 000 eq. 13: ``sqrt(cov(x,x)^2 + cov(y,y)^2)`` (m^2) of the first two coordinates."""
     _, cov = weighted_mean_cov(np.asarray(points)[:, :2], weights)
+    return total_variance_from_cov(cov)
+
+
+def total_variance_from_cov(cov: np.ndarray) -> float:
+    """Paper 000 eq. 13 from a cloud's covariance (first two axes)."""
     return float(np.hypot(cov[0, 0], cov[1, 1]))
 
 
@@ -67,8 +73,13 @@ def gaussian_entropy(points: np.ndarray, weights: np.ndarray | None = None, dims
     or a line) has ``|Sigma| = 0`` and entropy ``-inf``.
     """
     _, cov = weighted_mean_cov(np.asarray(points)[:, :dims], weights)
+    return entropy_from_cov(cov)
+
+
+def entropy_from_cov(cov: np.ndarray) -> float:
+    """Paper 000 eq. 15 from a covariance (d x d): ``d/2 (1 + log 2 pi) + 1/2 log|Sigma|`` nats."""
     d = cov.shape[0]
-    return 0.5 * d * (1.0 + np.log(2 * np.pi)) + 0.5 * _logdet(cov)
+    return float(0.5 * d * (1.0 + np.log(2 * np.pi)) + 0.5 * _logdet(cov))
 
 
 def kl_gaussian(mu1: np.ndarray, cov1: np.ndarray, mu2: np.ndarray, cov2: np.ndarray) -> float:

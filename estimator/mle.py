@@ -28,6 +28,7 @@ from iminuit import Minuit
 from scipy import stats
 
 from estimator.model import MeasurementModel
+from radseek.count_model import expected_rate
 from radseek.dataset import Frames
 from radseek.frame_record import COUNT_DTYPE
 
@@ -194,7 +195,7 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
     n = model.observed_counts(frames).astype(float)
     tdur = frames.duration
     d2 = ((frames.positions[None, :, :] - np.stack([xx, yy, np.full_like(xx, z)], 1)[:, None, :]) ** 2).sum(-1)
-    u = tdur / np.maximum(d2, 0.05**2)  # (P, N) counts per unit cps_at_1m
+    u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
     s = np.full(len(xx), 100.0)
     b = np.full(len(xx), max(sc.background_cps, 1.0))
     for _ in range(25):  # Newton on the 2-parameter Poisson likelihood, kept positive
@@ -235,7 +236,7 @@ def second_source_starts(
     mu0 = model.expected_counts(theta, frames)
     z = model.param("second_source.z").value
     d2 = ((frames.positions[None, :, :] - np.stack([xx, yy, np.full_like(xx, z)], 1)[:, None, :]) ** 2).sum(-1)
-    u = frames.duration / np.maximum(d2, 0.05**2)
+    u = frames.duration * expected_rate(d2, 1.0)
     n = model.observed_counts(frames).astype(float)
     s2 = np.full(len(xx), 10.0)
     for _ in range(25):

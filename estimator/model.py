@@ -5,12 +5,14 @@ detector position p are
 
     E[counts] = T * ( sum_i S_i / |p - s_i|^2  +  B )
 
-with S_i = ``cps_at_1m`` (paper 003's A e v_s / 4 pi) and B the background rate. Each effect of the
-vocabulary (``radseek.dataset.EFFECTS``) is a part with declared parameters and a pure evaluate, in the
-spirit of astropy.modeling: ``MeasurementModel(scenario, effects=(...))`` composes them and
-``with_effect`` adds one, so the diagnosis can add or drop an effect and refit without rewriting the
-model. Everything is vectorised over hypotheses: parameter values may be arrays of shape (P,)
-(particles, grid cells) and the result is (P, N) for N frames.
+with S_i = ``cps_at_1m`` (paper 003's A e v_s / 4 pi) and B the background rate; each source term and the
+dead time come from :func:`radseek.count_model.expected_rate` / ``dead_time``, the one rate law every
+localizer and the planner call. Each effect of the vocabulary (``radseek.dataset.EFFECTS``) is a part
+with declared parameters and a pure evaluate, in the spirit of astropy.modeling:
+``MeasurementModel(scenario, effects=(...))`` composes them and ``with_effect`` adds one, so the
+diagnosis can add or drop an effect and refit without rewriting the model. Everything is vectorised over
+hypotheses: parameter values may be arrays of shape (P,) (particles, grid cells) and the result is (P, N)
+for N frames.
 
 Parameter names: ``x, y, z, cps_at_1m, background_cps`` for the baseline, ``"<effect>.<key>"`` with the
 truth.json keys for effects (``dead_time.tau_s``, ``second_source.x`` ...).
@@ -24,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from radseek.count_model import MIN_DISTANCE_M, dead_time, expected_rate
 from radseek.dataset import EFFECTS, Frames, Scenario
 from radseek.geometry import path_lengths, wall_arrays
 
 #: effects that change only the spectrum, not the total counts (see estimator.spectral)
 SPECTRAL_ONLY = ("gain_drift",)
-MIN_DISTANCE_M = 0.05  # closer than this the point-source model is meaningless; clamp
 
 
 @dataclass(frozen=True)
@@ -111,7 +113,7 @@ class DeadTime(Effect):
         return [Param("dead_time.tau_s", 2e-6, 0.0, 1e-3, unit="s", step=2e-6)]
 
     def recorded_rate(self, th, n):
-        return n * np.exp(-n * th["dead_time.tau_s"])
+        return dead_time(n, th["dead_time.tau_s"])
 
 
 class WallAttenuation(Effect):
@@ -331,9 +333,9 @@ class MeasurementModel:
         total = 0.0
         for sx, sy, sz, s in self._sources(th):
             src = np.stack(np.broadcast_arrays(sx, sy, sz), axis=-1)  # (3,) or (P, 1, 3)
-            d = ctx.pos - src
-            dist = np.maximum(np.sqrt((d**2).sum(-1)), MIN_DISTANCE_M)
-            term = s / dist**2
+            d2 = ((ctx.pos - src) ** 2).sum(-1)
+            dist = np.maximum(np.sqrt(d2), MIN_DISTANCE_M)
+            term = expected_rate(d2, s)
             for part in self._parts:
                 term = term * part.source_factor(th, src, ctx, dist)
             total = total + term
@@ -344,15 +346,6 @@ class MeasurementModel:
         for part in self._parts:
             b = part.background(th, b, ctx)
         return b
-
-    def source_rate(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
-        """True source count rate (cps) at each frame, before dead time: (N,) or (P, N)."""
-        th = self._theta(theta)
-        return self._source_rate(th, self._context(th, frames, offsets))
-
-    def background_rate(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
-        th = self._theta(theta)
-        return self._background_rate(th, self._context(th, frames, offsets)) * np.ones(len(frames))
 
     def expected_counts(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None) -> np.ndarray:
         """Expected recorded total counts per frame: (N,) for scalar theta, (P, N) for (P,) arrays.

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radseek import topics
+from radseek.count_model import expected_rate
 from radseek.dataset import Wall
 from radseek.geometry import path_lengths
 
@@ -57,16 +58,15 @@ class SourceBelief:
         cov = self.covariance if extra_covariance is None else self.covariance + np.asarray(extra_covariance)
         return float(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
 
-    def predicted_net_rate(self, points: np.ndarray, walls: Sequence[Wall] = (), wall_mu_per_m: float = 0.0,
-                           min_distance: float = 0.05) -> np.ndarray:
+    def predicted_net_rate(self, points: np.ndarray, walls: Sequence[Wall] = (), wall_mu_per_m: float = 0.0
+                           ) -> np.ndarray:
         """Net (background-free) rate (cps) at points (..., 3) from the mean source: paper 003 eq. 1-4,
-        lambda = cps_at_1m / r^2 * exp(-mu * wall path length); r floored at ``min_distance``."""
+        lambda = cps_at_1m / r^2 * exp(-mu * wall path length) (:func:`radseek.count_model.expected_rate`)."""
         p = np.asarray(points, dtype=float)
-        r2 = np.maximum(((p - self.mean) ** 2).sum(-1), min_distance**2)
-        rate = self.cps_at_1m / r2
+        attenuation = None
         if walls and wall_mu_per_m > 0:
-            rate = rate * np.exp(-wall_mu_per_m * path_lengths(p, self.mean, walls))
-        return rate
+            attenuation = np.exp(-wall_mu_per_m * path_lengths(p, self.mean, walls))
+        return expected_rate(((p - self.mean) ** 2).sum(-1), self.cps_at_1m, attenuation=attenuation)
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from estimator.localizers import make_localizer
-from estimator.localizers.particle_filter import low_variance_resample, poisson_crlb_xyab
+from estimator.localizers.particle_filter import low_variance_resample
 from estimator.localizers.testing import dwell_frames, lattice_flight, lattice_points, scenario_for
 
 
@@ -73,20 +73,48 @@ def test_update_api_and_gaussian_likelihood():
         make_localizer("pf", likelihood="nope").initialize(scen)
 
 
-def test_crlb_matches_numeric_fisher():
-    pos = lattice_points((5.0, 4.0))
-    dur = np.full(len(pos), 10.0)
-    theta = np.array([5.0, 4.0, 1600.0, 30.0])
-    c = poisson_crlb_xyab(theta, pos, dur, 0.0)
+def test_crlb_is_the_inverse_fisher_of_the_measurements():
+    """crlb_ is the Poisson CRLB (paper 004 eq. 5.3) of the filter's chunks at its estimate, with dead time."""
+    tau = 2e-5
+    pts = lattice_points((5.0, 4.0))
+    frames = dwell_frames(pts, [(5.0, 4.0, 0.0, 1600.0)], 30.0, dwell_s=5.0, frame_s=1.0,
+                          rng=np.random.default_rng(0), tau_s=tau)
+    pf = make_localizer("pf", n_particles=5000, dead_time_s=tau).fit(frames, scenario_for())
+    s = pf.sources_[0]
+    theta = np.array([s["x"], s["y"], s["cps_at_1m"], pf.background_])
+    pos, dur = frames.positions, frames.duration  # chunk_s = frame_s: one measurement per frame
 
-    def mu(th):
-        d2 = ((pos[:, :2] - th[:2]) ** 2).sum(1) + pos[:, 2] ** 2
-        return dur * (th[2] / d2 + th[3])
+    def mu(th):  # analytic expected counts (paper 000 eq. 9-10)
+        n = th[2] / (((pos[:, :2] - th[:2]) ** 2).sum(1) + pos[:, 2] ** 2) + th[3]
+        return dur * n * np.exp(-n * tau)
 
     eps = np.array([1e-5, 1e-5, 1e-3, 1e-4])
     jac = np.stack([(mu(theta + e) - mu(theta - e)) / (2 * e.sum()) for e in np.diag(eps)], axis=1)
-    fisher = (jac / mu(theta)[:, None]).T @ jac
-    np.testing.assert_allclose(c, np.linalg.inv(fisher), rtol=1e-4)
+    bound = np.linalg.inv((jac / mu(theta)[:, None]).T @ jac)
+    sel = [0, 1, 3]  # x, y, A of (x, y, z, A); the background is profiled in the 4 x 4 inverse
+    np.testing.assert_allclose(pf.crlb_[np.ix_(sel, sel)], bound[:3, :3], rtol=1e-4)
+
+
+@pytest.mark.parametrize("setting", [dict(dead_time_s=1e-4),
+                                     dict(effects=("dead_time",), effect_params={"dead_time.tau_s": 1e-4}),
+                                     dict(dead_time_s=1e-4, effects=("dead_time",)),
+                                     dict(dead_time_s=1e-4, effects=("dead_time",),
+                                          effect_params={"dead_time.tau_s": 1e-4}),
+                                     dict(dead_time_s=1e-4, effects=("air_attenuation",),
+                                          effect_params={"air_attenuation.mu_per_m": 0.0})])
+def test_dead_time_is_applied_once(setting):
+    """Every way of asking for dead time gives paper 000 eq. 10 once: T lambda_T exp(-tau lambda_T)."""
+    tau, pos, dur = 1e-4, np.array([5.0, 4.0, 1.0]), 2.0
+    pf = make_localizer("pf", n_particles=1000, **setting).initialize(scenario_for())
+    x, y, a, b = pf.particles_.T
+    lam_t = a / ((x - pos[0]) ** 2 + (y - pos[1]) ** 2 + pos[2] ** 2) + b
+    np.testing.assert_allclose(pf.expected_counts(pos, dur), dur * lam_t * np.exp(-tau * lam_t), rtol=1e-9)
+
+
+def test_dead_time_given_twice_must_agree():
+    with pytest.raises(ValueError, match="same dead time"):
+        make_localizer("pf", dead_time_s=1e-4, effects=("dead_time",),
+                       effect_params={"dead_time.tau_s": 2e-4}).initialize(scenario_for())
 
 
 def test_model_effects_in_the_likelihood():

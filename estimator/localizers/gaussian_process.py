@@ -35,6 +35,7 @@ from scipy.ndimage import maximum_filter
 
 from estimator.dwell_summary import summarize_chunks, summarize_dwells
 from estimator.localizers.base import Localizer, source_dict
+from radseek.count_model import expected_rate
 from radseek.dataset import Frames, Scenario
 
 __all__ = ["GaussianProcessLocalizer", "GaussianProcess", "find_peaks"]
@@ -172,7 +173,7 @@ class GaussianProcessLocalizer(Localizer):
         # intensities by weighted least squares on the inverse-square gains at the found positions
         z_s = scenario.source_z
         d2 = ((meas.positions[:, None, :2] - positions[None]) ** 2).sum(-1) + (meas.positions[:, None, 2] - z_s) ** 2
-        g = 1.0 / np.maximum(d2, 1e-4)
+        g = expected_rate(d2, 1.0)
         w = 1.0 / (meas.rate_sigma**2 + (0.05 * np.abs(meas.rate - bg)) ** 2)
         a = (g * w[:, None]).T @ g
         b = (g * w[:, None]).T @ (meas.rate - bg)

@@ -40,6 +40,7 @@ import numpy as np
 
 from estimator.dwell_summary import DwellSummary, summarize_dwells
 from estimator.localizers.base import Localizer, source_dict
+from radseek.count_model import expected_rate
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, wall_arrays
 
@@ -47,13 +48,14 @@ __all__ = ["MultiSourceParticleFilter", "landmark_intensity", "separate_intensit
 
 
 def _gain(px: np.ndarray, py: np.ndarray, z_s: float, pos: np.ndarray, walls: np.ndarray, mu: float) -> np.ndarray:
-    """(P, K) geometric gain exp(-mu L) / d^2 of candidate sources (P,) for measurement positions (K, 3)."""
+    """(P, K) geometric gain exp(-mu L) / d^2 of candidate sources (P,) for measurement positions (K, 3):
+    the rate of a unit source (:func:`radseek.count_model.expected_rate`)."""
     d2 = (px[:, None] - pos[None, :, 0]) ** 2 + (py[:, None] - pos[None, :, 1]) ** 2 + (z_s - pos[None, :, 2]) ** 2
-    g = 1.0 / np.maximum(d2, 1e-4)
+    attenuation = None
     if mu > 0 and len(walls):
         src = np.stack([px, py, np.full_like(px, z_s)], axis=-1)[:, None, :]
-        g = g * np.exp(-mu * path_lengths(src, pos[None, :, :], walls))
-    return g
+        attenuation = np.exp(-mu * path_lengths(src, pos[None, :, :], walls))
+    return expected_rate(d2, 1.0, attenuation=attenuation)
 
 
 def landmark_intensity(z: np.ndarray, gain: np.ndarray, background: float) -> np.ndarray:

@@ -27,7 +27,9 @@ as three collinear dwells), its likelihood is applied in powers phi_1 + phi_2 + 
 resample-and-roughen between them (at most ``max_tempering_steps``; 1 disables it); without it the cloud
 can collapse onto one mirror mode and never recover. Model effects: with ``effects`` (names of
 :mod:`estimator.model`) the expected counts come from ``MeasurementModel`` with the effect parameters
-fixed at ``effect_params`` (calibrations, e.g. a wall's mu); the PF does not fit them. With walls the
+fixed at ``effect_params`` (calibrations, e.g. a wall's mu); the PF does not fit them. ``dead_time_s`` is
+the same dead time as the ``dead_time`` effect (applied once; giving both with different values is an
+error). With walls the
 posterior can be multi-modal (sources behind a wall) and the filter may settle in the wrong mode; prefer
 ``mle`` or ``multi-pf`` there (docs/localizers.md).
 
@@ -36,9 +38,11 @@ dwell (or of transit) pooled into chunks of ``chunk_s`` seconds at their mean po
 update, the metrics of paper 000 (total variance eq. 13, entropy eq. 15, and the Gaussian fit used by
 the KL divergence eq. 16) for ``radseek compare``.
 
-Result: weighted mean and covariance of the cloud over (x, y, z, A); ``crlb_`` is the Poisson CRLB
-(Fisher information of the baseline-plus-dead-time model at the estimate, paper 004 eq. 5.3-5.7 with the
-Poisson likelihood) over (x, y, A, Bg), projected on (x, y, z, A) with z fixed.
+Every expected count is :func:`radseek.count_model.expected_rate` (directly on the particle rows, or
+through ``MeasurementModel`` with effects). Result: weighted mean and covariance of the cloud over
+(x, y, z, A); ``crlb_`` is :func:`estimator.mle.crlb` (paper 004 eq. 5.3-5.7, Poisson Fisher information)
+of the filter's own measurement model at the estimate over (x, y, A, Bg), projected on (x, y, z, A) with
+z fixed; the history metrics are :mod:`estimator.metrics`.
 """
 
 from __future__ import annotations
@@ -51,10 +55,17 @@ import numpy as np
 
 from estimator.dwell_summary import chunk_frames
 from estimator.localizers.base import Localizer, source_dict
-from estimator.metrics import weighted_mean_cov
+from estimator.metrics import entropy_from_cov, total_variance_from_cov, weighted_mean_cov
+from estimator.mle import crlb
+from estimator.model import MeasurementModel
+from radseek.count_model import expected_rate
 from radseek.dataset import Frames, Scenario
+from radseek.topics import N_CHANNELS
 
-__all__ = ["ParticleFilter", "low_variance_resample", "poisson_crlb_xyab"]
+__all__ = ["ParticleFilter", "low_variance_resample"]
+
+#: the PF's state rows (x, y, A, Bg) as MeasurementModel parameters
+STATE_PARAMS = ["x", "y", "cps_at_1m", "background_cps"]
 
 
 def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -73,31 +84,10 @@ def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.n
     return np.repeat(np.arange(n), counts)
 
 
-def poisson_crlb_xyab(theta: np.ndarray, positions: np.ndarray, durations: np.ndarray, z_s: float,
-                      tau_s: float = 0.0) -> np.ndarray:
-    """Inverse Fisher information (Poisson) for (x, y, A, B) at ``theta`` for measurements at ``positions``.
-
-    Paper 004 eq. 5.3: J = sum_k H_k^T H_k / lambda_k with H_k the gradient of the expected counts
-    (eq. 5.4-5.7, extended with the background and dead time); returns J^-1 (4 x 4).
-    """
-    x, y, a, b = theta
-    dx = x - positions[:, 0]
-    dy = y - positions[:, 1]
-    d2 = np.maximum(dx**2 + dy**2 + (z_s - positions[:, 2]) ** 2, 1e-4)
-    n = a / d2 + b
-    g = np.exp(-n * tau_s) * (1 - n * tau_s)  # d(n e^{-n tau})/dn
-    mu = durations * n * np.exp(-n * tau_s)
-    grad = np.stack([-2 * a * dx / d2**2, -2 * a * dy / d2**2, 1 / d2, np.ones_like(d2)], axis=1)
-    h = grad * (durations * g)[:, None]
-    j = (h / np.maximum(mu, 1e-12)[:, None]).T @ h
-    return np.linalg.pinv(j)
-
-
 class ParticleFilter(Localizer):
     """Paper 000 SIR particle filter (see module docstring)."""
 
     name = "pf"
-    sequential = True
 
     def __init__(self, n_particles: int = 100_000, activity_shape: float = 2.0, activity_scale: float = 6000.0,
                  background_range: tuple[float, float] = (0.7, 1.3), dead_time_s: float = 0.0,
@@ -129,17 +119,7 @@ class ParticleFilter(Localizer):
         if self.likelihood not in ("poisson", "gaussian"):
             raise ValueError(f"likelihood must be 'poisson' or 'gaussian', got {self.likelihood!r}")
         n = int(self.n_particles)
-        self._model = None
-        if self.effects:
-            from estimator.model import MeasurementModel
-
-            if "second_source" in self.effects:
-                raise ValueError("pf tracks one source; use multi-pf or mle for second_source")
-            self._model = MeasurementModel(scenario, effects=tuple(self.effects))
-            known = set(self._model.param_names)
-            bad = set(self.effect_params or {}) - known
-            if bad:
-                raise ValueError(f"effect_params {sorted(bad)} not in the model's parameters {sorted(known)}")
+        self._build_model(scenario)
         rng = np.random.default_rng(self.seed)
         self.rng_ = rng
         self.scenario_ = scenario
@@ -156,9 +136,37 @@ class ParticleFilter(Localizer):
         self.n_updates_ = 0
         self.n_resamples_ = 0
         self.converged_ = False
-        self._meas: list[tuple[np.ndarray, float, float]] = []
+        self._meas: list[tuple[np.ndarray, float, float, float]] = []
         self._record(t=0.0)
         return self
+
+    def _build_model(self, scenario: Scenario) -> None:
+        """The filter's measurement model: the baseline plus ``effects``, with the dead time applied once."""
+        if "second_source" in self.effects:
+            raise ValueError("pf tracks one source; use multi-pf or mle for second_source")
+        effects, params = tuple(self.effects), dict(self.effect_params or {})
+        if self.dead_time_s:
+            if params.setdefault("dead_time.tau_s", self.dead_time_s) != self.dead_time_s:
+                raise ValueError(f"dead_time_s={self.dead_time_s} and effect_params dead_time.tau_s="
+                                 f"{params['dead_time.tau_s']} are the same dead time: give one")
+            effects = (*effects, "dead_time")
+        self._model = MeasurementModel(scenario, effects=effects)
+        known = set(self._model.param_names)
+        bad = set(self.effect_params or {}) - known
+        if self.effects and bad:
+            raise ValueError(f"effect_params {sorted(bad)} not in the model's parameters {sorted(known)}")
+        self._params = {k: v for k, v in params.items() if k in known}
+        # without effects the particle rows go straight through expected_rate (no per-update Frames)
+        self._direct = not self.effects
+
+    @staticmethod
+    def _frames(positions: np.ndarray, durations: np.ndarray, yaws: np.ndarray, ts: np.ndarray) -> Frames:
+        """Measurements (pose, duration) as Frames for the MeasurementModel (counts are not used)."""
+        k = len(positions)
+        zeros = np.zeros(k)
+        return Frames(t=ts, duration=durations, x=positions[:, 0], y=positions[:, 1], z=positions[:, 2], yaw=yaws,
+                      var_x=zeros, var_y=zeros, var_z=zeros, dwell=np.full(k, -1),
+                      counts=np.zeros((k, N_CHANNELS), dtype=np.int64))
 
     @property
     def particles_(self) -> np.ndarray:
@@ -166,20 +174,10 @@ class ParticleFilter(Localizer):
         return self.state_.T
 
     def _record(self, t: float) -> None:
-        s, w = self.state_, self.weights_
-        # einsum, not BLAS ``@``: OpenBLAS threads stall for ms on a loaded machine for 1e5-long dots
-        mx, my = float(np.einsum("i,i->", w, s[0])), float(np.einsum("i,i->", w, s[1]))
-        dx, dy = s[0] - mx, s[1] - my
-        wdx = w * dx
-        cxx = float(np.einsum("i,i->", wdx, dx))
-        cxy = float(np.einsum("i,i->", wdx, dy))
-        cyy = float(np.einsum("i,i,i->", w, dy, dy))
-        mu, cov = np.array([mx, my]), np.array([[cxx, cxy], [cxy, cyy]])
-        # eq. 13 and eq. 15 from the one covariance (same as estimator.metrics.total_variance / gaussian_entropy)
-        sign, logdet = np.linalg.slogdet(cov)
-        entropy = 1.0 + math.log(2 * math.pi) + 0.5 * logdet if sign > 0 else -math.inf
-        self.history_.append({"t": float(t), "total_variance": float(math.hypot(cov[0, 0], cov[1, 1])),
-                              "entropy": float(entropy), "mean": mu, "cov": cov,
+        w = self.weights_
+        mu, cov = weighted_mean_cov(self.state_[:2].T, w)
+        self.history_.append({"t": float(t), "total_variance": total_variance_from_cov(cov),
+                              "entropy": entropy_from_cov(cov), "mean": mu, "cov": cov,
                               "ess": float(1.0 / np.einsum("i,i->", w, w))})
 
     # --------------------------------------------------------------------------- update
@@ -192,27 +190,17 @@ class ParticleFilter(Localizer):
         parameters fixed at ``effect_params`` or the model defaults), vectorised over particles.
         """
         s = self.state_
-        if self._model is not None:
-            one = Frames(t=np.array([t]), duration=np.array([duration]), x=position[:1], y=position[1:2],
-                         z=position[2:3], yaw=np.array([yaw]), var_x=np.zeros(1), var_y=np.zeros(1),
-                         var_z=np.zeros(1), dwell=np.array([-1]), counts=np.zeros((1, 32), dtype=np.int64))
-            theta = {**(self.effect_params or {}), "x": s[0], "y": s[1], "cps_at_1m": s[2], "background_cps": s[3]}
-            mu = self._model.expected_counts(theta, one)[:, 0]
-            if self.dead_time_s:
-                rate = mu / duration
-                mu = rate * np.exp(-self.dead_time_s * rate) * duration
-            return mu
+        if not self._direct:
+            one = self._frames(position[None, :], np.array([duration]), np.array([yaw]), np.array([t]))
+            theta = {**self._params, **dict(zip(STATE_PARAMS, s, strict=True))}
+            return self._model.expected_counts(theta, one)[:, 0]
         d2 = s[0] - position[0]
         d2 *= d2
         dy = s[1] - position[1]
         dy *= dy
         d2 += dy
         d2 += (self.scenario_.source_z - position[2]) ** 2
-        np.maximum(d2, 1e-4, out=d2)
-        lam = np.divide(s[2], d2, out=d2)
-        lam += s[3]
-        if self.dead_time_s:
-            lam *= np.exp(-self.dead_time_s * lam)
+        lam = expected_rate(d2, s[2], s[3], self.dead_time_s)
         lam *= duration
         return lam
 
@@ -238,7 +226,7 @@ class ParticleFilter(Localizer):
         else:
             self._apply(remaining * self._loglik(pos, counts, duration, yaw, t))
         self.n_updates_ += 1
-        self._meas.append((pos, float(duration), float(counts)))
+        self._meas.append((pos, float(duration), float(yaw), float(t if t is not None else 0.0)))
         w = self.weights_
         if 1.0 / np.einsum("i,i->", w, w) < self.resample_threshold * len(w):
             self._resample()
@@ -330,9 +318,10 @@ class ParticleFilter(Localizer):
         self.background_std_ = float(math.sqrt(max(cov[3, 3], 0.0)))
         self.crlb_ = None
         if self._meas:
-            positions = np.array([m[0] for m in self._meas])
-            durations = np.array([m[1] for m in self._meas])
-            j = poisson_crlb_xyab(mu, positions, durations, z, self.dead_time_s)
+            pos, dur, yaw, t = zip(*self._meas, strict=True)
+            frames = self._frames(np.array(pos), np.array(dur), np.array(yaw), np.array(t))
+            theta = {**self._params, **dict(zip(STATE_PARAMS, mu, strict=True))}
+            j = crlb(self._model, theta, frames, STATE_PARAMS)
             cr = np.zeros((4, 4))
             cr[np.ix_(sel, sel)] = j[np.ix_([0, 1, 2], [0, 1, 2])]
             self.crlb_ = cr

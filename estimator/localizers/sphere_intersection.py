@@ -35,6 +35,7 @@ import numpy as np
 
 from estimator.dwell_summary import summarize_dwells
 from estimator.localizers.base import Localizer, source_dict
+from radseek.count_model import expected_rate
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import segment_hits_walls
 
@@ -121,8 +122,7 @@ def intersection_points(centers: np.ndarray, lam: np.ndarray, intensities: np.nd
 
 def eq5_error(position: np.ndarray, intensity: float, centers: np.ndarray, lam: np.ndarray) -> float:
     """Paper 003 eq. 5: mean squared difference of readings and the estimate's expected readings."""
-    d2 = np.maximum(((centers - position) ** 2).sum(axis=1), 1e-6)
-    return float(np.mean((lam - intensity / d2) ** 2))
+    return float(np.mean((lam - expected_rate(((centers - position) ** 2).sum(axis=1), intensity)) ** 2))
 
 
 class SphereIntersection(Localizer):
@@ -159,8 +159,7 @@ class SphereIntersection(Localizer):
         if len(pts) == 0:
             return None
         # lines 7-14: expected reading at every dwell point and its PDF under N(lambda_k, sigma_k)
-        d2 = np.maximum(((pts[:, None, :] - centers[None]) ** 2).sum(-1), 1e-6)
-        expected = ss[:, None] / d2
+        expected = expected_rate(((pts[:, None, :] - centers[None]) ** 2).sum(-1), ss[:, None])
         sd = np.sqrt(sig**2 + (self.relative_error * lam) ** 2)
         rho = np.exp(-0.5 * ((expected - lam) / sd) ** 2) / (np.sqrt(2 * np.pi) * sd)
         rho_bar = rho.mean(axis=1)
@@ -201,8 +200,7 @@ class SphereIntersection(Localizer):
                 continue
             if best is not None and self.drop_outliers != "never":
                 # a new dwell that disagrees with the current estimate (paper 003: dropped when occluded)
-                d2 = max(float(((centers_all[k] - best[0]) ** 2).sum()), 1e-6)
-                pred = best[2] / d2
+                pred = float(expected_rate(((centers_all[k] - best[0]) ** 2).sum(), best[2]))
                 sd = np.hypot(sig_all[k], self.relative_error * max(pred, lam_all[k]))
                 disagrees = abs(lam_all[k] - pred) > self.drop_sigma * sd
                 occluded = bool(scenario.walls) and bool(segment_hits_walls(centers_all[k], best[0], scenario.walls))

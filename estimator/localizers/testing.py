@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from radseek.count_model import dead_time, expected_rate
 from radseek.dataset import COLUMNS, POSE_COLUMNS, Dataset, Frames, Scenario, Truth, TruthSource
 
 __all__ = ["expected_total", "dwell_frames", "lattice_points", "lattice_flight", "scenario_for"]
@@ -18,15 +19,13 @@ __all__ = ["expected_total", "dwell_frames", "lattice_points", "lattice_flight",
 
 def expected_total(pos: np.ndarray, sources: Sequence[tuple[float, float, float, float]], background: float,
                    duration: np.ndarray | float, tau_s: float = 0.0) -> np.ndarray:
-    """Expected total counts at detector positions (N, 3): T * (sum S/d^2 + B), with exp(-n tau) dead time."""
+    """Expected total counts at detector positions (N, 3): T * (sum S/d^2 + B), with exp(-n tau) dead time
+    (:mod:`radseek.count_model`)."""
     pos = np.atleast_2d(pos)
     n = np.full(len(pos), float(background))
     for x, y, z, s in sources:
-        d2 = np.maximum(((pos - [x, y, z]) ** 2).sum(axis=1), 0.05**2)
-        n = n + s / d2
-    if tau_s:
-        n = n * np.exp(-n * tau_s)
-    return n * duration
+        n = n + expected_rate(((pos - [x, y, z]) ** 2).sum(axis=1), s)
+    return dead_time(n, tau_s) * duration
 
 
 def scenario_for(bounds_min=(0.0, 0.0, 0.0), bounds_max=(10.0, 8.0, 0.5), background: float = 30.0,
