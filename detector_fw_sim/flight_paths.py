@@ -124,10 +124,6 @@ def _source_xy(scene: Scene) -> np.ndarray:
     return np.array(scene.sources[0].position[:2], dtype=float)
 
 
-def _dwell_s(rng: np.random.Generator, n: int) -> np.ndarray:
-    return rng.uniform(8.0, 12.0, n)
-
-
 def lattice(scene: Scene, rng: np.random.Generator, z: tuple[float, float] = (1.3, 1.7), spacing: float = 1.6,
             spin_turns: float = 0.0, centre_point: bool = False) -> FlightPath:
     """Paper 003's fixed lattice: one far point near a corner of the bounds, then 8 points of a 3 x 3

@@ -18,7 +18,7 @@ import numpy as np
 from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.flight_paths import FlightPath, build_trajectory, make_path
 from detector_fw_sim.scene import Scene
-from radseek.dataset import Dataset, Frames, write_dataset
+from radseek.dataset import Dataset, Frames
 
 FRAME_S = 0.1
 FRAME_JITTER_S = 0.0004
@@ -69,9 +69,3 @@ def simulate_flight(scene: Scene, path: str | Path | FlightPath = "lattice", see
         bg_estimate = scene.background.cps * (1 + rng.normal(0, BACKGROUND_ESTIMATE_SD))
     scenario = scene.scenario(background_cps=max(bg_estimate, 0.0))
     return Dataset(frames=frames, scenario=scenario, truth=scene.truth())
-
-
-def write_simulated(out: str | Path, scene: Scene, path: str | Path | FlightPath = "lattice", seed: int = 0) -> Path:
-    """simulate_flight, then write frames.csv, scenario.json and truth.json under ``out``."""
-    ds = simulate_flight(scene, path, seed)
-    return write_dataset(out, ds.frames, ds.scenario, ds.truth)

@@ -58,13 +58,6 @@ def response(edges: np.ndarray, gain: np.ndarray, sub: int = 1) -> np.ndarray:
     return np.clip(ov, 0.0, None) / (hi - lo)[None, None, :]
 
 
-@dataclass
-class _Data:
-    counts: np.ndarray  # (G, 32)
-    t: np.ndarray  # (G,)
-    edges: np.ndarray
-
-
 def _poisson_nll(mu: np.ndarray, n: np.ndarray) -> float:
     mu = np.maximum(mu, 1e-300)
     return float((mu - n * np.log(mu)).sum())
@@ -101,13 +94,6 @@ def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 30
         s, b, A, B = s / ss, b / sb, A * ss, B * sb
     mu = A[:, None] * (Ms @ s) + B[:, None] * (Mb @ b)
     return _poisson_nll(mu, n), (s, b, A, B)
-
-
-def _saturated_nll(n: np.ndarray) -> float:
-    tot = n.sum(1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f = np.where(n > 0, n * np.log(n / np.maximum(tot, 1)), 0.0)
-    return -float(f.sum())
 
 
 @dataclass

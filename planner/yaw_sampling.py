@@ -23,18 +23,6 @@ from planner.dwell_tree import wrap_angle
 ScoreFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # points (nu, 3), yaws (nu, q) -> (nu, q)
 
 
-def resample_path(path: np.ndarray, nu: int) -> np.ndarray:
-    """nu points (nu, 3) evenly spaced by arc length along a polyline path (k, >=3), ends included."""
-    p = np.asarray(path, dtype=float)[:, :3]
-    if len(p) == 1 or nu == 1:
-        return np.repeat(p[-1:], max(nu, 1), axis=0)
-    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
-    if s[-1] == 0:
-        return np.repeat(p[-1:], nu, axis=0)
-    si = np.linspace(0.0, s[-1], nu)
-    return np.stack([np.interp(si, s, p[:, k]) for k in range(3)], axis=-1)
-
-
 def bearings(points: np.ndarray, source: np.ndarray) -> np.ndarray:
     """(nu,) yaw that points the detector axis from each point towards ``source`` (horizontal)."""
     return np.arctan2(source[1] - points[:, 1], source[0] - points[:, 0])

@@ -40,12 +40,6 @@ def enu_to_ned(v: np.ndarray) -> np.ndarray:
     return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
 
 
-def ned_to_enu(v: np.ndarray) -> np.ndarray:
-    """(n, e, d) -> (e, n, u)."""
-    v = np.asarray(v, dtype=float)
-    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
-
-
 def yaw_enu_to_ned(yaw_enu: float) -> float:
     """ENU yaw (CCW from east) -> NED yaw (CW from north), both rad, wrapped."""
     return wrap_pi(math.pi / 2.0 - yaw_enu)

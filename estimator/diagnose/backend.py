@@ -8,22 +8,17 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from estimator.mle import fit
+from estimator.model import MeasurementModel
 from radseek.dataset import EFFECTS, Frames, Scenario
 
 SPECTRAL_EFFECTS = ("gain_drift",)
-
-
-def load_backend() -> tuple[Any, Callable[..., Any], str]:
-    from estimator.mle import fit
-    from estimator.model import MeasurementModel
-
-    return MeasurementModel, fit, "estimator.model"
 
 
 def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -87,15 +82,12 @@ class CountFitter:
     seed: int = 0
     quiet: bool = False
 
-    split_legs: bool = True
-
     def __post_init__(self) -> None:
-        self.model_cls, self._fit, self.backend = load_backend()
-        self.fit_frames = split_transit_legs(self.frames) if self.split_legs else self.frames
+        self.fit_frames = split_transit_legs(self.frames)
         self._cache: dict[tuple[str, ...], Any] = {}
 
-    def model(self, effects: tuple[str, ...]) -> Any:
-        return self.model_cls(self.scenario, effects=tuple(effects))
+    def model(self, effects: tuple[str, ...]) -> MeasurementModel:
+        return MeasurementModel(self.scenario, effects=tuple(effects))
 
     def fit(self, effects: tuple[str, ...], init: dict[str, float] | None = None, n_starts: int | None = None,
             label: str = "", cache: bool = True) -> Any:
@@ -107,7 +99,7 @@ class CountFitter:
         model = self.model(key)
         names = set(model.param_names)
         init = {k: float(v) for k, v in (init or {}).items() if k in names}
-        res = self._fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
+        res = fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
                         pose_uncertainty=True, init=init or None)
         progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
                  f"({time.perf_counter() - t0:.1f} s)", self.quiet)

@@ -91,7 +91,7 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
     f = ds.frames
     final = d.after if d.added and d.after is not None else d.current
     lines = [f"radseek diagnose {ds.name}: {len(f)} frames over {f.t[-1] - f.t[0] + f.duration[0]:.0f} s, "
-             f"{int(f.total_counts.sum())} counts; model backend {d.backend}; alpha {d.alpha}", ""]
+             f"{int(f.total_counts.sum())} counts; alpha {d.alpha}", ""]
     lines.append(f"1. Fit of {model_name(d.current.effects)} (Poisson maximum likelihood, multi-start, "
                  "per-dwell pose offsets as nuisances)")
     lines += _sources_text(d.current)
@@ -153,7 +153,7 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     added = bool(d.added) and d.after is not None
     final = d.after if added else d.current
     sel = d.after_selection if added and d.after_selection is not None else d.selection
-    out: dict[str, Any] = {"dataset": d.dataset.name, "backend": d.backend, "alpha": d.alpha}
+    out: dict[str, Any] = {"dataset": d.dataset.name, "alpha": d.alpha}
     out.update(_model_json(final))
     out["candidates"] = [c.to_json() for c in sel.first]
     out["selection_steps"] = [{"model": list(st.effects), "chosen": st.chosen,

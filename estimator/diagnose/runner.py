@@ -106,12 +106,6 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
                        spectral, spec_dev, src, source_error(src, ds.truth), n, params)
 
 
-def position_trend(rep: ModelReport) -> tuple[float, int]:
-    """chi2 and dof of the per-dwell residuals (the residual map): the position feature."""
-    g = rep.gof_segments
-    return g.deviance, g.dof
-
-
 def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> str:
     """The residual feature whose trend the effect removed most (chi2 drop), with the expected one first."""
     if effect in SPECTRAL_EFFECTS:
@@ -150,7 +144,6 @@ def _fill_explains(ds: Dataset, fitter: CountFitter, sel: Selection, spectral: S
 @dataclass
 class Diagnosis:
     dataset: Dataset
-    backend: str
     alpha: float
     current: ModelReport
     selection: Selection
@@ -165,7 +158,7 @@ def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = ()
     count, spec = split_effects(model)
     add_count, add_spec = split_effects(add)
     fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet)
-    progress(f"{ds.name}: {len(ds.frames)} frames, backend {fitter.backend}; fitting {describe((*count, *spec))}",
+    progress(f"{ds.name}: {len(ds.frames)} frames; fitting {describe((*count, *spec))}",
              quiet)
     sm = SpectralModel(ds.scenario.channel_edges_keV)
     cache: dict[str, SpectralFit] = {}
@@ -195,4 +188,4 @@ def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = ()
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
             _fill_explains(ds, fitter, after_sel, cache.get("fit", spectral))
-    return Diagnosis(ds, fitter.backend, alpha, current, sel, added, after, after_sel, spectral)
+    return Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)

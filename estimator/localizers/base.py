@@ -67,8 +67,6 @@ class Localizer:
     """Base class: settings in the constructor, ``fit`` / ``partial_fit``, results in ``*_`` attributes."""
 
     name: ClassVar[str] = ""
-    #: True when partial_fit updates in place instead of refitting everything seen
-    sequential: ClassVar[bool] = False
 
     # -------------------------------------------------------------------------- sklearn contract
 
