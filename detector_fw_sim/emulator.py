@@ -24,8 +24,7 @@ from detector_fw_sim import response, transport
 from detector_fw_sim.ladder import drifted_edges
 from detector_fw_sim.scene import Scene
 from radseek.geometry import wall_arrays
-
-N_CHANNELS = 32
+from radseek.topics import N_CHANNELS
 
 
 @dataclass(frozen=True)

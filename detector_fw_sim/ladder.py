@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_CHANNELS = 32
+from radseek.topics import N_CHANNELS
+
 #: Edges of the reference board (shared/datasets): 40-1600 keV, slightly widening, plus 3000 keV
 #: closing the overflow channel.
 REFERENCE_EDGES_KEV = (

@@ -23,6 +23,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from mission.search import STRATEGIES
 from radseek import topics
 from radseek.simclock import ZenohClock
 
@@ -140,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
     p.add_argument("--vehicle-local-ports", default="14580,18570", help="vehicle's own UDP ports (api,gcs)")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget (default 16)")
-    p.add_argument("--strategy", default="active", choices=("active", "lattice", "lawnmower"),
+    p.add_argument("--strategy", default="active", choices=STRATEGIES,
                    help="active search (paper 003) or a fixed pattern baseline (default active)")
     p.add_argument("--timeout", type=float, default=900.0, help="wall seconds before the run is abandoned")
     p.add_argument("--vehicle-arg", action="append", default=[], help="extra argument for radseek vehicle")

@@ -12,6 +12,8 @@ import json
 import sys
 from pathlib import Path
 
+from mission.client.connection import DEFAULT_URL
+from mission.search import STRATEGIES
 from radseek import zenoh_session
 from radseek.dataset import DatasetError, read_scenario
 
@@ -21,13 +23,13 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", required=True, help="scenario.json (the operator's view of the scene)")
     p.add_argument("--out", required=True, help="directory for the recorded dataset and mission summary")
-    p.add_argument("--url", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL (default PX4 SITL's)")
+    p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
     p.add_argument("--altitude", type=float, default=1.5, help="dwell altitude, m (default 1.5)")
     p.add_argument("--stop-sigma", type=float, default=0.10, help="stop when the 1-sigma error ellipse is below, m")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
     p.add_argument("--localizer", default="mle", help="estimator used in flight (default mle)")
-    p.add_argument("--strategy", default="active", choices=("active", "lattice", "lawnmower"),
+    p.add_argument("--strategy", default="active", choices=STRATEGIES,
                    help="active search (paper 003) or a fixed pattern baseline (default active)")
     zenoh_session.add_arguments(p)
     args = p.parse_args(argv)

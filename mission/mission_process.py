@@ -24,7 +24,7 @@ import numpy as np
 import zenoh
 
 from mission.client.action import ActionFailed, Actions
-from mission.client.connection import connect, wait_healthy
+from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.mission_upload import DwellPoint, MissionControl
 from mission.client.telemetry import TelemetryWatch
 from mission.recorder import FlightRecorder, PoseHistory
@@ -39,7 +39,7 @@ ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a
 
 @dataclass
 class MissionSettings:
-    url: str = "udpin://0.0.0.0:14540"
+    url: str = DEFAULT_URL
     vehicle: str = topics.DEFAULT_VEHICLE
     seed: int = 0
     connect_timeout_s: float = 60.0

@@ -29,13 +29,11 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from radseek import topics
+from radseek.topics import N_CHANNELS
 
 SYNC = b"\xa5\x5a"
 VERSION = 1
-N_CHANNELS = 32
 COUNT_MAX = 0xFFFF  # u16 channel field: a channel that counted more is clamped and flagged saturated
 _HEADER = struct.Struct("<2sBBIQIBB")  # sync, version, length, seq, board_time_us, integration_us, flags, rsvd
 _COUNTS = struct.Struct(f"<{N_CHANNELS}H")
@@ -267,8 +265,3 @@ def frame_to_histogram(frame: Frame, t: float, flags: int = 0, **extra: float | 
         flags=frame.flags | flags,
         **extra,
     )
-
-
-def counts_array(frames: list[Frame]) -> np.ndarray:
-    """(N, 32) int64 counts of decoded frames."""
-    return np.array([f.counts for f in frames], dtype=np.int64).reshape(len(frames), N_CHANNELS)
