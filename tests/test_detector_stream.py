@@ -1,4 +1,8 @@
-"""The detector as its own process over a real zenoh router on loopback: rate, latency, faults, restart."""
+"""The detector as its own process over a real zenoh router on loopback: rate, latency, faults, restart.
+
+Rates and timing are asserted on sim time (frame stamps and sequence numbers); latency is measured and
+printed, not asserted. How far the process may lag the clock is bounded by its own design limit
+(``max_catch_up_s``), not by a wall duration, and wall deadlines only bound waiting."""
 
 from __future__ import annotations
 
@@ -18,13 +22,14 @@ import pytest
 
 from detector_fw_sim.board import Board
 from detector_fw_sim.detector_cli import build_parser
-from detector_fw_sim.detector_process import FaultConfig, inject
+from detector_fw_sim.detector_process import DetectorConfig, FaultConfig, inject
 from radseek import topics
 from radseek.board_wire import FRAME_SIZE, FrameError, decode_frame, encode_frame
 from radseek.simclock import ClockPublisher, FreeRunningClock
 from radseek.zenoh_session import open_session
 
 SPEEDUP = 10.0
+MAX_LAG_S = DetectorConfig().max_catch_up_s  # sim s: further behind than this it skips (by design)
 
 
 class Proc:
@@ -127,17 +132,23 @@ def test_detector_process_streams_10_hz_on_loopback(router):
         try:
             det.wait_line("publishing")
             summary = det.wait_line("stopped after", timeout=60)
-            assert det.p.wait(10) == 0
+            assert det.p.wait(60) == 0
         finally:
             det.stop()
-        time.sleep(0.3)
+
+        def arrived(topic):
+            return any(k == topic and (topics.Histogram.from_bytes(p).seq if k == topics.HISTOGRAM
+                                       else decode_frame(p).seq) == 339 for k, p, _ in rec.snapshot())
+        # wait for the last frame (339, ending at 34.0 s) in both forms, instead of a fixed sleep
+        _wait_for(lambda: arrived(topics.HISTOGRAM) and arrived(topics.RAW_FRAME), "the last frame")
         sub.undeclare()
     ev = rec.snapshot()
     # The subscriber counts the frames it received over 30 s of sim time, by their sim time stamps.
     # Frames are made once per 0.1 s of sim time, so this is exactly 300 unless frames are lost,
     # duplicated or mis-timed. Separately it counts arrivals while its own view of the sim clock (the
     # last sim/clock received) is in the window: that differs from 300 only by how far the process lags
-    # the clock at the window edges, which on a loaded 2-core host can reach ~0.2 s wall (2 s sim at 10x).
+    # the clock at the window edges, which its design bounds by MAX_LAG_S of sim time (further behind it
+    # would skip frames, and the sequence check below would fail).
     T0, T1 = 3.0, 33.0
     t_sim, n_clock_view = -1.0, 0
     for k, payload, _ in ev:
@@ -159,7 +170,7 @@ def test_detector_process_streams_10_hz_on_loopback(router):
           f"(sd {period.std() * 1e3:.1f} ms sim at {SPEEDUP:g}x); live fraction {hists[0].live_time / 0.1:.3f}, "
           f"{np.mean([h.rate for h in hists]):.0f} cps recorded")
     assert abs(rate - 10.0) <= 0.2, rate  # the issue's 10 Hz +- 2 %
-    assert abs(n_clock_view - 300) <= 30, n_clock_view  # keeps up with the clock within 3 s sim
+    assert abs(n_clock_view - 300) <= 10 * MAX_LAG_S, n_clock_view  # keeps up with the clock
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and seqs[-1] == 339  # frame 339 ends at 34.0 s
     assert all(h.flags == 0 for h in hists[1:]) and all(h.duration == pytest.approx(0.1) for h in hists)
     assert all(h.t == pytest.approx((h.seq + 1) * 0.1) and h.board_time == pytest.approx(h.t) for h in hists)
@@ -233,7 +244,7 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
             _wait_for(lambda: rec.histograms() and rec.histograms()[-1].t >= kill_at, "frames up to the kill time")
             det.p.send_signal(signal.SIGKILL)
             det.p.wait(10)
-            time.sleep(0.3)  # let frames already in flight arrive
+            time.sleep(1.0)  # let frames already in flight arrive (the restart below takes longer anyway)
             n_before = len(rec.snapshot())
             det2 = Proc(*args)
             det2.wait_line("publishing")
@@ -244,7 +255,7 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
             jump[0] = 30.0
             _wait_for(lambda: rec.histograms()[-1].t > t_jump + 31, "frames after the clock jump")
             det2.p.send_signal(signal.SIGTERM)
-            assert det2.p.wait(10) == 0
+            assert det2.p.wait(60) == 0
             summary = det2.wait_line("stopped after")
         finally:
             stop.set()
@@ -307,8 +318,8 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
     assert int(re.search(r"(\d+) bad pose messages", summary).group(1)) > 0
     steps = [(a, b) for a, b in zip(h2, h2[1:], strict=False) if b.seq - a.seq > 100]
     assert steps and all(b.flags & topics.FLAG_GAP for _, b in steps), [(a.seq, b.seq) for a, b in steps]
-    # it skips the whole 30 s plus however far it lagged the clock when the jump came (<= 5 s sim here)
-    assert any(300 <= b.seq - a.seq < 350 for a, b in steps), [(a.seq, b.seq) for a, b in steps]
+    # it skips the whole 30 s plus however far it lagged the clock when the jump came (<= MAX_LAG_S sim)
+    assert any(300 <= b.seq - a.seq <= 300 + 10 * MAX_LAG_S + 1 for a, b in steps), [(a.seq, b.seq) for a, b in steps]
 
     print(f"\nrestart: last seq before kill {hists[-1].seq}, first after {h2[0].seq} (flags {h2[0].flags}); "
           f"{bad}/{n} raw frames rejected by CRC; {len(stale)} stale frames")
