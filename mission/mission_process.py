@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import sys
 import threading
 import time
 from dataclasses import asdict, dataclass
@@ -67,11 +68,19 @@ class _Stream:
         self.bad_payloads = 0
         self.latest_pose: topics.Pose | None = None
 
+    def _drop(self, exc: topics.PayloadError) -> None:
+        """A payload that fails its schema or the board's limits: counted, logged (not every one), dropped."""
+        with self.lock:
+            self.bad_payloads += 1
+            n = self.bad_payloads
+        if n <= 10 or n % 100 == 0:
+            print(f"radseek mission: dropped invalid payload #{n}: {exc}", file=sys.stderr, flush=True)
+
     def on_pose(self, sample: zenoh.Sample) -> None:
         try:
             pose = topics.Pose.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError:
-            self.bad_payloads += 1
+        except topics.PayloadError as exc:
+            self._drop(exc)
             return
         with self.lock:
             self.poses.add(pose)
@@ -80,8 +89,8 @@ class _Stream:
     def on_histogram(self, sample: zenoh.Sample) -> None:
         try:
             hist = topics.Histogram.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError:
-            self.bad_payloads += 1
+        except topics.PayloadError as exc:
+            self._drop(exc)
             return
         with self.lock:
             pose = self.poses.at(hist.t - hist.duration / 2)

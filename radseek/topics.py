@@ -61,13 +61,51 @@ FLAG_STALE_POSE = 0x02  # no true pose arrived recently: the emulator sent zero 
 FLAG_GAP = 0x04  # one or more frames were lost before this one (sequence jump)
 FLAG_CRC_ERROR = 0x08  # set by a receiver that kept a frame whose CRC failed (normally dropped)
 
+# The board's physical limits (its wire format, radseek.board_wire / docs/frame-format.md): a payload
+# outside them cannot have come from the board, so it is rejected like any other schema violation.
+COUNT_MAX = 0xFFFF  # u16 per comparator channel and frame
+SEQ_MAX = 0xFFFFFFFF  # u32 frame counter
+FLAGS_MAX = 0xFF  # u8 status byte
+DURATION_MAX_S = 0xFFFFFFFF / 1e6  # u32 microseconds integrated
+BOARD_TIME_MAX_S = 0xFFFFFFFFFFFFFFFF / 1e6  # u64 microseconds since power-on
+#: sim time (field ``t`` of every payload) lies in [0, SIM_TIME_MAX_S]: 1e7 s is 115 days of flight
+SIM_TIME_MAX_S = 1e7
+SPEEDUP_MAX = 1e4  # sim seconds per wall second
+
 
 def _check_number(topic: str, name: str, value: Any, *, finite: bool = True) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise PayloadError(f"{topic}: field {name!r} must be a number, got {value!r}")
+        raise PayloadError(f"{topic}: field {name!r} must be a number, got {_short(value)}")
     if finite and not math.isfinite(value):
         raise PayloadError(f"{topic}: field {name!r} must be finite, got {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer too large for a float (10**400)
+        raise PayloadError(f"{topic}: field {name!r} is out of range, got {_short(value)}") from None
+
+
+def _check_range(topic: str, name: str, value: Any, lo: float, hi: float) -> float:
+    v = _check_number(topic, name, value)
+    if not lo <= v <= hi:
+        raise PayloadError(f"{topic}: field {name!r} must be in [{lo:g}, {hi:g}], got {_short(value)}")
+    return v
+
+
+def _check_int(topic: str, name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise PayloadError(f"{topic}: field {name!r} must be an integer, got {_short(value)}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise PayloadError(f"{topic}: field {name!r} must be in [{lo}, {hi}], got {_short(value)}")
+    return value
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """repr of a (possibly huge) offending value, cut short for the log."""
+    try:
+        text = repr(value)
+    except ValueError:  # an int with more digits than str() allows
+        text = f"<{type(value).__name__} too large to print>"
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 @dataclass(frozen=True)
@@ -101,14 +139,30 @@ class _Payload:
     def from_bytes(cls, payload: bytes) -> Self:
         try:
             data = json.loads(payload)
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise PayloadError(f"{cls.TOPIC}: payload is not JSON ({exc})") from None
-        return cls.from_dict(data)
+        except RecursionError:  # deeply nested arrays/objects: refused, never a traceback
+            raise PayloadError(f"{cls.TOPIC}: payload is nested too deeply") from None
+        except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, or an int of > 4300 digits
+            raise PayloadError(f"{cls.TOPIC}: payload is not JSON ({_short(str(exc), 120)})") from None
+        try:
+            return cls.from_dict(data)
+        except RecursionError:
+            raise PayloadError(f"{cls.TOPIC}: payload is nested too deeply") from None
 
     def validate(self) -> None:
+        """Types of every declared field, finiteness of numbers, and sim time ``t`` in range."""
         for f in fields(self):
+            v = getattr(self, f.name)
             if f.type in ("float", float):
-                _check_number(self.TOPIC, f.name, getattr(self, f.name))
+                _check_number(self.TOPIC, f.name, v)
+            elif f.type == "float | None":
+                if v is not None:
+                    _check_number(self.TOPIC, f.name, v)
+            elif f.type in ("int", int):
+                _check_int(self.TOPIC, f.name, v)
+            elif f.type in ("str", str) and not isinstance(v, str):
+                raise PayloadError(f"{self.TOPIC}: field {f.name!r} must be a string, got {_short(v)}")
+        if any(f.name == "t" for f in fields(self)):
+            _check_range(self.TOPIC, "t", self.t, 0.0, SIM_TIME_MAX_S)  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)
@@ -118,6 +172,11 @@ class SimClock(_Payload):
     TOPIC: ClassVar[str] = SIM_CLOCK
     t: float  # s, simulation time since start
     speedup: float  # simulation seconds per wall second (1.0 = real time)
+
+    def validate(self) -> None:
+        super().validate()
+        if not 0 < self.speedup <= SPEEDUP_MAX:
+            raise PayloadError(f"{self.TOPIC}: field 'speedup' must be in (0, {SPEEDUP_MAX:g}], got {self.speedup!r}")
 
 
 @dataclass(frozen=True)
@@ -183,19 +242,23 @@ class Histogram(_Payload):
         return self.total / self.duration if self.duration > 0 else 0.0
 
     def validate(self) -> None:
-        for name in ("board_time", "t", "duration"):
-            _check_number(self.TOPIC, name, getattr(self, name))
-        if self.duration <= 0:
-            raise PayloadError(f"{self.TOPIC}: field 'duration' must be > 0, got {self.duration}")
-        for name in ("seq", "flags"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a non-negative integer")
+        """The schema and the board's physical limits: u16 counts, u32 seq and integration time in
+        microseconds, u8 flags, u64 board clock; live time within the integration."""
+        super().validate()
+        _check_range(self.TOPIC, "board_time", self.board_time, 0.0, BOARD_TIME_MAX_S)
+        if not 0 < self.duration <= DURATION_MAX_S:
+            raise PayloadError(f"{self.TOPIC}: field 'duration' must be in (0, {DURATION_MAX_S:g}] s, "
+                               f"got {self.duration!r}")
+        _check_int(self.TOPIC, "seq", self.seq, 0, SEQ_MAX)
+        _check_int(self.TOPIC, "flags", self.flags, 0, FLAGS_MAX)
         if not isinstance(self.counts, list) or len(self.counts) != N_CHANNELS:
             raise PayloadError(f"{self.TOPIC}: field 'counts' must be a list of {N_CHANNELS} integers")
         for k, c in enumerate(self.counts):
-            if isinstance(c, bool) or not isinstance(c, int) or c < 0:
-                raise PayloadError(f"{self.TOPIC}: counts[{k}] must be a non-negative integer, got {c!r}")
+            if isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= COUNT_MAX:
+                raise PayloadError(f"{self.TOPIC}: counts[{k}] must be an integer in [0, {COUNT_MAX}] "
+                                   f"(u16 per channel), got {_short(c)}")
+        if self.live_time is not None and not 0 <= self.live_time <= self.duration * (1 + 1e-9):
+            raise PayloadError(f"{self.TOPIC}: field 'live_time' must be in [0, duration], got {self.live_time!r}")
 
 
 @dataclass(frozen=True)
@@ -208,6 +271,11 @@ class DetectorStatus(_Payload):
     stale_frames: int
     crc_errors: int
     state: str = "ok"
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("frames", "stale_frames", "crc_errors"):
+            _check_int(self.TOPIC, name, getattr(self, name), 0)
 
 
 @dataclass(frozen=True)
@@ -288,6 +356,18 @@ class Plan(_Payload):
     t: float
     dwell_points: list[list[float]]
     path: list[list[float]] = field(default_factory=list)
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("dwell_points", "path"):
+            rows = getattr(self, name)
+            if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a list of (x, y, z[, yaw]) lists")
+            for i, row in enumerate(rows):
+                if not 3 <= len(row) <= 4:
+                    raise PayloadError(f"{self.TOPIC}: {name}[{i}] must hold 3 or 4 numbers, got {len(row)}")
+                for k, v in enumerate(row):
+                    _check_number(self.TOPIC, f"{name}[{i}][{k}]", v)
 
 
 PAYLOADS: dict[str, type[_Payload]] = {
