@@ -16,6 +16,12 @@ Fault switches for the mission tests (``FaultConfig``): corrupt or truncate raw 
 rate (the driver must reject them by CRC or length), and drop-outs during which no frame is sent.
 A restarted process continues the sequence at the value board time gives; its first frame carries
 ``FLAG_GAP`` unless it is frame 0.
+
+The sim clock is followed, not trusted blindly: when it goes back (the vehicle was restarted while the
+detector runs: its clock starts again near 0) or jumps far ahead, the process says so on stderr,
+counts it (``Counters.clock_jumps``), forgets the old timeline's true poses and carries on from the
+frame the clock is in now (consumers see a sequence gap). A true pose from the future (more than
+``max_pose_lead_s`` past the clock) is dropped and counted like an invalid one.
 """
 
 from __future__ import annotations
@@ -113,6 +119,8 @@ class DetectorConfig:
     faults: FaultConfig = field(default_factory=FaultConfig)
     status_period_s: float = 1.0
     max_catch_up_s: float = 10.0  # sim s: further behind than this (a clock jump), skip frames instead of bursting
+    max_clock_back_s: float = 1.0  # sim s: the clock went back further than this (owner restart): resynchronise
+    max_pose_lead_s: float = 5.0  # sim s: a true pose further ahead of the clock than this is dropped
 
 
 @dataclass
@@ -122,7 +130,8 @@ class Counters:
     stale_frames: int = 0
     rejected: int = 0  # raw frames the driver rejected (CRC, length)
     dropout_frames: int = 0  # frames not sent during drop-outs
-    bad_pose_msgs: int = 0  # truth-pose messages that failed validation (dropped)
+    bad_pose_msgs: int = 0  # truth-pose messages that failed validation or lay in the future (dropped)
+    clock_jumps: int = 0  # the sim clock went back or jumped ahead: frames resumed from the new time
     emulator_errors: int = 0  # poses the physics could not evaluate (frame sent stale, zero counts)
     gaps: int = 0
 
@@ -133,20 +142,35 @@ class TruthPoseFollower:
     Frames take the true pose interpolated at their mid-time: at 20x a frame may be produced well after
     its interval ended, and the latest pose would then place its counts further along the path."""
 
-    def __init__(self, session: zenoh.Session, vehicle: str, counters: Counters):
+    def __init__(self, session: zenoh.Session, vehicle: str, counters: Counters, clock: Clock | None = None,
+                 max_lead_s: float = 5.0):
         self._lock = threading.Lock()
         self._history: PoseHistory[topics.TruthPose] = PoseHistory(keep_s=30.0)
         self._counters = counters
+        self._clock = clock
+        self._max_lead_s = max_lead_s
         self._sub = session.declare_subscriber(topics.key(topics.SIM_TRUTH_POSE, vehicle), self._on_pose)
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
         try:
             msg = topics.TruthPose.from_bytes(sample.payload.to_bytes())
-        except (topics.PayloadError, TypeError):
+            if self._clock is not None and getattr(self._clock, "started", True) and \
+                    msg.t > self._clock.now() + self._max_lead_s:
+                raise topics.PayloadError(f"{topics.SIM_TRUTH_POSE}: t={msg.t:g} s lies ahead of the sim clock "
+                                          f"({self._clock.now():g} s)")
+        except (topics.PayloadError, TypeError) as exc:
             with self._lock:
                 self._counters.bad_pose_msgs += 1
+                n = self._counters.bad_pose_msgs
+            if n <= 3 or n % 100 == 0:
+                print(f"radseek detector: dropped true-pose message #{n}: {exc}", file=sys.stderr, flush=True)
             return
         self._history.add(msg)
+
+    def reset(self) -> None:
+        """Forget every pose (the clock went back: they belong to the old timeline)."""
+        with self._lock:
+            self._history = PoseHistory(keep_s=30.0)
 
     def latest(self) -> topics.TruthPose | None:
         return self._history.latest()
@@ -171,7 +195,9 @@ class DetectorProcess:
         self._raw_pub = session.declare_publisher(topics.key(topics.RAW_FRAME, v))
         self._hist_pub = session.declare_publisher(topics.key(topics.HISTOGRAM, v))
         self._status_pub = session.declare_publisher(topics.key(topics.DETECTOR_STATUS, v))
-        self._poses = None if config.fixed_pose is not None else TruthPoseFollower(session, v, self.counters)
+        self._poses = None if config.fixed_pose is not None else \
+            TruthPoseFollower(session, v, self.counters, clock, config.max_pose_lead_s)
+        self._clock_epoch = getattr(clock, "epoch", 0)
         # the first frame of this process flags a gap unless it is frame 0: earlier frames were not sent
         self._driver = FrameConsumer(first_is_gap=True)
         self.stop_event = threading.Event()
@@ -241,19 +267,42 @@ class DetectorProcess:
         self._status_pub.put(msg.to_bytes())
 
     # -- the loop --------------------------------------------------------------------------------
+    def follow_clock(self, k: int) -> int:
+        """The frame to make next: ``k``, or the frame the clock is in now if it went back by more than
+        ``max_clock_back_s`` (owner restarted) or is more than ``max_catch_up_s`` past frame ``k``'s end
+        (a jump: skip ahead instead of bursting). Reported on stderr and counted."""
+        now = self.clock.now()
+        t0, t1 = self.board.interval(k)
+        back = now < t0 - self.config.max_clock_back_s
+        ahead = now - t1 > self.config.max_catch_up_s
+        epoch = getattr(self.clock, "epoch", 0)
+        resynced, self._clock_epoch = epoch != self._clock_epoch, epoch
+        if not (back or ahead):
+            return k
+        new_k = self.board.index_at(now)
+        self.counters.clock_jumps += 1
+        self.state = "clock_jump"
+        if back and self._poses is not None:
+            self._poses.reset()
+        print(f"radseek detector: sim clock {'went back' if back else 'jumped ahead'} "
+              f"{'(resynchronised) ' if resynced else ''}from t={t0:.2f} s to t={now:.2f} s: "
+              f"continuing at frame {new_k}", file=sys.stderr, flush=True)
+        return new_k
+
     def run(self) -> Counters:
         """Produce frames on the sim clock until ``config.until`` or ``stop_event``."""
         k = self.board.index_at(self.clock.now())
         status_every = max(1, round(self.config.status_period_s / self.board.period_s))
         while not self.stop_event.is_set():
+            k = self.follow_clock(k)
             t_end = self.board.interval(k)[1]
             if self.config.until is not None and t_end > self.config.until + 1e-9:
                 break
             if not self.clock.sleep_until(t_end, timeout_wall_s=0.25):
-                continue  # clock stalled (owner paused or gone): wait, never run ahead of it
-            now = self.clock.now()
-            if now - t_end > self.config.max_catch_up_s:  # clock jumped: skip ahead, consumers see a gap
-                k = self.board.index_at(now)
+                continue  # clock stalled (owner paused or gone) or went back: wait, never run ahead of it
+            skip_to = self.follow_clock(k)
+            if skip_to != k:  # clock jumped ahead: skip, consumers see a gap
+                k = skip_to
                 continue
             self.produce(k)
             if (k + 1) % status_every == 0:
