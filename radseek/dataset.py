@@ -13,10 +13,13 @@ tests and the error report do).
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
-from collections.abc import Sequence
+import re
+import sys
+import time
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -215,9 +218,45 @@ class Dataset:
 
 # ---------------------------------------------------------------------------------------- reading
 
+#: ``format`` values this reader understands: radseek-dataset/1 and its minor revisions (1.1, ...), not /10
+_FORMAT_RE = re.compile(r"radseek-dataset/1(?:\.\d+)*")
+#: Largest extent (m) of the source bounds on any axis, and largest |coordinate| of bounds and walls. A small
+#: drone searches at most a few hundred metres; anything beyond is a units error (mm, degrees), and
+#: +-1e6 m bounds make grid-based estimators and planners run without limit.
+MAX_EXTENT_M = 2000.0
+MAX_COORD_M = 10_000.0
+#: Largest count of one channel in one frame: the board's u16 field is 65535 per 0.1 s frame; this leaves
+#: room for other hardware and longer frames, and keeps sums over a million frames inside int64.
+MAX_COUNT = 1_000_000_000
+#: Largest dwell index (int32: nothing flies a billion dwells)
+MAX_DWELL = 2**31 - 1
+#: Bytes per block of the streaming CSV reader, and the file size from which reads report progress
+_BLOCK_BYTES = 8 << 20
+
+
+class DatasetWarning(UserWarning):
+    """A dataset that was read with a repair the caller should know about (e.g. a truncated last row skipped)."""
+
 
 def _err(file: Path, msg: str) -> DatasetError:
     return DatasetError(f"{file}: {msg}")
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _number(v: Any, where: str, file: Path) -> float:
+    """A finite JSON number (not a bool, string or NaN) as float; DatasetError naming ``where`` otherwise."""
+    if not _is_number(v):
+        raise _err(file, f"key {where!r} must be a number, got {v!r}")
+    try:
+        f = float(v)
+    except OverflowError:  # an integer literal beyond float range
+        raise _err(file, f"key {where!r} is out of range, got {v!r}") from None
+    if not math.isfinite(f):
+        raise _err(file, f"key {where!r} must be finite, got {v!r}")
+    return f
 
 
 def _get(d: dict, keypath: str, file: Path, kind: type | tuple = (int, float)) -> Any:
@@ -226,166 +265,452 @@ def _get(d: dict, keypath: str, file: Path, kind: type | tuple = (int, float)) -
         if not isinstance(cur, dict) or part not in cur:
             raise _err(file, f"missing key {keypath!r}")
         cur = cur[part]
-    if kind in ((int, float), float) and (isinstance(cur, bool) or not isinstance(cur, int | float)):
-        raise _err(file, f"key {keypath!r} must be a number, got {cur!r}")
-    if kind in ((int, float), float) and not math.isfinite(cur):
-        raise _err(file, f"key {keypath!r} must be finite, got {cur!r}")
+    if kind in ((int, float), float):
+        return _number(cur, keypath, file)
     return cur
 
 
 def _vector(d: dict, keypath: str, file: Path, n: int) -> np.ndarray:
     v = _get(d, keypath, file, kind=list)
-    if not isinstance(v, list) or len(v) != n or not all(isinstance(a, int | float) for a in v):
+    if not isinstance(v, list) or len(v) != n:
         raise _err(file, f"key {keypath!r} must be a list of {n} numbers, got {v!r}")
-    return np.asarray(v, dtype=float)
+    return np.array([_number(a, f"{keypath}[{i}]", file) for i, a in enumerate(v)], dtype=float)
+
+
+def _load_json(file: Path, required: bool) -> Any:
+    """Parsed JSON of ``file`` (a UTF-8 BOM is allowed); None when it is missing and not required."""
+    try:
+        raw = file.read_bytes()
+    except FileNotFoundError:
+        if not required:
+            return None
+        raise _err(file, "file is missing (a dataset needs frames.csv and scenario.json)") from None
+    except OSError as exc:
+        raise _err(file, f"cannot be read: {exc.strerror or exc}") from None
+    try:
+        return json.loads(raw.decode("utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        raise _err(file, f"not UTF-8 text (byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise _err(file, f"not valid JSON: {exc}") from None
+    except RecursionError:
+        raise _err(file, "not valid JSON: nested too deeply") from None
+
+
+def _check_point(p: np.ndarray, where: str, file: Path) -> None:
+    if np.any(np.abs(p) > MAX_COORD_M):
+        raise _err(file, f"key {where!r}: coordinates beyond +-{MAX_COORD_M:g} m of the local origin, got "
+                         f"{p.tolist()} (metres expected)")
+
+
+def _read_wall(w: Any, where: str, file: Path) -> Wall:
+    if not isinstance(w, dict):
+        raise _err(file, f"{where} must be an object, got {w!r}")
+    pts = []
+    for key in ("start", "end"):
+        if key not in w:
+            raise _err(file, f"{where}: missing key {key!r}")
+        v = w[key]
+        if not isinstance(v, list) or len(v) != 2:
+            raise _err(file, f"key '{where}.{key}' must be [x, y], got {v!r}")
+        p = np.array([_number(a, f"{where}.{key}[{i}]", file) for i, a in enumerate(v)])
+        _check_point(p, f"{where}.{key}", file)
+        pts.append(p)
+    if "thickness" not in w:
+        raise _err(file, f"{where}: missing key 'thickness'")
+    thickness = _number(w["thickness"], f"{where}.thickness", file)
+    height = _number(w.get("height", 3.0), f"{where}.height", file)
+    if thickness <= 0 or height <= 0:
+        raise _err(file, f"{where}: thickness and height must be > 0, got {thickness} and {height}")
+    length = float(np.hypot(*(pts[1] - pts[0])))
+    if length == 0:
+        raise _err(file, f"{where}: start and end are the same point {pts[0].tolist()} (a zero-length wall)")
+    start = (float(pts[0][0]), float(pts[0][1]))
+    end = (float(pts[1][0]), float(pts[1][1]))
+    return Wall(start, end, thickness, height, str(w.get("material", "concrete")))
 
 
 def read_scenario(file: Path) -> Scenario:
-    try:
-        d = json.loads(file.read_text())
-    except FileNotFoundError:
-        raise _err(file, "file is missing (a dataset needs frames.csv and scenario.json)") from None
-    except json.JSONDecodeError as exc:
-        raise _err(file, f"not valid JSON: {exc}") from None
+    """Read and validate scenario.json: types, finiteness, ranges and geometry; errors name the key."""
+    file = Path(file)
+    d = _load_json(file, required=True)
     if not isinstance(d, dict):
-        raise _err(file, "must hold a JSON object")
+        raise _err(file, f"must hold a JSON object, got {type(d).__name__}")
     fmt = d.get("format", FORMAT)
-    if not str(fmt).startswith("radseek-dataset/1"):
-        raise _err(file, f"key 'format' is {fmt!r}; this reader understands radseek-dataset/1")
+    if not isinstance(fmt, str) or not _FORMAT_RE.fullmatch(fmt):
+        raise _err(file, f"key 'format' is {fmt!r}; this reader understands {FORMAT}")
+    detector = _get(d, "detector", file, kind=dict)
+    if not isinstance(detector, dict):
+        raise _err(file, f"key 'detector' must be an object, got {detector!r}")
     edges_raw = _get(d, "detector.channel_edges_keV", file, kind=list)
     if not isinstance(edges_raw, list) or len(edges_raw) != N_CHANNELS + 1:
         raise _err(file, f"key 'detector.channel_edges_keV' must list {N_CHANNELS + 1} numbers")
-    edges = np.asarray(edges_raw, dtype=float)
+    edges = np.array([_number(e, f"detector.channel_edges_keV[{i}]", file) for i, e in enumerate(edges_raw)])
     if not np.all(np.diff(edges) > 0):
         raise _err(file, "key 'detector.channel_edges_keV' must be strictly ascending")
-    background = float(_get(d, "background_cps", file))
+    background = _get(d, "background_cps", file)
     if background < 0:
         raise _err(file, f"key 'background_cps' must be >= 0, got {background}")
+    source_z = _number(d["source_z"], "source_z", file) if "source_z" in d else 0.0
     bmin = _vector(d, "bounds.min", file, 3)
     bmax = _vector(d, "bounds.max", file, 3)
     if np.any(bmax < bmin):
         raise _err(file, "key 'bounds': max must be >= min on every axis")
-    walls = []
-    for i, w in enumerate(d.get("walls", []) or []):
-        where = f"walls[{i}]"
-        if not isinstance(w, dict):
-            raise _err(file, f"{where} must be an object")
-        try:
-            start = tuple(float(a) for a in w["start"])
-            end = tuple(float(a) for a in w["end"])
-            thickness = float(w["thickness"])
-            height = float(w.get("height", 3.0))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise _err(file, f"{where}: bad or missing field ({exc})") from None
-        if len(start) != 2 or len(end) != 2:
-            raise _err(file, f"{where}: start and end must be [x, y]")
-        if thickness <= 0 or height <= 0:
-            raise _err(file, f"{where}: thickness and height must be > 0")
-        walls.append(Wall(start, end, thickness, height, str(w.get("material", "concrete"))))  # type: ignore[arg-type]
+    _check_point(bmin, "bounds.min", file)
+    _check_point(bmax, "bounds.max", file)
+    if np.any(bmax - bmin > MAX_EXTENT_M):
+        raise _err(file, f"key 'bounds' spans {(bmax - bmin).tolist()} m; at most {MAX_EXTENT_M:g} m per axis "
+                         "(metres expected)")
+    walls_raw = d.get("walls", []) or []
+    if not isinstance(walls_raw, list):
+        raise _err(file, f"key 'walls' must be a list, got {walls_raw!r}")
+    walls = [_read_wall(w, f"walls[{i}]", file) for i, w in enumerate(walls_raw)]
+    for key in ("nuclide",):
+        if key in d and not isinstance(d[key], str):
+            raise _err(file, f"key {key!r} must be a string, got {d[key]!r}")
+    axis = detector.get("axis", "body +x")
+    if not isinstance(axis, str):
+        raise _err(file, f"key 'detector.axis' must be a string, got {axis!r}")
     known = {"format", "nuclide", "detector", "background_cps", "source_z", "bounds", "walls"}
     return Scenario(
         channel_edges_keV=edges,
         background_cps=background,
-        source_z=float(d.get("source_z", 0.0)),
+        source_z=source_z,
         bounds_min=bmin,
         bounds_max=bmax,
         walls=tuple(walls),
         nuclide=str(d.get("nuclide", "Cs-137")),
-        axis=str(d.get("detector", {}).get("axis", "body +x")),
+        axis=axis,
         extra={k: v for k, v in d.items() if k not in known},
     )
 
 
 def read_truth(file: Path) -> Truth | None:
-    if not file.exists():
+    """Read truth.json (None when absent): sources and effects with finite numbers; errors name the key."""
+    file = Path(file)
+    d = _load_json(file, required=False)
+    if d is None and not file.exists():
         return None
-    try:
-        d = json.loads(file.read_text())
-    except json.JSONDecodeError as exc:
-        raise _err(file, f"not valid JSON: {exc}") from None
+    if not isinstance(d, dict):
+        raise _err(file, f"must hold a JSON object, got {type(d).__name__}")
+    raw_sources = d.get("sources", [])
+    if not isinstance(raw_sources, list):
+        raise _err(file, f"key 'sources' must be a list, got {raw_sources!r}")
     sources = []
-    for i, s in enumerate(d.get("sources", [])):
-        try:
-            sources.append(
-                TruthSource(float(s["x"]), float(s["y"]), float(s.get("z", 0.0)), float(s["cps_at_1m"]),
-                            str(s.get("nuclide", "Cs-137")))
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise _err(file, f"sources[{i}]: bad or missing field ({exc})") from None
+    for i, s in enumerate(raw_sources):
+        where = f"sources[{i}]"
+        if not isinstance(s, dict):
+            raise _err(file, f"{where} must be an object, got {s!r}")
+        for key in ("x", "y", "cps_at_1m"):
+            if key not in s:
+                raise _err(file, f"{where}: missing key {key!r}")
+        x, y = _number(s["x"], f"{where}.x", file), _number(s["y"], f"{where}.y", file)
+        z = _number(s.get("z", 0.0), f"{where}.z", file)
+        cps = _number(s["cps_at_1m"], f"{where}.cps_at_1m", file)
+        if cps < 0:
+            raise _err(file, f"key '{where}.cps_at_1m' must be >= 0, got {cps}")
+        nuclide = s.get("nuclide", "Cs-137")
+        if not isinstance(nuclide, str):
+            raise _err(file, f"key '{where}.nuclide' must be a string, got {nuclide!r}")
+        sources.append(TruthSource(x, y, z, cps, nuclide))
     effects = d.get("effects", {}) or {}
     if not isinstance(effects, dict):
-        raise _err(file, "key 'effects' must be an object")
-    return Truth(tuple(sources), float(d.get("background_cps", float("nan"))), effects)
+        raise _err(file, f"key 'effects' must be an object, got {effects!r}")
+    for name, params in effects.items():
+        if not isinstance(params, dict):
+            raise _err(file, f"key 'effects.{name}' must be an object of parameters, got {params!r}")
+        for key in EFFECTS.get(name, ()):  # unknown effects and extra parameters are kept as written
+            if key in params or (name == "second_source" and key != "z"):
+                if key not in params:
+                    raise _err(file, f"key 'effects.{name}': missing parameter {key!r}")
+                _number(params[key], f"effects.{name}.{key}", file)
+    if "second_source" in effects and not sources:
+        raise _err(file, "key 'effects.second_source' needs a primary source in 'sources'")
+    background = _number(d["background_cps"], "background_cps", file) if "background_cps" in d else float("nan")
+    return Truth(tuple(sources), background, effects)
 
 
-def read_frames(file: Path) -> Frames:
-    try:
-        text = file.read_text()
-    except FileNotFoundError:
-        raise _err(file, "file is missing (a dataset needs frames.csv and scenario.json)") from None
-    reader = csv.reader(io.StringIO(text))
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise _err(file, "file is empty (expected a header line)") from None
-    missing = [c for c in COLUMNS if c not in header]
-    if missing:
-        raise _err(file, f"header lacks column(s) {', '.join(missing)}")
-    idx = [header.index(c) for c in COLUMNS]
-    rows = []
-    for rowno, row in enumerate(reader, start=2):
-        if not row or all(not cell.strip() for cell in row):
-            continue
-        if len(row) < len(header):
-            raise _err(file, f"row {rowno}: {len(row)} fields, header has {len(header)} (truncated row?)")
-        values = []
-        for c, i in zip(COLUMNS, idx, strict=True):
-            cell = row[i].strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                raise _err(file, f"row {rowno}, column {c!r}: {cell!r} is not a number") from None
-            if not math.isfinite(v):
-                raise _err(file, f"row {rowno}, column {c!r}: {cell!r} is not finite")
-            values.append(v)
-        rows.append(values)
-    if not rows:
-        raise _err(file, "no frames (only a header)")
-    arr = np.asarray(rows)
-    frames = Frames.from_rows(arr)
-    _validate_frames(frames, file)
-    return frames
+# ---- frames.csv
+
+_FLOAT_COLUMNS = [c for c in POSE_COLUMNS if c != "dwell"]
 
 
-def _validate_frames(f: Frames, file: Path) -> None:
-    def bad(mask: np.ndarray, column: str, what: str) -> None:
+class _Sink:
+    """Preallocated columns filled block by block (capacity: the file's line count, an upper bound)."""
+
+    def __init__(self, capacity: int):
+        self.cols = {c: np.empty(capacity) for c in _FLOAT_COLUMNS}
+        self.dwell = np.empty(capacity, dtype=np.int64)
+        self.counts = np.empty((capacity, N_CHANNELS), dtype=COUNT_DTYPE)
+        self.n = 0
+        self.last_t = -math.inf
+
+    def reserve(self, n: int) -> None:
+        """Room for ``n`` more rows (the line count is an upper bound unless lines end in a bare CR)."""
+        need = self.n + n
+        if need <= len(self.dwell):
+            return
+        cap = max(need, 2 * len(self.dwell))
+        self.cols = {c: np.resize(v, cap) for c, v in self.cols.items()}
+        self.dwell = np.resize(self.dwell, cap)
+        self.counts = np.resize(self.counts, (cap, N_CHANNELS))
+
+    def frames(self) -> Frames:
+        n = self.n
+        cols = {c: v[:n] for c, v in self.cols.items()}
+        return Frames(**cols, dwell=self.dwell[:n].astype(int, copy=False), counts=self.counts[:n])
+
+
+def _block_error(block: dict[str, np.ndarray], counts: np.ndarray, prev_t: float) -> tuple[int, str, str] | None:
+    """First violation in a block of parsed rows: (index in block, column, message), or None."""
+    checks: list[tuple[np.ndarray, str, str]] = []
+    for c in COLUMNS[: len(POSE_COLUMNS)]:
+        checks.append((~np.isfinite(block[c]), c, "is not finite"))
+    checks.append((block["duration"] <= 0, "duration", "must be > 0"))
+    for c in ("var_x", "var_y", "var_z"):
+        checks.append((block[c] < 0, c, "variance must be >= 0"))
+    dw = block["dwell"]
+    checks.append((dw != np.round(dw), "dwell", "must be an integer (a dwell index, or -1 while moving)"))
+    checks.append(((dw < -1) | (dw > MAX_DWELL), "dwell", "must be -1 (moving) or a dwell index >= 0"))
+    t = block["t"]
+    checks.append((np.diff(t, prepend=prev_t) < 0, "t", "rows must be in time order"))
+    first: tuple[int, str, str] | None = None
+    for mask, column, what in checks:
         if np.any(mask):
             r = int(np.argmax(mask))
-            raise _err(file, f"row {r + 2}, column {column!r}: {what}")
-
-    bad(f.duration <= 0, "duration", "must be > 0")
-    for c in ("var_x", "var_y", "var_z"):
-        bad(getattr(f, c) < 0, c, "variance must be >= 0")
-    bad(f.dwell < -1, "dwell", "must be -1 (moving) or a dwell index >= 0")
-    neg = f.counts < 0
-    if np.any(neg):
-        r, k = np.argwhere(neg)[0]
-        raise _err(file, f"row {r + 2}, column {CHANNEL_COLUMNS[k]!r}: counts must be >= 0")
-    frac = f.counts != np.round(f.counts)
-    if np.any(frac):
-        r, k = np.argwhere(frac)[0]
-        raise _err(file, f"row {r + 2}, column {CHANNEL_COLUMNS[k]!r}: counts must be integers")
-    bad(np.r_[False, np.diff(f.t) < 0], "t", "rows must be in time order")
+            if first is None or r < first[0]:
+                first = (r, column, what)
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(counts) | (counts < 0) | (counts != np.round(counts)) | (counts > MAX_COUNT)
+    if np.any(bad):
+        r, k = (int(v) for v in np.argwhere(bad)[0])
+        if first is None or r < first[0]:
+            v = counts[r, k]
+            what = ("is not finite" if not np.isfinite(v) else "counts must be >= 0" if v < 0 else
+                    "counts must be integers" if v != round(v) else f"counts must be <= {MAX_COUNT}")
+            first = (r, CHANNEL_COLUMNS[k], what)
+    return first
 
 
-def read_dataset(path: str | Path) -> Dataset:
-    """Read and validate a dataset directory. Raises DatasetError naming file, row and column."""
+def _store(sink: _Sink, block: dict[str, np.ndarray], counts: np.ndarray) -> None:
+    n = len(block["t"])
+    sink.reserve(n)
+    s = slice(sink.n, sink.n + n)
+    for c in _FLOAT_COLUMNS:
+        sink.cols[c][s] = block[c]
+    sink.dwell[s] = block["dwell"]
+    sink.counts[s] = counts
+    sink.n += n
+    if n:
+        sink.last_t = float(block["t"][-1])
+
+
+def _read_header(file: Path) -> tuple[list[str], int]:
+    """Header names (stripped, BOM removed) and the byte length of the header line."""
+    try:
+        with open(file, "rb") as fh:
+            line = fh.readline(1 << 20)
+    except FileNotFoundError:
+        raise _err(file, "file is missing (a dataset needs frames.csv and scenario.json)") from None
+    except IsADirectoryError:
+        raise _err(file, "is a directory, not a CSV file") from None
+    if not line.strip():
+        raise _err(file, "file is empty (expected a header line)")
+    text = line.decode("utf-8", errors="replace").removeprefix("\ufeff")
+    header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]), [])]
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        shown = ", ".join(repr(h) for h in header[:12]) + (", ..." if len(header) > 12 else "")
+        raise _err(file, f"row 1 (header): lacks column(s) {', '.join(missing)}; found {shown}")
+    dup = [c for c in COLUMNS if header.count(c) > 1]
+    if dup:
+        raise _err(file, f"row 1 (header): column(s) {', '.join(dup)} appear more than once")
+    return header, len(line)
+
+
+def _scan_lines(file: Path) -> tuple[int, int, bytes]:
+    """(number of newlines, line number of the last non-blank line, that line's bytes), streaming."""
+    n_newlines = 0
+    with open(file, "rb") as fh:
+        while chunk := fh.read(_BLOCK_BYTES):
+            n_newlines += chunk.count(b"\n")
+        size = fh.tell()
+        fh.seek(max(0, size - (1 << 20)))
+        tail = fh.read()
+    stripped = tail.rstrip(b" \t\r\n,")
+    start = stripped.rfind(b"\n") + 1
+    last = stripped[start:]
+    last_lineno = n_newlines - tail[start:].count(b"\n") + 1
+    return n_newlines, last_lineno, last
+
+
+def _truncated_last_row(file: Path, lineno: int, n_fields: int, n_header: int, policy: str) -> None:
+    msg = f"row {lineno}: {n_fields} fields, header has {n_header} (truncated last row"
+    if policy == "error":
+        raise _err(file, msg + "; read with truncated_last_row='skip' to skip it)")
+    warnings.warn(f"{file}: {msg}, e.g. a recorder stopped mid-write): skipped it", DatasetWarning, stacklevel=4)
+
+
+class _FastPathFailed(Exception):
+    """The columnar reader met something it does not handle; the exact reader will name it."""
+
+
+def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[int, int], None] | None,
+               total: int, last_line: bytes, last_lineno: int, policy: str) -> None:
+    """Stream frames.csv with pyarrow's CSV reader, block by block, into ``sink``."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    names = [h if h in COLUMNS else f"__extra{i}" for i, h in enumerate(header)]
+    invalid: list[tuple[int, int, str]] = []
+
+    def on_invalid(row: Any) -> str:
+        if not row.text.strip(" \t\r\n,"):
+            return "skip"  # a blank (or commas-only) line, as the exact reader skips it
+        invalid.append((row.actual_columns, row.expected_columns, row.text))
+        return "skip"
+
+    read_opts = pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=_BLOCK_BYTES, use_threads=False)
+    parse_opts = pacsv.ParseOptions(invalid_row_handler=on_invalid)
+    convert_opts = pacsv.ConvertOptions(
+        include_columns=list(COLUMNS), column_types={c: pa.float64() for c in COLUMNS}, null_values=[],
+        strings_can_be_null=False, quoted_strings_can_be_null=False)
+    try:
+        reader = pacsv.open_csv(file, read_options=read_opts, parse_options=parse_opts,
+                                convert_options=convert_opts)
+        for batch in reader:
+            if len(invalid) > 1 or (invalid and invalid[0][0] >= invalid[0][1]):
+                raise _FastPathFailed("invalid row")
+            block = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in POSE_COLUMNS}
+            counts = np.column_stack([batch.column(c).to_numpy(zero_copy_only=False) for c in CHANNEL_COLUMNS])
+            if counts.shape[0] and _block_error(block, counts, sink.last_t) is not None:
+                raise _FastPathFailed("invalid value")
+            _store(sink, block, counts)
+            if progress is not None:
+                progress(sink.n, total)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, UnicodeDecodeError) as exc:
+        raise _FastPathFailed(str(exc)) from None
+    if invalid:
+        n_fields, n_header, text = invalid[0]
+        if len(invalid) > 1 or text.encode().rstrip(b" \t\r\n,") != last_line or policy == "error":
+            raise _FastPathFailed("invalid row")
+        _truncated_last_row(file, last_lineno, n_fields, n_header, policy)
+
+
+def _read_exact(file: Path, header: list[str], sink: _Sink, progress: Callable[[int, int], None] | None,
+                total: int, policy: str, block_rows: int = 65536) -> None:
+    """Row-by-row reader (Python csv): accepts what the format allows and names the row and column of the
+    first thing it does not. Slower than ``_read_fast``; used when that one stops."""
+    idx = [header.index(c) for c in COLUMNS]
+    buf = np.empty((block_rows, len(COLUMNS)))
+    lines = np.empty(block_rows, dtype=np.int64)
+    n = 0
+
+    def flush() -> None:
+        nonlocal n
+        block = {c: buf[:n, i] for i, c in enumerate(POSE_COLUMNS)}
+        counts = buf[:n, len(POSE_COLUMNS):]
+        bad = _block_error(block, counts, sink.last_t)
+        if bad is not None:
+            r, column, what = bad
+            raise _err(file, f"row {lines[r]}, column {column!r}: {what}")
+        block["dwell"] = block["dwell"].astype(np.int64)
+        _store(sink, block, counts.astype(COUNT_DTYPE))
+        n = 0
+        if progress is not None:
+            progress(sink.n, total)
+
+    pending: tuple[int, int] | None = None  # a short row seen: (line, fields); fine only if nothing follows
+    with open(file, encoding="utf-8", errors="replace", newline="") as fh:
+        reader = csv.reader(fh)
+        try:
+            next(reader)
+            for row in reader:
+                if not row or all(not cell.strip() for cell in row):
+                    continue
+                if pending is not None:
+                    raise _err(file, f"row {pending[0]}: {pending[1]} fields, header has {len(header)} "
+                                     "(truncated row, and rows follow it)")
+                lineno = reader.line_num
+                if len(row) != len(header):
+                    if len(row) > len(header):
+                        raise _err(file, f"row {lineno}: {len(row)} fields, header has {len(header)}")
+                    pending = (lineno, len(row))
+                    continue
+                for j, (c, i) in enumerate(zip(COLUMNS, idx, strict=True)):
+                    cell = row[i].strip()
+                    try:
+                        buf[n, j] = float(cell)
+                    except ValueError:
+                        raise _err(file, f"row {lineno}, column {c!r}: {cell[:40]!r} is not a number") from None
+                lines[n] = lineno
+                n += 1
+                if n == block_rows:
+                    flush()
+        except csv.Error as exc:
+            raise _err(file, f"row {reader.line_num}: {exc}") from None
+    flush()
+    if pending is not None:
+        _truncated_last_row(file, pending[0], pending[1], len(header), policy)
+
+
+def read_frames(file: Path, progress: Callable[[int, int], None] | None = None,
+                truncated_last_row: str = "skip") -> Frames:
+    """Read and validate frames.csv, streaming: memory is the result's columns plus one block.
+
+    Rows are parsed with pyarrow's CSV reader in blocks; if it stops (an odd cell, a bad value), a row-by-row
+    reader re-reads the file and names the row and column of the first problem (DatasetError). Unknown
+    columns are ignored; a UTF-8 BOM is allowed. A last row with fewer fields than the header (a recorder
+    stopped mid-write) is skipped with a :class:`DatasetWarning` (``truncated_last_row="skip"``, the default)
+    or refused (``"error"``). ``progress(rows_read, rows_estimated)`` is called after each block.
+    """
+    if truncated_last_row not in ("skip", "error"):
+        raise ValueError(f"truncated_last_row must be 'skip' or 'error', got {truncated_last_row!r}")
+    file = Path(file)
+    header, _ = _read_header(file)
+    n_newlines, last_lineno, last_line = _scan_lines(file)
+    capacity = max(n_newlines, 1)
+    total = max(n_newlines - 1, 1)
+    sink = _Sink(capacity)
+    try:
+        _read_fast(file, header, sink, progress, total, last_line, last_lineno, truncated_last_row)
+    except _FastPathFailed:  # the exact reader names what the columnar one stopped at
+        sink = _Sink(capacity)
+        _read_exact(file, header, sink, progress, total, truncated_last_row)
+    if sink.n == 0:
+        raise _err(file, "no frames (only a header)")
+    return sink.frames()
+
+
+def stderr_progress(label: str, min_interval_s: float = 1.0, after_s: float = 1.0) -> Callable[[int, int], None]:
+    """A ``progress`` callback printing ``label: 42 % (123456 rows)`` to stderr, at most every
+    ``min_interval_s`` and only once a read has run ``after_s`` (small files stay quiet)."""
+    t0 = time.monotonic()
+    last = [t0]
+
+    def report(done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - t0 < after_s or now - last[0] < min_interval_s:
+            return
+        last[0] = now
+        print(f"{label}: {min(100.0, 100.0 * done / max(total, 1)):.0f} % ({done} rows)", file=sys.stderr,
+              flush=True)
+
+    return report
+
+
+def read_dataset(path: str | Path, progress: Callable[[int, int], None] | None = None,
+                 truncated_last_row: str = "skip") -> Dataset:
+    """Read and validate a dataset directory. Raises DatasetError naming file, row and column (or key).
+
+    ``progress`` and ``truncated_last_row`` are passed to :func:`read_frames`.
+    """
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: not a dataset directory (expected frames.csv and scenario.json inside)")
     scenario = read_scenario(path / "scenario.json")
-    frames = read_frames(path / "frames.csv")
     truth = read_truth(path / "truth.json")
+    frames = read_frames(path / "frames.csv", progress=progress, truncated_last_row=truncated_last_row)
     return Dataset(frames=frames, scenario=scenario, truth=truth, path=path)
 
 
