@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from detector_fw_sim import response
 from detector_fw_sim.ladder import REFERENCE_EDGES_KEV, ComparatorLadder
-from radseek.dataset import EFFECTS, Scenario, Truth, TruthSource, Wall
+from radseek.dataset import EFFECTS, MAX_COORD_M, MAX_EXTENT_M, Scenario, Truth, TruthSource, Wall
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
@@ -45,7 +45,8 @@ class SceneError(ValueError):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and inf are refused everywhere: a NaN position or bound silently poisons every simulated frame
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 Vec3 = tuple[float, float, float]
@@ -109,6 +110,14 @@ class WallSpec(_Model):
             raise ValueError(f"unknown material {v!r}; known: {', '.join(known)}")
         return v
 
+    @model_validator(mode="after")
+    def _has_length(self) -> WallSpec:
+        if self.start == self.end:
+            raise ValueError(f"start and end are the same point {list(self.start)} (a zero-length wall)")
+        if max(abs(v) for v in (*self.start, *self.end)) > MAX_COORD_M:
+            raise ValueError(f"coordinates beyond +-{MAX_COORD_M:g} m of the local origin (metres expected)")
+        return self
+
     def mu_per_m(self, E_keV: float) -> float:
         name = self.material.lower()
         base, rho, void = MATERIAL_ALIASES.get(name, (name, None, 0.0))
@@ -128,6 +137,10 @@ class BoundsSpec(_Model):
     def _ordered(self) -> BoundsSpec:
         if any(hi < lo for lo, hi in zip(self.min, self.max, strict=True)):
             raise ValueError("max must be >= min on every axis")
+        if max(abs(v) for v in (*self.min, *self.max)) > MAX_COORD_M:
+            raise ValueError(f"coordinates beyond +-{MAX_COORD_M:g} m of the local origin (metres expected)")
+        if any(hi - lo > MAX_EXTENT_M for lo, hi in zip(self.min, self.max, strict=True)):
+            raise ValueError(f"bounds span more than {MAX_EXTENT_M:g} m on an axis (metres expected)")
         return self
 
 
@@ -252,6 +265,19 @@ class Scene(_Model):
     def _same_nuclide(self) -> Scene:
         if len({s.nuclide for s in self.sources}) > 1:
             raise ValueError("all sources must be the same nuclide (the dataset format has one nuclide per scene)")
+        return self
+
+    @model_validator(mode="after")
+    def _sources_inside_bounds(self) -> Scene:
+        """The bounds are where the sources are known to be (dataset-format.md): a source outside them (in
+        x or y) makes every estimate pin at a bound."""
+        lo, hi = self.bounds.min, self.bounds.max
+        where = [(f"sources[{i}].position", s.position[:2]) for i, s in enumerate(self.sources)]
+        if self.effects.second_source.enabled:
+            where.append(("effects.second_source", (self.effects.second_source.x, self.effects.second_source.y)))
+        for name, (x, y) in where:
+            if not (lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]):
+                raise ValueError(f"{name} ({x}, {y}) is outside bounds x {lo[0]}..{hi[0]}, y {lo[1]}..{hi[1]}")
         return self
 
     # -- derived quantities
@@ -401,14 +427,23 @@ def load_scene(path: str | Path | None = None) -> Scene:
     if not p.exists() and (SCENES_DIR / f"{p.name}.toml").exists() and p.suffix == "":
         p = SCENES_DIR / f"{p.name}.toml"
     try:
-        text = p.read_text()
+        text = p.read_bytes().decode("utf-8-sig")
     except FileNotFoundError:
         bundled = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
         raise SceneError(f"{p}: scene file not found (bundled scenes: {bundled})") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{p}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise SceneError(f"{p}: cannot be read: {exc.strerror or exc}") from None
+    kind = "JSON" if p.suffix.lower() == ".json" else "TOML"
     try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else tomllib.loads(text)
+        data = json.loads(text) if kind == "JSON" else tomllib.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise SceneError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'TOML'}: {exc}") from None
+        raise SceneError(f"{p}: not valid {kind}: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{p}: not valid {kind}: nested too deeply") from None
+    if not isinstance(data, dict):
+        raise SceneError(f"{p}: a scene must be a table/object, got {type(data).__name__}")
     data.setdefault("name", p.stem)
     return validate_scene(data, str(p))
 

@@ -54,7 +54,8 @@ def path_lengths_per_wall(a: np.ndarray, b: np.ndarray, walls: np.ndarray | Sequ
     enter = np.maximum(t_enter.max(-1), 0.0)
     exit_ = np.minimum(t_exit.min(-1), 1.0)
     seg = np.linalg.norm(d, axis=-1)
-    return np.clip(exit_ - enter, 0.0, None) * seg
+    # a zero-length wall has no volume: without this its in-plane axes vanish and it acts as an infinite wall
+    return np.where(length > 0, np.clip(exit_ - enter, 0.0, None) * seg, 0.0)
 
 
 def path_lengths(a: np.ndarray, b: np.ndarray, walls: np.ndarray | Sequence[Wall]) -> np.ndarray:
