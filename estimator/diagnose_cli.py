@@ -16,7 +16,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from radseek.dataset import EFFECTS, DatasetError, read_dataset
+import numpy as np
+
+from radseek.dataset import EFFECTS, DatasetError, read_dataset, stderr_progress
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -58,18 +60,39 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.alpha < 1:
         print("radseek diagnose: --alpha must be in (0, 1)", file=sys.stderr)
         return 2
+    if args.starts < 1:
+        print(f"radseek diagnose: --starts must be >= 1, got {args.starts}", file=sys.stderr)
+        return 2
+    from estimator.localize_cli import read_with_warnings
+
     try:
-        ds = read_dataset(args.dataset)
+        with read_with_warnings("radseek diagnose"):
+            progress_cb = None if args.quiet else stderr_progress("radseek diagnose: reading frames.csv")
+            ds = read_dataset(args.dataset, progress=progress_cb)
     except DatasetError as exc:
         print(f"radseek diagnose: {exc}", file=sys.stderr)
+        return 2
+    if not np.any(ds.frames.total_counts > 0):
+        print(f"radseek diagnose: {ds.path}/frames.csv: all {len(ds.frames)} frames have zero counts in every "
+              "channel (columns c00..c31): nothing to compare the model with (was the detector connected?)",
+              file=sys.stderr)
+        return 2
+    wanted = set(args.model) | set(args.add)
+    if "wall_attenuation" in wanted and not ds.scenario.walls:
+        print(f"radseek diagnose: effect wall_attenuation needs walls, but {ds.path}/scenario.json lists none "
+              "(key 'walls')", file=sys.stderr)
         return 2
     from estimator.diagnose.backend import progress
     from estimator.diagnose.report import json_report, text_report
     from estimator.diagnose.runner import diagnose
 
     added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
-    d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts, seed=args.seed,
-                 quiet=args.quiet)
+    try:
+        d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts,
+                     seed=args.seed, quiet=args.quiet)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        print(f"radseek diagnose: the analysis failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
     plots: list[str] = []
     if not args.no_plots:
         from estimator.diagnose import plots as P

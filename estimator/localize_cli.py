@@ -14,17 +14,27 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
+import math
 import sys
+import threading
 import time
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 
 from estimator.localizers import LOCALIZERS, make_localizer
-from radseek.dataset import DatasetError, Truth, read_dataset
+from estimator.localizers.base import localizer_class
+from radseek.dataset import DatasetError, DatasetWarning, Truth, read_dataset, stderr_progress
 
-__all__ = ["main", "match_errors", "parse_settings"]
+__all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_with_warnings"]
+
+#: print "still fitting" to stderr this often while a fit runs (a 1.4 M-frame flight takes minutes)
+HEARTBEAT_S = 10.0
 
 
 def parse_settings(items: list[str]) -> dict[str, Any]:
@@ -39,6 +49,71 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
         except json.JSONDecodeError:
             out[k.strip()] = v
     return out
+
+
+def check_settings(method: str, settings: dict[str, Any]) -> None:
+    """ValueError naming the setting when a value's type does not match the localizer's default (``--set
+    n_starts=abc`` would otherwise fail deep inside the fit with a TypeError)."""
+    params = inspect.signature(localizer_class(method).__init__).parameters
+    for key, value in settings.items():
+        p = params.get(key)
+        if p is None or p.default is inspect.Parameter.empty or p.default is None:
+            continue  # unknown settings are make_localizer's to report; None defaults take anything
+        d = p.default
+        if isinstance(d, bool):
+            ok, want = isinstance(value, bool), "true or false"
+        elif isinstance(d, int):
+            ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
+            if ok and key.startswith("n_") and value < 1:
+                ok, want = False, "an integer >= 1"
+        elif isinstance(d, float):
+            ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+            want = "a finite number"
+        elif isinstance(d, str):
+            ok, want = isinstance(value, str), "a string"
+        elif isinstance(d, tuple | list):
+            ok = isinstance(value, list) and all(isinstance(v, str | int | float) for v in value)
+            want = 'a JSON list (e.g. ["dead_time"])'
+        else:
+            continue
+        if not ok:
+            raise ValueError(f"--set {key}: expected {want}, got {value!r}")
+
+
+@contextmanager
+def read_with_warnings(prog: str) -> Iterator[None]:
+    """Print the reader's DatasetWarnings (e.g. a skipped truncated last row) as ``prog: warning: ...``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DatasetWarning)
+        try:
+            yield
+        finally:
+            for w in caught:
+                if issubclass(w.category, DatasetWarning):
+                    print(f"{prog}: warning: {w.message}", file=sys.stderr)
+                else:
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
+@contextmanager
+def heartbeat(message: str, every_s: float = HEARTBEAT_S, quiet: bool = False) -> Iterator[None]:
+    """While the block runs, print ``message (N s)`` to stderr every ``every_s``: long fits show progress."""
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def beat() -> None:
+        while not stop.wait(every_s):
+            print(f"{message} ({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    thread = None if quiet else threading.Thread(target=beat, daemon=True)
+    if thread is not None:
+        thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        if thread is not None:
+            thread.join(1.0)
 
 
 def match_errors(sources: list[dict[str, float]], truth: Truth) -> list[dict[str, float]]:
@@ -77,6 +152,7 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="localizer setting, repeatable (e.g. --set n_particles=20000)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON result")
+    p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     return p
 
 
@@ -93,20 +169,29 @@ def main(argv: list[str] | None = None) -> int:
         settings = parse_settings(args.set)
         if args.effects:
             settings["effects"] = [e.strip() for e in args.effects.split(",") if e.strip()]
+        check_settings(args.method, settings)
         loc = make_localizer(args.method, **settings)
     except (ValueError, TypeError) as exc:
         print(f"radseek localize: {exc}", file=sys.stderr)
         return 2
     try:
-        ds = read_dataset(args.dataset)
+        with read_with_warnings("radseek localize"):
+            progress = None if args.quiet else stderr_progress("radseek localize: reading frames.csv")
+            ds = read_dataset(args.dataset, progress=progress)
     except DatasetError as exc:
         print(f"radseek localize: {exc}", file=sys.stderr)
         return 2
+    effects = list(getattr(loc, "effects", None) or ())
+    if "wall_attenuation" in effects and not ds.scenario.walls:
+        print(f"radseek localize: effect wall_attenuation needs walls, but {ds.path}/scenario.json lists none "
+              "(key 'walls'); drop the effect or map the walls", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     try:
-        loc.fit(ds.frames, ds.scenario)  # frames and scenario only: the truth stays here
-    except ValueError as exc:
-        print(f"radseek localize: {args.method} failed on {ds.name}: {exc}", file=sys.stderr)
+        with heartbeat(f"radseek localize: fitting {args.method} on {len(ds.frames)} frames", quiet=args.quiet):
+            loc.fit(ds.frames, ds.scenario)  # frames and scenario only: the truth stays here
+    except (ValueError, TypeError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        print(f"radseek localize: {args.method} failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     elapsed = time.perf_counter() - t0
     result = loc.result()
@@ -116,6 +201,13 @@ def main(argv: list[str] | None = None) -> int:
     result["crlb_std"] = [_std(loc.crlb_, i) for i in range(len(loc.sources_))] if loc.crlb_ is not None else None
     if ds.truth is not None:
         result["error"] = match_errors(loc.sources_, ds.truth)
+    pinned = result["pinned_at_bound"]
+    result["warnings"] = [
+        f"source {i + 1}: {k} = {loc.sources_[i][k]:.3f} m is pinned at the bounds' {side} (scenario.json "
+        f"'bounds'); it is where the search box stopped the fit, not a measurement: widen the bounds"
+        for i, p in enumerate(pinned) for k, side in p.items()]
+    for w in result["warnings"]:
+        print(f"radseek localize: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2, default=float))
         return 0
@@ -124,6 +216,9 @@ def main(argv: list[str] | None = None) -> int:
         sd = result["std"][i]
         print(f"  source {i + 1}: x = {s['x']:.3f} ± {sd[0]:.3f} m, y = {s['y']:.3f} ± {sd[1]:.3f} m, "
               f"z = {s['z']:.2f} m, cps_at_1m = {s['cps_at_1m']:.0f} ± {sd[3]:.0f}")
+        if pinned[i]:
+            where = ", ".join(f"{k} at bounds {side}" for k, side in pinned[i].items())
+            print(f"            PINNED AT A BOUND ({where}): not a measurement; widen scenario.json 'bounds'")
         if result["crlb_std"]:
             cr = result["crlb_std"][i]
             print(f"            CRLB 1-sigma: x {cr[0]:.3f} m, y {cr[1]:.3f} m, cps_at_1m {cr[3]:.0f}")

@@ -140,13 +140,34 @@ class Localizer:
         c = np.asarray(self.covariance_)[4 * i:4 * i + 3, 4 * i:4 * i + 3]
         return np.sqrt(np.clip(np.diag(c), 0, None))
 
+    def pinned_at_bounds(self, tol_m: float = 1e-3) -> list[dict[str, str]]:
+        """Per source, the horizontal coordinates that sit on the scenario's bounds (within ``tol_m``), e.g.
+        ``{"x": "max"}``: such a coordinate is where the search box stopped the fit, not a measurement, and its
+        spread (often 0) says nothing. Empty dicts when every estimate is inside."""
+        self._check_fitted()
+        scenario = getattr(self, "scenario_", None)
+        out: list[dict[str, str]] = []
+        for s in self.sources_:
+            pinned: dict[str, str] = {}
+            if scenario is not None:
+                for axis, key in enumerate(("x", "y")):
+                    lo, hi = float(scenario.bounds_min[axis]), float(scenario.bounds_max[axis])
+                    if s[key] <= lo + tol_m:
+                        pinned[key] = "min"
+                    elif s[key] >= hi - tol_m:
+                        pinned[key] = "max"
+            out.append(pinned)
+        return out
+
     def result(self) -> dict[str, Any]:
-        """JSON-able result: method, sources, background, covariance, crlb (None when unknown)."""
+        """JSON-able result: method, sources, background, covariance, crlb (None when unknown), and per source
+        the coordinates pinned at a bound (``pinned_at_bound``, see :meth:`pinned_at_bounds`)."""
         self._check_fitted()
         crlb = getattr(self, "crlb_", None)
         out = {
             "method": self.name,
             "sources": [dict(s) for s in self.sources_],
+            "pinned_at_bound": self.pinned_at_bounds(),
             "background_cps": float(self.background_),
             "covariance": np.asarray(self.covariance_, dtype=float).tolist(),
             "crlb": None if crlb is None else np.asarray(crlb, dtype=float).tolist(),
