@@ -46,6 +46,7 @@ N_A = 6.02214076e23
 CSI_DENSITY = 4.51  # g/cm^3
 CSI_Z_OVER_A_MOLE = (55 + 53) / (132.905 + 126.904)  # electrons per amu
 CSI_ATOMS = ((55, 132.905), (53, 126.904))  # (Z, A)
+CSI_ELEMENTS = (("Cs", 132.905), ("I", 126.904))  # (symbol, A) for xraydb
 PB_Z, PB_A = 82, 207.2
 FE_Z, FE_A = 26, 55.845
 GRID_STEP_KEV = 2.0
@@ -176,16 +177,21 @@ def _csi_photo_mass(E_keV: float) -> float:
 def csi_coefficients(E_keV: float) -> tuple[float, float]:
     """(photoelectric, Compton) linear coefficients of CsI in 1/cm at E_keV.
 
-    Below lead's K edge region (< 150 keV, where the log-log table interpolation straddles the
-    88 keV edge) the photoelectric part is continued as the power law fitted on 150-300 keV.
+    Below 150 keV (where lead's 88 keV K edge spoils the scaling and CsI has its own K edges at 33.2 keV
+    (I) and 36.0 keV (Cs)) the photoelectric part is the Elam photo-absorption cross-section of Cs and I
+    by mass from ``xraydb`` (Elam, Ravel and Sieber, Radiat. Phys. Chem. 63 (2002) 121); the two agree
+    within 1 % at 150 keV. Above the edges the old power-law continuation was right within 20 %; below
+    them it was 4.5x too high (32 keV: 140 /cm against 31 /cm), which matters for X-ray lines.
     """
     compton = float(klein_nishina_total(E_keV)) * CSI_Z_OVER_A_MOLE * N_A * CSI_DENSITY
     if E_keV >= 150.0:
         photo = _csi_photo_mass(E_keV)
     else:
-        p1, p2 = _csi_photo_mass(150.0), _csi_photo_mass(300.0)
-        slope = math.log(p2 / p1) / math.log(2.0)
-        photo = p1 * (E_keV / 150.0) ** slope
+        import xraydb
+
+        mass = sum(a for _, a in CSI_ATOMS)
+        photo = sum(float(xraydb.mu_elam(el, max(E_keV, 1.0) * 1000.0, kind="photo")) * a
+                    for (el, a) in CSI_ELEMENTS) / mass
     return photo * CSI_DENSITY, compton
 
 
@@ -210,11 +216,97 @@ def mu_per_m(material: str, E_keV: float, density_g_cm3: float | None = None, vo
 
 
 @dataclass(frozen=True)
+class ResponseEffects:
+    """Response effects a real crystal shows beyond the bare Klein-Nishina crystal (``radseek calibrate``).
+
+    All default to off, which is the emulator's physics before calibration:
+
+    - ``fwhm_exponent`` b: FWHM/E = r (662 keV / E)^b. b = 0.5 is pure photo-electron statistics; a
+      SiPM-read CsI(Tl) adds a constant term (light-collection non-uniformity), so b < 0.5 (Knoll,
+      *Radiation Detection and Measurement*, 4th ed., sec. 8.VI and 10.III).
+    - ``k_escape``: after photo-absorption on a K shell of Cs or I, the K fluorescence photon escapes through
+      the entrance face with the semi-infinite-slab probability (``k_escape_lines``); fluorescence yields,
+      K-jump ratios and line energies from ``xraydb`` (Elam, Ravel and Sieber 2002 tables).
+    - ``absorber_g_cm2`` of ``absorber_material`` (pydecay / NIST XCOM) between source and crystal: housing,
+      source capsule and holder; it shapes the X-ray and low-energy lines.
+    - ``scatter_side``: share of photons reaching the crystal after one Compton scatter through
+      ``SIDE_SCATTER_DEG`` in the source holder and nearby objects (Klein-Nishina dsigma/dOmega weights);
+      the existing ``backscatter_fraction`` covers 110-180 deg.
+    - ``scatter_multiple``: share of photons arriving after several scatters in the room, spread flat in
+      log E from ``MULTIPLE_SCATTER_MIN_KEV`` to the line energy (the build-up continuum).
+    - ``escape_scale`` multiplies the escape length of Compton-scattered photons (a crystal's shape and
+      wrapping differ from the ideal cylinder).
+    """
+
+    fwhm_exponent: float = 0.5
+    k_escape: bool = False
+    absorber_g_cm2: float = 0.0
+    absorber_material: str = "aluminum"
+    scatter_side: float = 0.0
+    scatter_multiple: float = 0.0
+    escape_scale: float = 1.0
+
+
+SIDE_SCATTER_DEG = (20.0, 110.0)
+MULTIPLE_SCATTER_MIN_KEV = 30.0
+
+
+@lru_cache(maxsize=4096)
+def k_escape_lines(E_keV: float) -> tuple[tuple[float, float], ...]:
+    """(deposited energy keV, probability per photo-absorbed photon) of K X-ray escape peaks at E_keV.
+
+    The photon is absorbed at depth x below the entrance face with density mu_E exp(-mu_E x); the K X-ray
+    (energy E_x, attenuation mu_x in CsI) is emitted isotropically and leaves through the face with
+    probability 1/2 int_0^1 exp(-mu_x x / c) dc; integrating over x gives
+    P = 1/2 [1 - (mu_x / mu_E) ln(1 + mu_E / mu_x)] (the semi-infinite slab; side faces add little
+    for a 1 cm crystal at the energies where escape matters). Per element: its share of CsI's
+    photo-absorption (xraydb ``mu_elam`` photo, by mass), the K-shell share (J - 1)/J from the K jump
+    ratio J, the fluorescence yield omega_K and the K line intensities, all from ``xraydb``.
+    Above 800 keV (where Elam's tables stop and escape is below 1e-4) nothing is returned.
+    """
+    import xraydb
+
+    if E_keV > 800.0:
+        return ()
+    mass = sum(a for _, a in CSI_ELEMENTS)
+    photo = {el: float(xraydb.mu_elam(el, E_keV * 1000.0, kind="photo")) * a / mass for el, a in CSI_ELEMENTS}
+    total_photo = sum(photo.values())
+    mu_e = _mu_total_interp(np.array([E_keV]))[0]
+    out: dict[float, float] = {}
+    for el, _ in CSI_ELEMENTS:
+        edge = xraydb.xray_edge(el, "K")
+        if E_keV * 1000.0 <= edge.energy:
+            continue
+        k_share = (edge.jump_ratio - 1.0) / edge.jump_ratio * edge.fyield * photo[el] / total_photo
+        lines = xraydb.xray_lines(el, "K")
+        norm = sum(line.intensity for line in lines.values())
+        for line in lines.values():
+            e_x = line.energy / 1000.0
+            mu_x = _mu_total_interp(np.array([e_x]))[0]
+            p_esc = 0.5 * (1.0 - mu_x / mu_e * math.log1p(mu_e / mu_x))
+            dep = round(E_keV - e_x, 3)
+            out[dep] = out.get(dep, 0.0) + k_share * line.intensity / norm * p_esc
+    return tuple(sorted(out.items()))
+
+
+def absorber_transmission(E_keV: np.ndarray | float, effects: ResponseEffects | None) -> np.ndarray:
+    """exp(-mu/rho(E) * areal density) of the absorber between source and crystal (pydecay / NIST XCOM)."""
+    E = np.atleast_1d(np.asarray(E_keV, dtype=float))
+    if effects is None or effects.absorber_g_cm2 <= 0:
+        return np.ones_like(E)
+    mat = pydecay.material(effects.absorber_material)
+    mu = np.array([mat.mu_over_rho(max(float(e), 10.0) / 1000.0) for e in E])
+    return np.exp(-mu * effects.absorber_g_cm2)
+
+
+@dataclass(frozen=True)
 class Crystal:
     """A cylindrical CsI(Tl) crystal facing the source along its axis."""
 
     diameter_mm: float = 10.0
     length_mm: float = 10.0
+    #: effects beyond the bare crystal (a calibrated detector file); None = the physics above only
+    effects: ResponseEffects | None = None
 
     @property
     def face_area_m2(self) -> float:
@@ -226,7 +318,8 @@ class Crystal:
         r, h = self.diameter_mm / 20.0, self.length_mm / 10.0
         volume = math.pi * r * r * h
         surface = 2 * math.pi * r * r + 2 * math.pi * r * h
-        return 2 * volume / surface
+        scale = self.effects.escape_scale if self.effects is not None else 1.0
+        return 2 * volume / surface * scale
 
 
 def energy_grid() -> np.ndarray:
@@ -276,6 +369,21 @@ def deposit_spectrum(E_keV: float, crystal: Crystal) -> np.ndarray:
     The sum is the probability that the photon deposits anything. Up to two Compton scatters are
     followed: after each, the scattered photon escapes with exp(-mu l_esc) or interacts again
     (photoelectric: full energy; a second Compton: T1 + T2 deposited, then escape or absorption).
+    With ``crystal.effects.k_escape`` a share of the primary photo-absorptions deposits E - E_Kx
+    (``k_escape_lines``).
+    """
+    peaks, out = deposit_parts(E_keV, crystal)
+    out = out.copy()
+    for e, p in peaks:
+        out[min(max(int(e // GRID_STEP_KEV), 0), len(out) - 1)] += p
+    return out
+
+
+@lru_cache(maxsize=8192)
+def deposit_parts(E_keV: float, crystal: Crystal) -> tuple[tuple[tuple[float, float], ...], np.ndarray]:
+    """``deposit_spectrum`` as (peaks: (exact deposited energy keV, probability), continuum on the fine grid).
+
+    Peaks are the full-energy deposit and the K X-ray escape peaks; the continuum holds every Compton deposit.
     """
     edges = energy_grid()
     photo, compton = csi_coefficients(E_keV)
@@ -300,40 +408,119 @@ def deposit_spectrum(E_keV: float, crystal: Crystal) -> np.ndarray:
     esc2 = np.exp(-_mu_total_interp(E1c[:, None] - T2) * ell)
     w2 = w2 * (w1c * (1 - ph1c))[:, None]
     second = np.histogram((T1c[:, None] + T2).ravel(), bins=edges, weights=(w2 * esc2).ravel())[0]
-    peak = p_int * photo / mu + float(np.sum(w1c * ph1c)) + float(np.sum(w2 * (1 - esc2)))
+    primary_photo = p_int * photo / mu
+    peak = primary_photo + float(np.sum(w1c * ph1c)) + float(np.sum(w2 * (1 - esc2)))
     out = np.histogram(T1, bins=edges, weights=w1 * esc1)[0] + second
-    out[min(int(E_keV // GRID_STEP_KEV), len(out) - 1)] += peak
-    return out
+    peaks = []
+    if crystal.effects is not None and crystal.effects.k_escape:
+        for e_dep, p in k_escape_lines(round(float(E_keV), 3)):
+            peaks.append((e_dep, primary_photo * p))
+            peak -= primary_photo * p
+    out.setflags(write=False)
+    return ((float(E_keV), peak), *peaks), out
 
 
-def backscatter_energies(E_keV: float, n: int = 24, theta_min_deg: float = 110.0) -> tuple[np.ndarray, np.ndarray]:
-    """Energies of photons back-scattered through theta_min..180 deg and their Klein-Nishina weights (sum 1)."""
-    theta = np.linspace(math.radians(theta_min_deg), math.pi, n + 1)
+def scattered_energies(E_keV: float, theta_lo_deg: float, theta_hi_deg: float, n: int = 24
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Energies of photons Compton-scattered through theta_lo..theta_hi deg and their Klein-Nishina
+    weights dsigma/dOmega sin(theta) dtheta (sum 1): single scattering off free electrons."""
+    theta = np.linspace(math.radians(theta_lo_deg), math.radians(theta_hi_deg), n + 1)
     mid = 0.5 * (theta[1:] + theta[:-1])
     w = klein_nishina_dOmega(E_keV, mid) * np.sin(mid) * np.diff(theta)
     return scattered_energy_keV(E_keV, mid), w / w.sum()
 
 
+def backscatter_energies(E_keV: float, n: int = 24, theta_min_deg: float = 110.0) -> tuple[np.ndarray, np.ndarray]:
+    """Energies of photons back-scattered through theta_min..180 deg and their Klein-Nishina weights (sum 1)."""
+    return scattered_energies(E_keV, theta_min_deg, 180.0, n)
+
+
+def multiple_scatter_energies(E_keV: float, n: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """The multiply-scattered continuum: n energies flat in log E from MULTIPLE_SCATTER_MIN_KEV to E (sum 1)."""
+    lo = min(MULTIPLE_SCATTER_MIN_KEV, 0.9 * E_keV)
+    edges = np.geomspace(lo, E_keV, n + 1)
+    return np.sqrt(edges[1:] * edges[:-1]), np.full(n, 1.0 / n)
+
+
+def scatter_components(E_keV: float, backscatter_fraction: float, effects: ResponseEffects | None
+                       ) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """(share, energies, weights) of the photons of one line reaching the crystal scattered in the surroundings;
+    the unscattered share is 1 minus the sum of the shares."""
+    out = []
+    if backscatter_fraction > 0:
+        out.append((backscatter_fraction, *backscatter_energies(E_keV)))
+    if effects is not None and effects.scatter_side > 0:
+        out.append((effects.scatter_side, *scattered_energies(E_keV, *SIDE_SCATTER_DEG)))
+    if effects is not None and effects.scatter_multiple > 0:
+        out.append((effects.scatter_multiple, *multiple_scatter_energies(E_keV)))
+    return out
+
+
+#: incident-energy nodes of the deposit matrix (continua of scattered photons are interpolated between them)
+INCIDENT_NODES_KEV = np.geomspace(12.0, GRID_MAX_KEV, 160)
+
+
+@lru_cache(maxsize=16)
+def incident_deposit_matrix(crystal: Crystal) -> np.ndarray:
+    """(nodes, n_grid) deposited spectra of photons at ``INCIDENT_NODES_KEV`` (read-only)."""
+    m = np.stack([deposit_spectrum(float(e), crystal) for e in INCIDENT_NODES_KEV])
+    m.setflags(write=False)
+    return m
+
+
+def node_weights(energies: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Spread photons at ``energies`` onto the incident nodes, linearly in log E (keeps the total)."""
+    x = np.log(np.clip(np.asarray(energies, dtype=float), INCIDENT_NODES_KEV[0], INCIDENT_NODES_KEV[-1]))
+    nodes = np.log(INCIDENT_NODES_KEV)
+    i = np.clip(np.searchsorted(nodes, x) - 1, 0, len(nodes) - 2)
+    f = (x - nodes[i]) / (nodes[i + 1] - nodes[i])
+    out = np.zeros(len(nodes))
+    np.add.at(out, i, np.asarray(weights) * (1 - f))
+    np.add.at(out, i + 1, np.asarray(weights) * f)
+    return out
+
+
+def fwhm_keV(E_keV: np.ndarray | float, fwhm_at_662: float, exponent: float = 0.5) -> np.ndarray:
+    """FWHM (keV) at E: FWHM/E = r (662 / E)^b."""
+    E = np.maximum(np.asarray(E_keV, dtype=float), 1.0)
+    return fwhm_at_662 * 662.0 * (E / 662.0) ** (1.0 - exponent)
+
+
 @lru_cache(maxsize=8)
-def _resolution_matrix(fwhm_at_662: float) -> np.ndarray:
-    """(n, n) matrix mapping deposited energy bins to measured energy bins, Gaussian FWHM ~ 1/sqrt(E)."""
+def _resolution_matrix(fwhm_at_662: float, exponent: float = 0.5) -> np.ndarray:
+    """(n, n) matrix mapping deposited energy bins to measured energy bins, Gaussian FWHM/E ~ E^-exponent."""
     edges = energy_grid()
     centres = 0.5 * (edges[1:] + edges[:-1])
-    sigma = fwhm_at_662 * np.sqrt(662.0 * np.maximum(centres, 1.0)) / (2 * math.sqrt(2 * math.log(2)))
+    sigma = fwhm_keV(centres, fwhm_at_662, exponent) / (2 * math.sqrt(2 * math.log(2)))
     sigma = np.maximum(sigma, GRID_STEP_KEV / 2)
     z = (edges[None, :] - centres[:, None]) / (sigma[:, None] * math.sqrt(2))
     cdf = 0.5 * (1 + erf(z))
     return np.diff(cdf, axis=1)  # rows: deposited bin, columns: measured bin
 
 
+def deposited_line(E_keV: float, crystal: Crystal, backscatter_fraction: float) -> np.ndarray:
+    """Deposited energy per emitted photon of one line on the fine grid: unscattered plus scattered photons,
+    each through the absorber of ``crystal.effects``, before resolution."""
+    eff = crystal.effects
+    comps = scatter_components(E_keV, backscatter_fraction, eff)
+    direct = 1.0 - sum(c[0] for c in comps)
+    dep = direct * float(absorber_transmission(E_keV, eff)[0]) * deposit_spectrum(E_keV, crystal)
+    if eff is None:  # the emulator's physics before calibration: each backscattered energy exactly
+        for share, energies, weights in comps:
+            for e, wgt in zip(energies, weights, strict=True):
+                dep = dep + share * wgt * deposit_spectrum(float(e), crystal)
+        return dep
+    nodes = np.zeros(len(INCIDENT_NODES_KEV))
+    for share, energies, weights in comps:
+        nodes += node_weights(energies, share * weights * absorber_transmission(energies, eff))
+    return dep + nodes @ incident_deposit_matrix(crystal)
+
+
 def measured_spectrum(E_keV: float, crystal: Crystal, fwhm_at_662: float, backscatter_fraction: float) -> np.ndarray:
     """Measured-energy probabilities per incident photon of one line (fine grid), resolution applied."""
-    dep = (1.0 - backscatter_fraction) * deposit_spectrum(E_keV, crystal)
-    if backscatter_fraction > 0:
-        energies, weights = backscatter_energies(E_keV)
-        for e, wgt in zip(energies, weights, strict=True):
-            dep = dep + backscatter_fraction * wgt * deposit_spectrum(float(e), crystal)
-    return dep @ _resolution_matrix(round(fwhm_at_662, 6))
+    exponent = crystal.effects.fwhm_exponent if crystal.effects is not None else 0.5
+    return deposited_line(E_keV, crystal, backscatter_fraction) @ _resolution_matrix(round(fwhm_at_662, 6),
+                                                                                      round(exponent, 6))
 
 
 def fractions_from_cdf(cdf: np.ndarray, edges_keV: np.ndarray) -> np.ndarray:

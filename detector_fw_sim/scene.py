@@ -161,6 +161,36 @@ class DetectorSpec(_Model):
     #: share of photons reaching the crystal after back-scattering in the surroundings
     backscatter_fraction: float = Field(default=0.05, ge=0, lt=1)
     axis: str = "body +x"
+    #: response effects of a calibrated crystal (response.ResponseEffects); the defaults are the bare crystal
+    fwhm_exponent: float = Field(default=0.5, ge=0, le=1)
+    scatter_side: float = Field(default=0.0, ge=0, lt=1)
+    scatter_multiple: float = Field(default=0.0, ge=0, lt=1)
+    absorber_g_cm2: float = Field(default=0.0, ge=0)
+    k_escape: bool = False
+    escape_scale: float = Field(default=1.0, gt=0)
+    #: a calibrated detector file (``radseek calibrate --out``, radseek.detector_file); its physical parameters
+    #: fill the fields above that the scene does not set. ``detector = "rc102.json"`` is short for this.
+    file: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_file(cls, data: Any) -> Any:
+        if isinstance(data, str):
+            data = {"file": data}
+        if isinstance(data, dict) and data.get("file"):
+            from radseek.detector_file import read_detector_file
+
+            path = Path(data["file"])
+            if not path.exists() and (SCENES_DIR / path).exists():
+                path = SCENES_DIR / path
+            p = read_detector_file(path).parameters  # DetectorFileError (a ValueError) names file and field
+            fill = {"fwhm_at_662": p["fwhm_at_662"], "crystal_diameter_mm": p["crystal_mm"],
+                    "crystal_length_mm": p["crystal_mm"], "backscatter_fraction": p["backscatter_fraction"],
+                    "fwhm_exponent": p["fwhm_exponent"], "scatter_side": p["scatter_side"],
+                    "scatter_multiple": p["scatter_multiple"], "absorber_g_cm2": p["absorber_g_cm2"],
+                    "k_escape": p["k_escape"] >= 0.5, "escape_scale": p["escape_scale"]}
+            data = {**fill, **data}
+        return data
 
     @field_validator("channel_edges_keV")
     @classmethod
@@ -178,7 +208,11 @@ class DetectorSpec(_Model):
 
     @property
     def crystal(self) -> response.Crystal:
-        return response.Crystal(self.crystal_diameter_mm, self.crystal_length_mm)
+        eff = response.ResponseEffects(fwhm_exponent=self.fwhm_exponent, k_escape=self.k_escape,
+                                       absorber_g_cm2=self.absorber_g_cm2, scatter_side=self.scatter_side,
+                                       scatter_multiple=self.scatter_multiple, escape_scale=self.escape_scale)
+        return response.Crystal(self.crystal_diameter_mm, self.crystal_length_mm,
+                                None if eff == response.ResponseEffects() else eff)
 
 
 # ------------------------------------------------------------------------------------ effects

@@ -63,8 +63,8 @@ def _poisson_nll(mu: np.ndarray, n: np.ndarray) -> float:
     return float((mu - n * np.log(mu)).sum())
 
 
-def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 3000, tol: float = 3e-11
-        ) -> tuple[float, tuple]:
+def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 3000, tol: float = 3e-11,
+        fix_s: bool = False) -> tuple[float, tuple]:
     """Poisson NMF by EM (multiplicative updates): mu_gk = A_g (Ms_g s)_k + B_g (Mb_g b)_k, all >= 0.
 
     With free group amplitudes this likelihood equals the multinomial one given the group totals (plus a
@@ -87,7 +87,8 @@ def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 30
             prev = nll
         A_new = A * (R * us).sum(1) / np.maximum(cs @ s, 1e-300)
         B_new = B * (R * ub).sum(1) / np.maximum(cb @ b, 1e-300)
-        s = s * np.einsum("gk,gkj->j", R * A[:, None], Ms) / np.maximum(A @ cs, 1e-300)
+        if not fix_s:  # a calibrated detector's source template stays as it is
+            s = s * np.einsum("gk,gkj->j", R * A[:, None], Ms) / np.maximum(A @ cs, 1e-300)
         b = b * np.einsum("gk,gkj->j", R * B[:, None], Mb) / np.maximum(B @ cb, 1e-300)
         A, B = A_new, B_new
         ss, sb = s.sum(), b.sum()
@@ -147,9 +148,23 @@ def group_frames(frames: Frames, n_groups: int = 40, min_s: float = 3.0) -> np.n
 class SpectralModel:
     """Source + background spectral templates with a linear gain drift; see the module docstring."""
 
-    def __init__(self, edges: np.ndarray, sub: int = SUB_BINS):
+    def __init__(self, edges: np.ndarray, sub: int = SUB_BINS, source_template: np.ndarray | None = None):
         self.edges = np.asarray(edges, dtype=float)
         self.sub = sub
+        #: (32,) source masses per energy bin from a calibrated detector file, held fixed in the fit; None = free
+        self.source_template = None if source_template is None else np.asarray(source_template, dtype=float)
+
+    @classmethod
+    def from_detector_file(cls, edges: np.ndarray, detector, nuclide: str, sub: int = SUB_BINS) -> SpectralModel:
+        """The source template from a calibrated detector file (``radseek.detector_file.DetectorFile``): the
+        crystal's measured-energy spectrum of ``nuclide`` integrated over the template's energy bins, so only the
+        background template and the group amplitudes are fitted (KeyError if the file lacks the nuclide)."""
+        grid, cdf = detector.template(nuclide)
+        lo, hi = energy_bins(np.asarray(edges, dtype=float), 1)
+        c = np.interp(np.r_[lo, hi[-1]], grid, cdf)
+        masses = np.diff(c)
+        masses[-1] = cdf[-1] - c[-2]
+        return cls(edges, sub, np.maximum(masses, 1e-9) / max(masses.sum(), 1e-300))
 
     def _prepare(self, frames: Frames, labels: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         labels = group_frames(frames) if labels is None else np.asarray(labels)
@@ -206,7 +221,7 @@ class SpectralModel:
 
     def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple) -> tuple[float, tuple]:
         Ms, Mb = self._responses(pct, t, shapes)
-        return _em(Ms, Mb, n, x0)
+        return _em(Ms, Mb, n, x0, fix_s=self.source_template is not None)
 
     def expected(self, x: tuple, pct: float, t: np.ndarray, shapes: tuple) -> np.ndarray:
         s, b, A, B = x
@@ -223,7 +238,10 @@ class SpectralModel:
         """
         n, t, lab = self._prepare(frames, labels)
         flat = (self.shape(None), self.shape(None))
-        _, xc = self._fit_at(0.0, n, t, self._start(n), flat)
+        x_start = self._start(n)
+        if self.source_template is not None:
+            x_start = (self.source_template, *x_start[1:])
+        _, xc = self._fit_at(0.0, n, t, x_start, flat)
         shapes = (self.shape(xc[0]), self.shape(xc[1]))
         nll0, x0 = self._fit_at(0.0, n, t, xc, shapes)
         sat = _poisson_nll(np.maximum(n, 1e-300), n)

@@ -24,6 +24,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("estimator.diagnose_cli", "compare model and measurements, find the missing effect"),
     "replay": ("estimator.replay_cli", "re-run the estimator on a recorded flight"),
     "plan": ("launch.plan_cli", "plan the next dwell points for a scene and print/plot them"),
+    "calibrate": ("spectra.calibrate_cli", "fit the detector response to a measured spectrum; name what it misses"),
+    "spectra": ("spectra.flight_cli", "export dwell spectra as N42; import a flight from spectrogram + pose CSVs"),
 }
 
 

@@ -18,7 +18,7 @@ CONTRACTS = {"radseek"}
 SIMULATOR = {"detector_fw_sim", "vehicle_sim"}
 FLIGHT = {"mission", "estimator", "planner"}
 LAUNCH = {"launch", "benchmarks"}
-OURS = CONTRACTS | SIMULATOR | FLIGHT | LAUNCH
+OURS = CONTRACTS | SIMULATOR | FLIGHT | LAUNCH | {"spectra"}
 
 #: package -> the radseek packages it may import
 ALLOWED = {
@@ -30,6 +30,7 @@ ALLOWED = {
     "planner": CONTRACTS | {"planner"},
     "launch": OURS,
     "benchmarks": OURS,
+    "spectra": CONTRACTS | SIMULATOR | {"spectra"},
 }
 
 

@@ -1,0 +1,636 @@
+"""Gamma spectrum files: read N42 (ANSI N42.42-2011), RadiaCode XML, Ortec .spe / .chn and CSV; write N42.
+
+Every reader returns :class:`Spectrum` objects (counts per channel, live and real time, energy calibration); every
+error is a :class:`SpectrumFileError` naming the file and the element, section or byte offset that is wrong.
+
+Which library: ``becquerel`` 0.7 (PyPI) was checked on Python 3.11 here. It reads Ortec .spe, Canberra .cnf, .spc
+and IEC 1455, but not N42, RadiaCode XML, .chn or CSV; it pulls numba, pandas, lmfit and black, prints a line per
+file read and rejects an .spe without ``$DATE_MEA``. So the readers here are small and validated, and
+``tests/test_spectrum_files.py`` checks the .spe reader against becquerel and the N42 writer against SpecUtils
+(``sandiaspecutils``, the library InterSpec is built on) when those are installed.
+
+Energy calibration convention (the one of N42 and SpecUtils): the lower edge of channel i is
+E(i) = c0 + c1 i + c2 i^2 keV, so channel i spans [E(i), E(i + 1)). Files with explicit boundaries (N42
+``EnergyBoundaryValues``, a CSV with an energy column) keep them.
+
+Formats:
+
+- **N42.42-2011**: ``RadMeasurement`` / ``Spectrum`` / ``ChannelData`` (``compressionCode`` None or
+  CountedZeroes), ``LiveTimeDuration`` / ``RealTimeDuration`` as xs:duration (``PT300S``), the calibration
+  referenced by ``energyCalibrationReference`` (``CoefficientValues`` or ``EnergyBoundaryValues``);
+  ``MeasurementClassCode`` tells foreground from background.
+- **RadiaCode XML** (the app's export, ``ResultDataFile`` / ``EnergySpectrum``): ``Spectrum/DataPoint``,
+  ``MeasurementTime`` (s), ``EnergyCalibration/Coefficients``; the optional ``BackgroundEnergySpectrum`` is read
+  as a second spectrum.
+- **Ortec .spe** (ASCII, ORTEC software file structure manual): ``$MEAS_TIM:`` live real, ``$DATA:`` first last,
+  ``$MCA_CAL:`` or ``$ENER_FIT:``, ``$DATE_MEA:``, ``$SPEC_ID:``.
+- **Ortec .chn** (binary, little endian): 32-byte header (int16 -1, MCA, segment, 2-char seconds, int32 real
+  and live time in 20 ms ticks, 8-char date DDMMMYY*, 4-char time HHMM, int16 first channel, int16 channel
+  count), int32 counts, then an optional trailer (int16 -101 or -102, int16, float32 energy zero, slope and,
+  for -102, quadratic).
+- **CSV**: one row per channel, ``counts`` or ``channel,counts`` or ``energy_keV,counts`` (lower channel
+  edge); ``# live_time_s: 300``, ``# real_time_s: ...`` and ``# calibration: c0 c1 c2`` comment lines.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+import struct
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+N42_NS = "http://physics.nist.gov/N42/2011/N42"
+SUFFIXES = {".n42": "n42", ".xml": "xml", ".spe": "spe", ".chn": "chn", ".csv": "csv", ".txt": "csv"}
+
+
+class SpectrumFileError(ValueError):
+    """A spectrum file that cannot be read; the message names the file and the element that is wrong."""
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Counts per channel with live time and energy calibration (see the module docstring)."""
+
+    counts: np.ndarray
+    live_time_s: float
+    real_time_s: float | None = None
+    calibration: tuple[float, ...] = (0.0, 1.0)
+    #: explicit channel boundaries (n + 1, keV); overrides ``calibration`` when given
+    boundaries_keV: np.ndarray | None = None
+    start_time: str | None = None
+    title: str = ""
+    serial: str = ""
+    kind: str = "foreground"
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.counts, dtype=float)
+        if c.ndim != 1 or len(c) == 0:
+            raise SpectrumFileError(f"{self.source or '<spectrum>'}: counts must be a non-empty 1-D array")
+        if not np.all(np.isfinite(c)) or np.any(c < 0):
+            raise SpectrumFileError(f"{self.source or '<spectrum>'}: counts must be finite and >= 0")
+        if not (math.isfinite(self.live_time_s) and self.live_time_s > 0):
+            raise SpectrumFileError(f"{self.source or '<spectrum>'}: live time must be > 0, got {self.live_time_s}")
+        object.__setattr__(self, "counts", c)
+        if self.boundaries_keV is not None:
+            b = np.asarray(self.boundaries_keV, dtype=float)
+            if b.shape != (len(c) + 1,) or np.any(np.diff(b) <= 0):
+                raise SpectrumFileError(f"{self.source or '<spectrum>'}: {len(c) + 1} ascending channel boundaries "
+                                        f"needed, got {b.shape[0]}")
+            object.__setattr__(self, "boundaries_keV", b)
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.counts)
+
+    def edges_keV(self) -> np.ndarray:
+        """(n + 1,) channel boundaries in keV."""
+        if self.boundaries_keV is not None:
+            return self.boundaries_keV
+        i = np.arange(self.n_channels + 1, dtype=float)
+        return sum(c * i**k for k, c in enumerate(self.calibration)) * np.ones_like(i)
+
+    def rate(self) -> np.ndarray:
+        return self.counts / self.live_time_s
+
+    def rebin(self, edges_keV: np.ndarray, overflow: bool = True) -> np.ndarray:
+        """Counts in the bins ``edges_keV`` (m + 1 edges), channels split linearly in energy; with ``overflow``
+        the last bin is open above (as channel 31 of the board)."""
+        e = self.edges_keV()
+        keep = np.r_[True, np.diff(e) > 0]
+        cum = np.r_[0.0, np.cumsum(self.counts)]
+        ce = np.interp(np.asarray(edges_keV, dtype=float), e[keep], cum[keep])
+        out = np.diff(ce)
+        if overflow:
+            out[-1] = cum[-1] - ce[-2]
+        return out
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+
+
+def _err(path: str | Path, where: str, msg: str) -> SpectrumFileError:
+    return SpectrumFileError(f"{path}: {where}: {msg}")
+
+
+def _float(path: str | Path, where: str, text: str | None) -> float:
+    try:
+        v = float((text or "").strip())
+    except ValueError:
+        raise _err(path, where, f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise _err(path, where, f"not finite: {text!r}")
+    return v
+
+
+def _floats(path: str | Path, where: str, text: str | None) -> list[float]:
+    return [_float(path, where, t) for t in (text or "").split()]
+
+
+_DURATION = re.compile(r"^P(?:(\d+(?:\.\d+)?)D)?(?:T(?:(\d+(?:\.\d+)?)H)?(?:(\d+(?:\.\d+)?)M)?(?:(\d+(?:\.\d+)?)S)?)?$")
+
+
+def parse_duration(path: str | Path, where: str, text: str | None) -> float:
+    """xs:duration (``PT613S``, ``PT1H2M3.5S``) in seconds."""
+    m = _DURATION.match((text or "").strip())
+    if not m or not any(m.groups()):
+        raise _err(path, where, f"not an xs:duration like PT300S: {text!r}")
+    d, h, mi, s = (float(g) if g else 0.0 for g in m.groups())
+    return ((d * 24 + h) * 60 + mi) * 60 + s
+
+
+def format_duration(seconds: float) -> str:
+    return f"PT{seconds:.6g}S" if seconds < 1e6 else f"PT{seconds:.3f}S"
+
+
+def _check_counts(path: str | Path, where: str, values: list[float]) -> np.ndarray:
+    a = np.asarray(values, dtype=float)
+    if len(a) == 0:
+        raise _err(path, where, "no channel data")
+    if np.any(a < 0) or not np.all(np.isfinite(a)):
+        raise _err(path, where, "counts must be finite and >= 0")
+    return a
+
+
+def _parse_xml(path: str | Path, data: bytes) -> ET.Element:
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise SpectrumFileError(f"{path}: not well-formed XML ({exc})") from None
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _child(el: ET.Element, name: str) -> ET.Element | None:
+    for c in el:
+        if _local(c.tag) == name:
+            return c
+    return None
+
+
+def _children(el: ET.Element, name: str) -> list[ET.Element]:
+    return [c for c in el if _local(c.tag) == name]
+
+
+def _find(el: ET.Element, name: str) -> ET.Element | None:
+    for c in el.iter():
+        if _local(c.tag) == name:
+            return c
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ N42
+
+
+def _n42_counts(path: str | Path, where: str, el: ET.Element) -> np.ndarray:
+    values = _floats(path, where, el.text)
+    code = (el.get("compressionCode") or "None").strip()
+    if code == "CountedZeroes":
+        out: list[float] = []
+        i = 0
+        while i < len(values):
+            if values[i] == 0:
+                if i + 1 >= len(values):
+                    raise _err(path, where, "CountedZeroes: a zero without its count at the end")
+                n = values[i + 1]
+                if n != int(n) or n < 0 or n > 10_000_000:
+                    raise _err(path, where, f"CountedZeroes: bad zero count {n}")
+                out.extend([0.0] * int(n))
+                i += 2
+            else:
+                out.append(values[i])
+                i += 1
+        values = out
+    elif code != "None":
+        raise _err(path, where, f"unknown compressionCode {code!r} (None or CountedZeroes)")
+    return _check_counts(path, where, values)
+
+
+def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """Every spectrum of an N42.42-2011 file, in file order (``kind`` from ``MeasurementClassCode``)."""
+    data = Path(path).read_bytes() if data is None else data
+    root = _parse_xml(path, data)
+    if _local(root.tag) != "RadInstrumentData":
+        raise _err(path, f"<{_local(root.tag)}>", "root element must be RadInstrumentData (N42.42-2011)")
+    cals: dict[str, tuple[str, list[float]]] = {}
+    for i, ec in enumerate(_children(root, "EnergyCalibration")):
+        where = f"EnergyCalibration[{i}]"
+        coef, bounds = _child(ec, "CoefficientValues"), _child(ec, "EnergyBoundaryValues")
+        if coef is not None:
+            cals[ec.get("id", "")] = ("coef", _floats(path, where + "/CoefficientValues", coef.text))
+        elif bounds is not None:
+            cals[ec.get("id", "")] = ("bounds", _floats(path, where + "/EnergyBoundaryValues", bounds.text))
+    serial = ""
+    rii = _child(root, "RadInstrumentInformation")
+    if rii is not None and _child(rii, "RadInstrumentIdentifier") is not None:
+        serial = (_child(rii, "RadInstrumentIdentifier").text or "").strip()  # type: ignore[union-attr]
+    out: list[Spectrum] = []
+    for m, meas in enumerate(_children(root, "RadMeasurement")):
+        mwhere = f"RadMeasurement[{m}]" + (f" id={meas.get('id')!r}" if meas.get("id") else "")
+        cls = _child(meas, "MeasurementClassCode")
+        kind = (cls.text or "").strip().lower() if cls is not None else "foreground"
+        start = _child(meas, "StartDateTime")
+        real_el = _child(meas, "RealTimeDuration")
+        real = parse_duration(path, mwhere + "/RealTimeDuration", real_el.text) if real_el is not None else None
+        remark = _child(meas, "Remark")
+        for s, sp in enumerate(_children(meas, "Spectrum")):
+            where = f"{mwhere}/Spectrum[{s}]"
+            cd = _child(sp, "ChannelData")
+            if cd is None:
+                raise _err(path, where, "missing ChannelData")
+            counts = _n42_counts(path, where + "/ChannelData", cd)
+            lt_el = _child(sp, "LiveTimeDuration")
+            if lt_el is not None:
+                live = parse_duration(path, where + "/LiveTimeDuration", lt_el.text)
+            elif real is not None:
+                live = real
+            else:
+                raise _err(path, where, "missing LiveTimeDuration (and no RealTimeDuration)")
+            ref = sp.get("energyCalibrationReference")
+            cal: tuple[float, ...] = (0.0, 1.0)
+            bounds = None
+            if ref is not None:
+                if ref not in cals:
+                    raise _err(path, where, f"energyCalibrationReference {ref!r} names no EnergyCalibration")
+                how, vals = cals[ref]
+                if how == "coef":
+                    if not vals:
+                        raise _err(path, f"EnergyCalibration id={ref!r}", "empty CoefficientValues")
+                    cal = tuple(vals)
+                else:
+                    if len(vals) != len(counts) + 1:
+                        raise _err(path, f"EnergyCalibration id={ref!r}/EnergyBoundaryValues",
+                                   f"{len(vals)} boundaries for {len(counts)} channels (need n + 1)")
+                    bounds = np.asarray(vals)
+            try:
+                out.append(Spectrum(counts, live, real, cal, bounds, (start.text or "").strip() if start is not None
+                                    else None, (remark.text or "").strip() if remark is not None else "", serial,
+                                    kind, str(path), {"measurement_id": meas.get("id", "")}))
+            except SpectrumFileError as exc:
+                raise _err(path, where, str(exc).split(": ", 1)[-1]) from None
+    if not out:
+        raise _err(path, "RadInstrumentData", "no RadMeasurement/Spectrum with ChannelData")
+    return out
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.10g}"
+
+
+def n42_document(spectra: list[Spectrum], *, instrument: str = "radseek 32-channel board",
+                 detector_kind: str = "CsI", creator: str = "radseek", remarks: list[str] | None = None) -> str:
+    """An N42.42-2011 document with one RadMeasurement per spectrum (written with explicit energy boundaries
+    when a spectrum has them, polynomial coefficients otherwise)."""
+    ns = N42_NS
+    ET.register_namespace("", ns)
+    root = ET.Element(f"{{{ns}}}RadInstrumentData", {"n42DocUUID": _uuid(spectra)})
+    ET.SubElement(root, f"{{{ns}}}RadInstrumentDataCreatorName").text = creator
+    rii = ET.SubElement(root, f"{{{ns}}}RadInstrumentInformation", {"id": "rii-1"})
+    ET.SubElement(rii, f"{{{ns}}}RadInstrumentManufacturerName").text = "radseek"
+    ET.SubElement(rii, f"{{{ns}}}RadInstrumentModelName").text = instrument
+    ET.SubElement(rii, f"{{{ns}}}RadInstrumentClassCode").text = "Spectroscopic Personal Radiation Detector"
+    rdi = ET.SubElement(root, f"{{{ns}}}RadDetectorInformation", {"id": "det-1"})
+    ET.SubElement(rdi, f"{{{ns}}}RadDetectorCategoryCode").text = "Gamma"
+    ET.SubElement(rdi, f"{{{ns}}}RadDetectorKindCode").text = detector_kind
+    for i, sp in enumerate(spectra):
+        ec = ET.SubElement(root, f"{{{ns}}}EnergyCalibration", {"id": f"ec-{i}"})
+        if sp.boundaries_keV is not None:
+            ET.SubElement(ec, f"{{{ns}}}EnergyBoundaryValues").text = " ".join(_fmt(v) for v in sp.boundaries_keV)
+        else:
+            ET.SubElement(ec, f"{{{ns}}}CoefficientValues").text = " ".join(_fmt(v) for v in sp.calibration)
+    for i, sp in enumerate(spectra):
+        meas = ET.SubElement(root, f"{{{ns}}}RadMeasurement", {"id": f"rm-{i}"})
+        remark = sp.title or (remarks[i] if remarks and i < len(remarks) else "")
+        if remark:
+            ET.SubElement(meas, f"{{{ns}}}Remark").text = remark
+        ET.SubElement(meas, f"{{{ns}}}MeasurementClassCode").text = {"background": "Background"}.get(
+            sp.kind, "Foreground")
+        ET.SubElement(meas, f"{{{ns}}}StartDateTime").text = sp.start_time or "1970-01-01T00:00:00Z"
+        ET.SubElement(meas, f"{{{ns}}}RealTimeDuration").text = format_duration(sp.real_time_s or sp.live_time_s)
+        spel = ET.SubElement(meas, f"{{{ns}}}Spectrum", {"id": f"rm-{i}-sp", "radDetectorInformationReference": "det-1",
+                                                         "energyCalibrationReference": f"ec-{i}"})
+        ET.SubElement(spel, f"{{{ns}}}LiveTimeDuration").text = format_duration(sp.live_time_s)
+        counts = sp.counts
+        text = " ".join(str(int(c)) if float(c).is_integer() else _fmt(c) for c in counts)
+        ET.SubElement(spel, f"{{{ns}}}ChannelData", {"compressionCode": "None"}).text = text
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _uuid(spectra: list[Spectrum]) -> str:
+    import hashlib
+    import uuid
+
+    h = hashlib.sha1()
+    for sp in spectra:
+        h.update(np.asarray(sp.counts, dtype=float).tobytes())
+        h.update(str(sp.start_time).encode())
+    return str(uuid.UUID(bytes=h.digest()[:16]))
+
+
+def write_n42(path: str | Path, spectra: list[Spectrum], **kwargs) -> Path:
+    p = Path(path)
+    p.write_text(n42_document(spectra, **kwargs))
+    return p
+
+
+# ------------------------------------------------------------------------------------------------ RadiaCode
+
+
+def read_radiacode_xml(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """The spectrum (and the embedded background, if any) of a RadiaCode app XML export."""
+    data = Path(path).read_bytes() if data is None else data
+    root = _parse_xml(path, data)
+    if _local(root.tag) != "ResultDataFile":
+        raise _err(path, f"<{_local(root.tag)}>", "root element must be ResultDataFile (RadiaCode XML)")
+    out = []
+    for rd_i, rd in enumerate(root.iter("ResultData")):
+        start = rd.find("StartTime")
+        for tag, kind in (("EnergySpectrum", "foreground"), ("BackgroundEnergySpectrum", "background")):
+            es = rd.find(tag)
+            if es is None:
+                continue
+            where = f"ResultData[{rd_i}]/{tag}"
+            sp_el = es.find("Spectrum")
+            if sp_el is None:
+                raise _err(path, where, "missing Spectrum")
+            counts = _check_counts(path, where + "/Spectrum/DataPoint",
+                                   [_float(path, where + f"/Spectrum/DataPoint[{i}]", d.text)
+                                    for i, d in enumerate(sp_el.findall("DataPoint"))])
+            n_el = es.find("NumberOfChannels")
+            if n_el is not None and int(_float(path, where + "/NumberOfChannels", n_el.text)) != len(counts):
+                raise _err(path, where + "/NumberOfChannels", f"says {n_el.text.strip()} but Spectrum has "  # type: ignore[union-attr]
+                           f"{len(counts)} DataPoint")
+            mt = es.find("MeasurementTime")
+            if mt is None:
+                raise _err(path, where, "missing MeasurementTime")
+            live = _float(path, where + "/MeasurementTime", mt.text)
+            if live <= 0:
+                raise _err(path, where + "/MeasurementTime", f"must be > 0, got {live}")
+            coefs = es.findall("EnergyCalibration/Coefficients/Coefficient")
+            cal = tuple(_float(path, where + f"/EnergyCalibration/Coefficients/Coefficient[{i}]", c.text)
+                        for i, c in enumerate(coefs)) or (0.0, 1.0)
+            name = es.find("SpectrumName")
+            serial = es.find("SerialNumber")
+            out.append(Spectrum(counts, live, None, cal, None,
+                                (start.text or "").strip() if start is not None and kind == "foreground" else None,
+                                (name.text or "").strip() if name is not None else "",
+                                (serial.text or "").strip() if serial is not None else "", kind, str(path)))
+    if not out:
+        raise _err(path, "ResultDataFile", "no ResultData/EnergySpectrum")
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ Ortec
+
+
+def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """An Ortec ASCII .spe file."""
+    data = Path(path).read_bytes() if data is None else data
+    try:
+        lines = [ln.strip() for ln in data.decode("latin-1").splitlines()]
+    except Exception as exc:  # pragma: no cover - latin-1 decodes any byte string
+        raise SpectrumFileError(f"{path}: cannot decode ({exc})") from None
+    sections: dict[str, list[str]] = {}
+    key = None
+    for ln in lines:
+        if ln.startswith("$"):
+            key = ln[1:].rstrip(":").strip().upper()
+            sections[key] = []
+        elif key is not None:
+            sections[key].append(ln)
+    if "DATA" not in sections:
+        raise _err(path, "$DATA:", "section missing (not an Ortec .spe file?)")
+    body = [ln for ln in sections["DATA"] if ln]
+    if not body:
+        raise _err(path, "$DATA:", "empty section")
+    rng = body[0].split()
+    if len(rng) != 2:
+        raise _err(path, "$DATA:", f"first line must be 'first last' channel, got {body[0]!r}")
+    first, last = (int(_float(path, "$DATA: channel range", t)) for t in rng)
+    if first < 0 or last < first:
+        raise _err(path, "$DATA:", f"bad channel range {first} {last}")
+    values = []
+    for i, ln in enumerate(body[1:]):
+        values.extend(_floats(path, f"$DATA: line {i + 2}", ln))
+    if len(values) != last - first + 1:
+        raise _err(path, "$DATA:", f"range {first}..{last} needs {last - first + 1} counts, found {len(values)}")
+    counts = _check_counts(path, "$DATA:", values)
+    if first:
+        counts = np.r_[np.zeros(first), counts]
+    if "MEAS_TIM" not in sections or not sections["MEAS_TIM"]:
+        raise _err(path, "$MEAS_TIM:", "section missing (live and real time)")
+    times = _floats(path, "$MEAS_TIM:", sections["MEAS_TIM"][0])
+    if len(times) < 1:
+        raise _err(path, "$MEAS_TIM:", "needs 'live real' seconds")
+    live, real = times[0], (times[1] if len(times) > 1 else None)
+    if live <= 0:
+        raise _err(path, "$MEAS_TIM:", f"live time must be > 0, got {live}")
+    cal: tuple[float, ...] = (0.0, 1.0)
+    if sections.get("MCA_CAL"):
+        mc = [ln for ln in sections["MCA_CAL"] if ln]
+        if len(mc) < 2:
+            raise _err(path, "$MCA_CAL:", "needs the coefficient count and the coefficients")
+        n = int(_float(path, "$MCA_CAL: count", mc[0]))
+        coefs = [_float(path, "$MCA_CAL: coefficients", t) for t in mc[1].split()[:n]]
+        if len(coefs) != n or n < 1:
+            raise _err(path, "$MCA_CAL:", f"says {n} coefficients, found {len(coefs)}")
+        cal = tuple(coefs)
+    elif sections.get("ENER_FIT"):
+        cal = tuple(_floats(path, "$ENER_FIT:", sections["ENER_FIT"][0])) or cal
+    title = " ".join(sections.get("SPEC_ID", [])).strip()
+    date = " ".join(sections.get("DATE_MEA", [])).strip() or None
+    return [Spectrum(counts, live, real, cal, None, date, title, "", "foreground", str(path))]
+
+
+def write_spe(path: str | Path, sp: Spectrum) -> Path:
+    """An Ortec ASCII .spe (used by the tests; polynomial calibration only)."""
+    lines = ["$SPEC_ID:", sp.title or "radseek", "$DATE_MEA:", sp.start_time or "01/01/1970 00:00:00", "$MEAS_TIM:",
+             f"{sp.live_time_s:g} {sp.real_time_s or sp.live_time_s:g}", "$DATA:", f"0 {sp.n_channels - 1}"]
+    lines += [str(int(c)) for c in sp.counts]
+    lines += ["$MCA_CAL:", str(len(sp.calibration)), " ".join(f"{c:.9g}" for c in sp.calibration) + " keV"]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
+_CHN_HEADER = struct.Struct("<hhh2sii8s4shh")
+
+
+def read_chn(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """An Ortec binary .chn file."""
+    data = Path(path).read_bytes() if data is None else data
+    if len(data) < _CHN_HEADER.size:
+        raise _err(path, "header", f"{len(data)} bytes, the .chn header alone is {_CHN_HEADER.size}")
+    tag, _mca, _seg, secs, real_t, live_t, date, tim, first, n = _CHN_HEADER.unpack_from(data)
+    if tag != -1:
+        raise _err(path, "header byte 0", f"type must be -1 for .chn, got {tag}")
+    if n <= 0:
+        raise _err(path, "header byte 30", f"channel count must be > 0, got {n}")
+    end = _CHN_HEADER.size + 4 * n
+    if len(data) < end:
+        raise _err(path, f"channel data (bytes 32..{end})", f"file ends at byte {len(data)}")
+    counts = np.frombuffer(data, "<i4", n, _CHN_HEADER.size).astype(float)
+    counts = _check_counts(path, "channel data", list(counts))
+    live, real = live_t * 0.02, real_t * 0.02
+    if live <= 0:
+        raise _err(path, "header byte 12 (live time)", f"must be > 0, got {live_t} ticks")
+    cal: tuple[float, ...] = (0.0, 1.0)
+    if len(data) >= end + 16:
+        ttag = struct.unpack_from("<h", data, end)[0]
+        if ttag in (-101, -102):
+            c0, c1, c2 = struct.unpack_from("<fff", data, end + 4)
+            cal = (c0, c1, c2) if ttag == -102 else (c0, c1)
+            if not all(math.isfinite(c) for c in cal):
+                raise _err(path, f"trailer byte {end + 4}", f"energy calibration not finite: {cal}")
+            if cal == (0.0, 0.0) or cal == (0.0, 0.0, 0.0):
+                cal = (0.0, 1.0)
+        else:
+            raise _err(path, f"trailer byte {end}", f"tag must be -101 or -102, got {ttag}")
+    start = None
+    try:
+        d, t = date.decode("ascii"), tim.decode("ascii")
+        start = f"{d[:7]} {t[:2]}:{t[2:]}:{secs.decode('ascii')}"
+    except UnicodeDecodeError:
+        pass
+    if first:
+        counts = np.r_[np.zeros(first), counts]
+    return [Spectrum(counts, live, real, cal, None, start, "", "", "foreground", str(path))]
+
+
+def write_chn(path: str | Path, sp: Spectrum) -> Path:
+    """An Ortec .chn with a -102 trailer (used by the tests)."""
+    cal = tuple(sp.calibration) + (0.0,) * (3 - len(sp.calibration))
+    head = _CHN_HEADER.pack(-1, 1, 1, b"00", round((sp.real_time_s or sp.live_time_s) / 0.02),
+                            round(sp.live_time_s / 0.02), b"01JAN70*", b"0000", 0, sp.n_channels)
+    body = np.asarray(sp.counts, dtype="<i4").tobytes()
+    trailer = struct.pack("<hhfff", -102, 0, *cal[:3]) + bytes(512 - 16)
+    Path(path).write_bytes(head + body + trailer)
+    return Path(path)
+
+
+# ------------------------------------------------------------------------------------------------ CSV
+
+
+def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """A CSV spectrum (see the module docstring)."""
+    data = Path(path).read_bytes() if data is None else data
+    text = data.decode("utf-8", errors="replace")
+    meta: dict[str, str] = {}
+    rows: list[list[str]] = []
+    for ln in text.splitlines():
+        s = ln.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            if ":" in s:
+                k, v = s[1:].split(":", 1)
+                meta[k.strip().lower()] = v.strip()
+            continue
+        rows.append(next(csv.reader(io.StringIO(s))))
+    if not rows:
+        raise _err(path, "rows", "no data rows")
+    header = None
+    if any(not _is_number(c) for c in rows[0]):
+        header = [c.strip().lower() for c in rows[0]]
+        rows = rows[1:]
+    width = len(rows[0]) if rows else 0
+    if width not in (1, 2):
+        raise _err(path, "row 1", f"needs 1 (counts) or 2 (channel|energy_keV, counts) columns, got {width}")
+    vals = []
+    for i, r in enumerate(rows):
+        if len(r) != width:
+            raise _err(path, f"row {i + 1 + (header is not None)}", f"has {len(r)} columns, expected {width}")
+        vals.append([_float(path, f"row {i + 1 + (header is not None)}", c) for c in r])
+    arr = np.asarray(vals, dtype=float).reshape(len(vals), width)
+    counts = _check_counts(path, "counts column", list(arr[:, -1]))
+    if "live_time_s" not in meta:
+        raise _err(path, "# live_time_s:", "comment line missing (live time in seconds)")
+    live = _float(path, "# live_time_s:", meta["live_time_s"])
+    real = _float(path, "# real_time_s:", meta["real_time_s"]) if "real_time_s" in meta else None
+    cal: tuple[float, ...] = (0.0, 1.0)
+    bounds = None
+    if "calibration" in meta:
+        cal = tuple(_floats(path, "# calibration:", meta["calibration"].replace(",", " "))) or cal
+    elif width == 2 and header is not None and header[0].startswith("energy"):
+        lo = arr[:, 0]
+        if len(lo) < 2 or np.any(np.diff(lo) <= 0):
+            raise _err(path, f"column {header[0]!r}", "energies must be strictly ascending")
+        bounds = np.r_[lo, 2 * lo[-1] - lo[-2]]
+    try:
+        return [Spectrum(counts, live, real, cal, bounds, meta.get("start_time"), meta.get("title", ""), "",
+                         meta.get("kind", "foreground"), str(path))]
+    except SpectrumFileError as exc:
+        raise _err(path, "spectrum", str(exc).split(": ", 1)[-1]) from None
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def write_csv(path: str | Path, sp: Spectrum) -> Path:
+    lines = [f"# live_time_s: {sp.live_time_s:.9g}"]
+    if sp.real_time_s:
+        lines.append(f"# real_time_s: {sp.real_time_s:.9g}")
+    lines += ["# calibration: " + " ".join(f"{c:.9g}" for c in sp.calibration), "channel,counts"]
+    lines += [f"{i},{c:.9g}" for i, c in enumerate(sp.counts)]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
+# ------------------------------------------------------------------------------------------------ dispatch
+
+
+def detect_format(path: str | Path, data: bytes) -> str:
+    head = data[:4096].lstrip()
+    if head[:2] == b"\xff\xff":
+        return "chn"
+    if head.startswith(b"<"):
+        if b"RadInstrumentData" in head:
+            return "n42"
+        if b"ResultDataFile" in head:
+            return "xml"
+    if head.startswith(b"$"):
+        return "spe"
+    fmt = SUFFIXES.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise SpectrumFileError(f"{path}: unknown spectrum format (N42, RadiaCode XML, .spe, .chn or CSV)")
+    return fmt
+
+
+READERS = {"n42": read_n42, "xml": read_radiacode_xml, "spe": read_spe, "chn": read_chn, "csv": read_csv}
+
+
+def read_spectra(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """Every spectrum in a file, the format from its content (then its suffix)."""
+    p = Path(path)
+    if data is None:
+        try:
+            data = p.read_bytes()
+        except FileNotFoundError:
+            raise SpectrumFileError(f"{p}: file not found") from None
+    fmt = detect_format(p, data)
+    if fmt == "xml" and b"RadInstrumentData" in data[:4096]:
+        fmt = "n42"
+    return READERS[fmt](p, data)
+
+
+def read_spectrum(path: str | Path, kind: str = "foreground") -> Spectrum:
+    """The first spectrum of ``kind`` in a file (the first of any kind when none is marked)."""
+    spectra = read_spectra(path)
+    for sp in spectra:
+        if sp.kind == kind:
+            return sp
+    return spectra[0]

@@ -1,0 +1,195 @@
+"""The physical response of a real crystal as a model of a measured native spectrum (``radseek calibrate``).
+
+Expected counts in native channel j of a measured spectrum (boundaries b_j in the file's energy calibration):
+
+    mu_j = A * eff_thr(E_j) * sum_i w_i [Phi((b_j+1 - m_i) / s_i) - Phi((b_j - m_i) / s_i)] + B_j
+
+- the deposited-energy points (e_i, w_i) per emitted photon come from ``detector_fw_sim.response``: pydecay lines;
+  the unscattered share through the absorber (XCOM); the photons scattered in the surroundings (back-, side- and
+  multiple scatter, Klein-Nishina); the crystal's photo-absorption, Compton continuum with escape and K X-ray
+  escape (xraydb); full-energy and escape peaks are kept at their exact energies;
+- random summing (pile-up): a share ``pileup`` of the recorded pulses are two pulses added (the deposited
+  spectrum convolved with itself; Knoll 4th ed. sec. 17.IV), i.e. pileup = 2 r tau_pu for rate r;
+- energy calibration: the pulse of deposited energy e reads m_i = offset + gain * e in the file's calibration
+  (CsI(Tl) light yield is not proportional to energy; a device's stored calibration is a fit of its own);
+- resolution: Gaussian with FWHM(e)/e = r (662 / e)^b (plus the 2 keV grid bin's own width for continua);
+- threshold: eff_thr(E) = Phi((E - E_thr) / w_thr), the discriminator's soft edge;
+- B_j: the measured background scaled by live time (fixed), A: the source amplitude (free).
+
+Every effect is a named group of parameters (``EFFECTS``); parameters of an effect that is off keep the baseline
+value, which is the emulator's response before calibration (7 % FWHM at 662 keV, 1/sqrt(E), 5 % backscatter,
+10 mm crystal, no other effect).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.special import ndtr
+
+from detector_fw_sim import response
+
+FWHM_PER_SIGMA = 2 * math.sqrt(2 * math.log(2))
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    baseline: float
+    lo: float
+    hi: float
+    unit: str
+    doc: str
+
+
+PARAMS: dict[str, Param] = {p.name: p for p in (
+    Param("gain", 1.0, 0.85, 1.15, "", "file energy per deposited energy"),
+    Param("offset_keV", 0.0, -40.0, 40.0, "keV", "file energy of a zero deposit"),
+    Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "1/MeV", "m = offset + gain e (1 + q e / 1 MeV)"),
+    Param("fwhm_at_662", 0.07, 0.02, 0.3, "", "FWHM / E at 662 keV"),
+    Param("fwhm_exponent", 0.5, 0.0, 1.0, "", "b in FWHM/E = r (662/E)^b"),
+    Param("threshold_keV", 0.0, 0.0, 80.0, "keV", "discriminator threshold (file energy)"),
+    Param("threshold_width_keV", 1.0, 0.3, 30.0, "keV", "width of the threshold's soft edge"),
+    Param("backscatter_fraction", 0.05, 0.0, 0.6, "", "share of photons back-scattered (110-180 deg) in the room"),
+    Param("scatter_side", 0.0, 0.0, 0.6, "", "share of photons scattered 20-110 deg in holder and nearby objects"),
+    Param("scatter_multiple", 0.0, 0.0, 0.6, "", "share of photons multiply scattered (flat in log E)"),
+    Param("absorber_g_cm2", 0.0, 0.0, 3.0, "g/cm^2", "aluminium between source and crystal"),
+    Param("pileup", 0.0, 0.0, 0.2, "", "share of recorded pulses that are two summed pulses"),
+    Param("crystal_mm", 10.0, 4.0, 25.0, "mm", "crystal diameter = length"),
+    Param("escape_scale", 1.0, 0.3, 3.0, "", "scale of the scattered photon's escape length"),
+    Param("k_escape", 0.0, 0.0, 1.0, "", "K X-ray escape on (1) or off (0)"),
+)}
+
+#: response effects, each a group of parameters (forward selection adds whole groups)
+EFFECTS: dict[str, tuple[str, ...]] = {
+    "energy_calibration": ("gain", "offset_keV", "quadratic_per_MeV"),
+    "resolution_law": ("fwhm_at_662", "fwhm_exponent"),
+    "threshold": ("threshold_keV", "threshold_width_keV"),
+    "backscatter": ("backscatter_fraction",),
+    "side_scatter": ("scatter_side",),
+    "multiple_scatter": ("scatter_multiple",),
+    "absorber": ("absorber_g_cm2",),
+    "k_xray_escape": ("k_escape",),
+    "pileup": ("pileup",),
+    "crystal_size": ("crystal_mm", "escape_scale"),
+}
+#: parameters not fitted by MIGRAD: a new crystal needs new deposit tables (profiled on a grid instead)
+DISCRETE = ("crystal_mm", "escape_scale", "k_escape")
+EFFECT_SOURCES = {
+    "energy_calibration": "CsI(Tl) non-proportional light yield; device calibration (Knoll 4th ed. sec. 8.II)",
+    "resolution_law": "photo-electron statistics plus a constant light-collection term (Knoll sec. 10.III)",
+    "threshold": "the discriminator's soft edge (electronic noise)",
+    "backscatter": "Klein-Nishina single scattering through 110-180 deg (response.backscatter_energies)",
+    "side_scatter": "Klein-Nishina single scattering through 20-110 deg (response.scattered_energies)",
+    "multiple_scatter": "build-up continuum of photons scattered several times, flat in log E",
+    "absorber": "NIST XCOM aluminium attenuation via pydecay",
+    "k_xray_escape": "Cs/I K fluorescence escape, semi-infinite slab, xraydb (Elam et al. 2002)",
+    "pileup": "random summing: the deposited spectrum convolved with itself (Knoll sec. 17.IV)",
+    "crystal_size": "interaction depth 1 - exp(-mu L) and escape length 2V/S (response.Crystal)",
+}
+
+
+#: where a freed parameter starts when its baseline sits where the likelihood is flat (threshold at 0)
+START = {"threshold_keV": 15.0, "threshold_width_keV": 3.0}
+
+
+def baseline_params() -> dict[str, float]:
+    return {n: p.baseline for n, p in PARAMS.items()}
+
+
+def effects_of(params: dict[str, float]) -> response.ResponseEffects:
+    return response.ResponseEffects(
+        fwhm_exponent=params["fwhm_exponent"], k_escape=params["k_escape"] >= 0.5,
+        absorber_g_cm2=params["absorber_g_cm2"], scatter_side=params["scatter_side"],
+        scatter_multiple=params["scatter_multiple"], escape_scale=params["escape_scale"])
+
+
+def crystal_of(params: dict[str, float]) -> response.Crystal:
+    return response.Crystal(params["crystal_mm"], params["crystal_mm"], effects_of(params))
+
+
+@lru_cache(maxsize=64)
+def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: float, k_escape: bool):
+    """Per line: energy, yield, exact peaks and continuum; the scatter node vectors per scatter type."""
+    eff = response.ResponseEffects(k_escape=k_escape, escape_scale=escape_scale)
+    crystal = response.Crystal(crystal_mm, crystal_mm, eff)
+    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    energies = np.array([e for e, _ in lines])
+    yields = np.array([y for _, y in lines])
+    peaks_e, peaks_w, peak_line, conts = [], [], [], []
+    for i, (e, _) in enumerate(lines):
+        pk, cont = response.deposit_parts(float(e), crystal)
+        for pe, pw in pk:
+            peaks_e.append(pe)
+            peaks_w.append(pw)
+            peak_line.append(i)
+        conts.append(cont)
+    nodes = {}
+    for kind, fn in (("back", lambda e: response.backscatter_energies(e)),
+                     ("side", lambda e: response.scattered_energies(e, *response.SIDE_SCATTER_DEG)),
+                     ("multiple", lambda e: response.multiple_scatter_energies(e))):
+        nodes[kind] = np.stack([response.node_weights(*fn(float(e))) for e in energies])  # (L, nodes)
+    D = response.incident_deposit_matrix(crystal)
+    return (energies, yields, np.array(peaks_e), np.array(peaks_w), np.array(peak_line, dtype=int),
+            np.stack(conts), nodes, D)
+
+
+@lru_cache(maxsize=16)
+def _transmission_at(energies: tuple[float, ...], g_cm2: float) -> np.ndarray:
+    return response.absorber_transmission(np.array(energies), response.ResponseEffects(absorber_g_cm2=g_cm2))
+
+
+def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(energies keV, weights per decay, extra variance keV^2) of the deposited spectrum before resolution,
+    pile-up included."""
+    energies, yields, pk_e, pk_w, pk_line, conts, nodes, D = _line_tables(
+        nuclides, round(params["crystal_mm"], 4), round(params["escape_scale"], 4), params["k_escape"] >= 0.5)
+    fb, fs, fm = params["backscatter_fraction"], params["scatter_side"], params["scatter_multiple"]
+    direct = max(1.0 - fb - fs - fm, 0.0)
+    g = round(params["absorber_g_cm2"], 6)
+    t_lines = _transmission_at(tuple(energies), g)
+    t_nodes = _transmission_at(tuple(response.INCIDENT_NODES_KEV), g)
+    a = yields * direct * t_lines
+    node_vec = (yields[:, None] * (fb * nodes["back"] + fs * nodes["side"] + fm * nodes["multiple"])).sum(0)
+    cont = a @ conts + (node_vec * t_nodes) @ D
+    grid = response.energy_grid()
+    centres = 0.5 * (grid[1:] + grid[:-1])
+    e = np.r_[pk_e, centres]
+    w = np.r_[pk_w * a[pk_line], cont]
+    var = np.r_[np.zeros(len(pk_e)), np.full(len(centres), response.GRID_STEP_KEV**2 / 12)]
+    p = params["pileup"]
+    if p > 0:
+        step = response.GRID_STEP_KEV
+        hist = np.bincount(np.minimum((e // step).astype(int), len(centres) - 1), weights=w, minlength=len(centres))
+        conv = np.convolve(hist, hist)[: len(centres)] / max(hist.sum(), 1e-300)
+        e = np.r_[e, centres + step / 2]
+        w = np.r_[(1 - p) * w, p * conv]
+        var = np.r_[var, np.full(len(centres), 2 * step**2 / 12)]
+    keep = w > 1e-12 * w.max()
+    return e[keep], w[keep], var[keep]
+
+
+def native_shape(params: dict[str, float], nuclides: tuple[str, ...], boundaries_keV: np.ndarray) -> np.ndarray:
+    """Expected counts per emitted photon in the native channels with boundaries ``boundaries_keV`` (file energy)."""
+    e, w, var = deposited(params, nuclides)
+    gain, off = params["gain"], params["offset_keV"]
+    m = off + gain * e * (1 + params["quadratic_per_MeV"] * e / 1000.0)
+    s = np.sqrt((gain * response.fwhm_keV(e, params["fwhm_at_662"], params["fwhm_exponent"]) / FWHM_PER_SIGMA) ** 2
+                + gain**2 * var)
+    b = np.asarray(boundaries_keV, dtype=float)
+    lo, hi = m - 8 * s, m + 8 * s
+    cdf = np.zeros(len(b))
+    # chunk the boundaries to keep memory small; points far from a boundary contribute 0 or w
+    for k in range(0, len(b), 256):
+        bb = b[k:k + 256]
+        z = (bb[:, None] - m[None, :]) / s[None, :]
+        cdf[k:k + 256] = ndtr(z) @ w
+    del lo, hi
+    out = np.diff(cdf)
+    if params["threshold_keV"] > 0:
+        centre = 0.5 * (b[1:] + b[:-1])
+        out = out * ndtr((centre - params["threshold_keV"]) / params["threshold_width_keV"])
+    return np.maximum(out, 0.0)
