@@ -2,6 +2,8 @@
 
 With no options it flies the built-in lattice through the default scene (one Cs-137 source) into
 ``./simulated-dataset``. ``--effect NAME[:key=value,...]`` switches on a dataset-spec effect.
+A non-empty ``--out`` is refused unless ``--force`` (which removes the previous dataset files there
+first, truth before frames; other files are kept); ``truth.json`` is written last, atomically.
 """
 
 from __future__ import annotations
@@ -14,6 +16,10 @@ from detector_fw_sim.flight_paths import BUILTIN_PATHS, FlightPathError
 from detector_fw_sim.scene import SceneError, bundled_scenes, load_scene
 from detector_fw_sim.simulate import simulate_flight
 from radseek.dataset import EFFECTS, write_dataset
+from radseek.outdir import OutputDirError, atomic_write_json, prepare_output
+
+#: what simulate-dataset writes under --out, truth first: --force removes them in this order
+SIMULATE_OUTPUTS = ("truth.json", "frames.csv", "frames_flagged.csv", "scenario.json")
 
 
 def _parse_effect(text: str) -> tuple[str, dict[str, float]]:
@@ -36,7 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"scene TOML/JSON file or bundled name ({', '.join(bundled_scenes())}); default: default")
     p.add_argument("--path", default="lattice",
                    help=f"flight path: {', '.join(BUILTIN_PATHS)} or a CSV with x,y,z,yaw,dwell_s (default lattice)")
-    p.add_argument("--out", default="simulated-dataset", help="output dataset directory (default ./simulated-dataset)")
+    p.add_argument("--out", default="simulated-dataset",
+                   help="output dataset directory, must be empty unless --force (default ./simulated-dataset)")
+    p.add_argument("--force", action="store_true",
+                   help="use a non-empty --out: remove its previous dataset files first (other files are kept)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
                    help=f"switch on an effect ({', '.join(EFFECTS)}), e.g. --effect dead_time:tau_s=2e-5")
@@ -46,6 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        out = prepare_output(Path(args.out), force=args.force, outputs=SIMULATE_OUTPUTS)
+    except OutputDirError as exc:
+        print(f"radseek simulate-dataset: {exc}", file=sys.stderr)
+        return 2
+    try:
         scene = load_scene(args.scene)
         for text in args.effect:
             name, params = _parse_effect(text)
@@ -54,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     except (SceneError, FlightPathError) as exc:
         print(f"radseek simulate-dataset: {exc}", file=sys.stderr)
         return 2
-    out = write_dataset(Path(args.out), ds.frames, ds.scenario, ds.truth)
+    write_dataset(out, ds.frames, ds.scenario)
+    if ds.truth is not None:
+        atomic_write_json(out / "truth.json", ds.truth.to_dict())
     f = ds.frames
     effects = ", ".join(scene.enabled_effects()) or "none"
     print(f"wrote {out}: {len(f)} frames, {f.t[-1]:.1f} s, {int(f.dwell.max()) + 1} dwell points, "

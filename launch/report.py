@@ -20,6 +20,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
 from radseek.dataset import Dataset, read_dataset  # noqa: E402
+from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
 
 
 def gaussian_entropy(cov: np.ndarray) -> float:
@@ -136,7 +137,8 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     ax.set_title("count rate (dwells shaded)")
     fig.suptitle(f"radseek run: {mission.get('reason', '')}", fontsize=11)
     fig.tight_layout()
-    fig.savefig(out / "report.png", dpi=110)
+    with atomic_path(out / "report.png") as tmp:  # a reader never sees half a PNG
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
     summary = {
@@ -156,5 +158,5 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         "wall_time_s": wall_time_s,
         "speedup": speedup,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    atomic_write_json(out / "summary.json", summary)  # last, and whole or not at all
     return summary

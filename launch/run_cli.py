@@ -7,6 +7,21 @@ shows live progress, stops when the mission lands, then writes under ``--out``: 
 recorded flight in the dataset format, plus ``truth.json``), ``report.png``, ``summary.json`` and the
 processes' logs. Only this launcher and the detector see the scene's truth; the mission process is
 given the operator's ``scenario.json``.
+
+A non-empty ``--out`` is refused unless ``--force`` (which removes that folder's previous radseek
+outputs first, summaries before data, and leaves other files alone). ``summary.json``, ``report.png``
+and ``truth.json`` are written atomically, and only once the vehicle has landed: an aborted run
+leaves its recorded frames and logs but no summary.
+
+exit codes:
+  0  the search ended on its own criterion with the source located ("source found", or a
+     pattern baseline flown to its end with an estimate)
+  1  the stack failed: a process exited or did not start, the mission failed, or --timeout passed
+     (no report)
+  2  usage: bad options or scene, or --out is not empty and --force was not given
+  3  the search failed: aborted (vehicle failsafe, vehicle landed, ...) or ended without locating the
+     source (dwell budget spent, no frontier left, no estimate); dataset, report.png and summary.json
+     are still written so the flight can be examined
 """
 
 from __future__ import annotations
@@ -28,6 +43,22 @@ from radseek import topics
 from radseek.simclock import ZenohClock
 
 PY = sys.executable
+
+EXIT_FOUND, EXIT_STACK, EXIT_USAGE, EXIT_SEARCH_FAILED = 0, 1, 2, 3
+#: what a run writes under --out, summaries and reports first: --force removes them in this order
+RUN_OUTPUTS = ("summary.json", "report.png", "dataset", "logs", "scenario.json", "scene.json")
+
+
+def search_failure(mission_summary: dict) -> str | None:
+    """Why the search failed, from the mission's summary; None when it located the source."""
+    reason = str(mission_summary.get("reason", ""))
+    if reason.startswith("search aborted"):
+        return reason
+    if mission_summary.get("estimate") is None:
+        return f"no source estimate ({reason})"
+    if reason.startswith("source found") or " pattern flown" in reason:
+        return None
+    return f"no source found: {reason}"
 
 
 def _radseek(*args: str) -> list[str]:
@@ -131,7 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek run", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", nargs="?", default=None, help="scene TOML/JSON or bundled name (default: default)")
-    p.add_argument("--out", help="output directory (default runs/<time>-<scene>)")
+    p.add_argument("--out", help="output directory (default runs/<time>-<scene>); must be empty unless --force")
+    p.add_argument("--force", action="store_true",
+                   help="use a non-empty --out: remove its previous run outputs first (other files are kept)")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--speedup", type=float, default=20.0, help="sim seconds per wall second (default 20)")
     speed.add_argument("--realtime", action="store_true", help="run at real time (--speedup 1)")
@@ -154,15 +187,20 @@ def main(argv: list[str] | None = None) -> int:
 
     from detector_fw_sim.scene import SceneError, load_scene
     from radseek.dataset import write_json
+    from radseek.outdir import OutputDirError, atomic_write_json, prepare_output
     from radseek.zenoh_session import open_session
 
     try:
         scene = load_scene(args.scene)
     except SceneError as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     out = Path(args.out or f"runs/{datetime.now():%Y%m%d-%H%M%S}-{scene.name}")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        prepare_output(out, force=args.force, outputs=RUN_OUTPUTS)
+    except OutputDirError as exc:
+        print(f"radseek run: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     scenario_file = out / "scenario.json"
     write_json(scenario_file, scene.scenario().to_dict())
     scene_file = out / "scene.json"
@@ -170,6 +208,9 @@ def main(argv: list[str] | None = None) -> int:
     endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
     api_local, gcs_local = args.vehicle_local_ports.split(",")
     stack = Stack(out / "logs")
+    if threading.current_thread() is threading.main_thread():
+        # SIGTERM (kill, CI cancelling a job) stops the stack like Ctrl-C does, instead of orphaning it
+        signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
     print(f"radseek run: scene {scene.name!r}, speed-up {speedup:g}, output {out}", file=sys.stderr)
     t0 = time.monotonic()
     try:
@@ -216,17 +257,37 @@ def main(argv: list[str] | None = None) -> int:
                     progress.close()
     except (RuntimeError, TimeoutError) as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_STACK
+    except KeyboardInterrupt:
+        print(f"radseek run: interrupted; the frames recorded so far are in {out / 'dataset'} (no summary)",
+              file=sys.stderr)
+        return 128 + signal.SIGINT
     finally:
         stack.stop()
     wall = time.monotonic() - t0
     if mission.returncode != 0:
         print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
-        return 1
-    write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
+        return EXIT_STACK
+    try:
+        mission_summary = json.loads((out / "dataset" / "mission_summary.json").read_text())
+    except (OSError, ValueError) as exc:
+        print(f"radseek run: the mission left no summary ({exc}); see {out}/logs/mission.log", file=sys.stderr)
+        return EXIT_STACK
+    failure = search_failure(mission_summary)
+    atomic_write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
     from launch.report import write_report
 
-    summary = write_report(out, wall_time_s=wall, speedup=speedup)
-    print(json.dumps({k: summary[k] for k in ("error_m", "dwell_points", "mission_time_s")}, default=float))
-    print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=sys.stderr)
-    return 0
+    try:
+        summary = write_report(out, wall_time_s=wall, speedup=speedup)
+    except Exception as exc:  # noqa: BLE001 - a flight too short to fit still has a verdict and its data
+        print(f"radseek run: no report ({type(exc).__name__}: {exc}); the recorded flight is in {out / 'dataset'}",
+              file=sys.stderr)
+        if failure is None:
+            return EXIT_STACK
+    else:
+        print(json.dumps({k: summary[k] for k in ("error_m", "dwell_points", "mission_time_s")}, default=float))
+        print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=sys.stderr)
+    if failure is not None:
+        print(f"radseek run: search failed: {failure}", file=sys.stderr)
+        return EXIT_SEARCH_FAILED
+    return EXIT_FOUND

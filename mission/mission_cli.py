@@ -3,6 +3,9 @@
 It reads only the operator's scenario (``scenario.json`` of the dataset format: walls, bounds,
 background estimate) and flies a search against whatever autopilot answers on ``--url``; the recorded
 flight is written to ``--out`` as a dataset, with ``mission_summary.json`` and ``mission_log.jsonl``.
+A non-empty ``--out`` is refused unless ``--force`` (which removes the previous mission outputs there
+first, the summary before the data; other files are kept); ``mission_summary.json`` is written
+atomically when the vehicle has landed, frames as they arrive.
 """
 
 from __future__ import annotations
@@ -16,13 +19,21 @@ from mission.client.connection import DEFAULT_URL
 from mission.search import STRATEGIES
 from radseek import zenoh_session
 from radseek.dataset import DatasetError, read_scenario
+from radseek.outdir import OutputDirError, prepare_output
+
+#: what a mission writes under --out, summaries first: --force removes them in this order
+MISSION_OUTPUTS = ("mission_summary.json", "truth.json", "frames.csv", "frames_flagged.csv", "mission_log.jsonl",
+                   "scenario.json")
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek mission", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", required=True, help="scenario.json (the operator's view of the scene)")
-    p.add_argument("--out", required=True, help="directory for the recorded dataset and mission summary")
+    p.add_argument("--out", required=True, help="directory for the recorded dataset and mission summary "
+                   "(must be empty unless --force)")
+    p.add_argument("--force", action="store_true",
+                   help="use a non-empty --out: remove its previous mission outputs first (other files are kept)")
     p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
     p.add_argument("--altitude", type=float, default=1.5, help="dwell altitude, m (default 1.5)")
@@ -40,6 +51,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario = read_scenario(Path(args.scenario))
     except DatasetError as exc:
+        print(f"radseek mission: {exc}", file=sys.stderr)
+        return 2
+    try:
+        prepare_output(args.out, force=args.force, outputs=MISSION_OUTPUTS)
+    except OutputDirError as exc:
         print(f"radseek mission: {exc}", file=sys.stderr)
         return 2
     config = SearchConfig(altitude_m=args.altitude, stop_sigma_m=args.stop_sigma,

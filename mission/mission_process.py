@@ -33,6 +33,7 @@ from mission.search import Decision, Phase, SearchBrain, SearchConfig
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
+from radseek.outdir import atomic_write_json
 
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
@@ -326,7 +327,7 @@ def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: S
                 settings: MissionSettings | None = None) -> dict:
     runner = MissionRunner(session, scenario, out, config or SearchConfig(), settings or MissionSettings())
     summary = asyncio.run(runner.run())
-    (Path(out) / "mission_summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    atomic_write_json(Path(out) / "mission_summary.json", summary)  # whole or not at all
     return summary
 
 

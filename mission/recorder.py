@@ -4,6 +4,9 @@ dataset as it arrives (radseek-dataset/1), so a crash loses nothing already rece
 The join takes the pose at the middle of the frame's integration interval (``t - duration/2``),
 interpolated linearly between the estimated poses received from the vehicle (yaw unwrapped).
 
+A recorder never opens a folder that already holds ``frames.csv`` or ``frames_flagged.csv``
+(``FileExistsError``): a flight is never truncated by the next one.
+
 Frames that carry no usable measurement (``radseek.frame_record.usable``: flagged stale-pose, the
 emulator had no true pose and published zero counts, or CRC-damaged, or received with no pose estimate)
 are not measurements of the field at any pose, so writing them to ``frames.csv`` would make every reader
@@ -31,6 +34,10 @@ class FlightRecorder:
     def __init__(self, path: str | Path, scenario: Scenario):
         self.path = Path(path)
         self.path.mkdir(parents=True, exist_ok=True)
+        for name in ("frames.csv", "frames_flagged.csv"):  # never truncate a recorded flight
+            if (self.path / name).exists():
+                raise FileExistsError(f"{self.path / name} already holds a recorded flight: record elsewhere "
+                                      "(or remove it first, e.g. radseek mission --force)")
         write_json(self.path / "scenario.json", scenario.to_dict())
         self.channel_edges_keV = scenario.channel_edges_keV
         self._frames = FrameWriter(self.path, extra_columns=("seq", "flags"))

@@ -1,0 +1,90 @@
+"""Output folders and atomic writes: a recorded flight is never overwritten or mixed up with another.
+
+- ``prepare_output(path, force=..., outputs=...)``: the folder a command writes into. A non-empty
+  folder is refused (``OutputDirError`` naming the folder and ``--force``) unless ``force``; with
+  ``force`` the command's own previous ``outputs`` are removed first — summaries and reports before
+  data — so an aborted run can never leave an old summary beside new partial frames. Other files in
+  the folder are left alone: ``--force`` never deletes what radseek did not write.
+- ``atomic_write_text`` / ``atomic_write_bytes`` / ``atomic_write_json`` / ``atomic_path``: write to
+  a temporary file in the same folder, flush it to disk, then ``os.replace`` it over the target, so a
+  reader (or a crash) sees the old file or the new one, never half of one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+TMP_PREFIX = ".tmp-"
+
+
+class OutputDirError(Exception):
+    """An output folder that cannot be used as asked (names the folder and the way out)."""
+
+
+def prepare_output(path: str | Path, *, force: bool, outputs: Iterable[str], flag: str = "--force") -> Path:
+    """Create ``path`` or check it is empty; with ``force`` remove the previous ``outputs`` in it (in
+    the order given: list summaries first). Returns the folder."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputDirError(f"output folder {path} exists and is not a folder")
+    if path.is_dir():
+        entries = sorted(p.name for p in path.iterdir())
+        if entries and not force:
+            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+            raise OutputDirError(f"output folder {path} is not empty ({shown}): it may hold a recorded flight; "
+                                 f"choose another --out or pass {flag} to replace its previous outputs")
+        if force:
+            for name in outputs:
+                _remove(path / name)
+            for stale in path.glob(f"{TMP_PREFIX}*"):  # half-written temporaries of an aborted run
+                _remove(stale)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    elif p.exists() or p.is_symlink():
+        p.unlink()
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path in ``path``'s folder to write to; on success it replaces ``path`` atomically,
+    on error it is removed and ``path`` is untouched."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{TMP_PREFIX}{path.name}.")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    os.chmod(tmp_path, 0o644)  # mkstemp makes it private; the result is an ordinary output file
+    try:
+        yield tmp_path
+        with open(tmp_path, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp_path, path)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode())
+
+
+def atomic_write_json(path: str | Path, data: Any, **dumps: Any) -> None:
+    """``data`` as indented JSON (``default=float`` unless given) plus a newline, atomically."""
+    dumps.setdefault("indent", 2)
+    dumps.setdefault("default", float)
+    atomic_write_text(path, json.dumps(data, **dumps) + "\n")
