@@ -2,14 +2,15 @@
 
 Strategy ``active`` (paper 003's autonomous search): ``explore`` (frontier exploration until three
 dwell readings stand above background, paper 003 sec. IV-B-2, with paper 004's frontier choice), then
-``search`` (estimate the source from every frame recorded so far, then fly to the next-best dwell point
-of the random tree scored with eq. 6), until the source's 1-sigma position ellipse is smaller than
-``stop_sigma_m`` or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
+``search`` (estimate the source from every frame recorded so far with ``estimator.inflight``, the
+estimate ``radseek replay`` reproduces, then fly to the next-best dwell point of the random tree scored
+with eq. 6), until the source's 1-sigma (x-y) position ellipse is smaller than ``stop_sigma_m`` and
+the estimate is stable, or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
 The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
 operator's scenario; it never sees the truth. Two drivers run it: ``mission.mission_process`` over
-MAVLink and zenoh, and ``mission.offline`` in-process for seeded benchmarks.
+MAVLink and zenoh, and ``launch.offline`` in-process for seeded benchmarks.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from enum import StrEnum
 
 import numpy as np
 
-from estimator.localizers.base import Localizer, make_localizer
-from estimator.mle import pooled
+from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator
+from estimator.localizers.base import Localizer
 from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief
 from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
@@ -32,7 +33,6 @@ from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
-from radseek.geometry import path_lengths
 
 
 class Phase(StrEnum):
@@ -56,10 +56,10 @@ class SearchConfig:
     min_search_dwells: int = 2  # dwell points after exploration before the sigma criterion may stop
     max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
     max_dwells: int = 16  # dwell points in all (battery budget)
-    localizer: str = "mle"
-    #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
-    #: localizer takes ``init``), with few extra starts and no CRLB, so the vehicle does not hover idle
-    localizer_settings: dict = field(default_factory=lambda: {"n_starts": 3, "compute_crlb": False})
+    #: the in-flight estimate (``estimator.inflight``: pooling, warm start, wall test, sigma) fits this
+    #: localizer with these settings after every dwell
+    localizer: str = DEFAULT_LOCALIZER
+    localizer_settings: dict = field(default_factory=lambda: dict(DEFAULT_SETTINGS))
     vehicle_radius_m: float = 0.3
     dwell: DwellConfig = field(default_factory=DwellConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
@@ -96,8 +96,7 @@ class SearchBrain:
         self.dwell = DwellController(self.config.dwell)
         self.phase = Phase.EXPLORE
         self.search_dwells = 0
-        self.localizer: Localizer | None = None
-        self.estimates: list[dict] = []  # one per dwell from the first search estimate on
+        self.estimator = InflightEstimator(scenario, self.config.localizer, self.config.localizer_settings)
         self.visited = np.zeros((0, 3))
         self.pattern: list[np.ndarray] = []
 
@@ -136,8 +135,7 @@ class SearchBrain:
             self.search_dwells += 1
         n_dwells = len(self.history)
         if self.phase is Phase.PATTERN:
-            belief = self._estimate(frames, current)
-            sigma = self._sigma(belief)
+            _, sigma = self._estimate(frames)
             if not self.pattern or n_dwells >= self.config.max_dwells:
                 return self._done(f"{self.config.strategy} pattern flown (1-sigma {sigma:.3f} m)")
             return self._next_pattern_point(current)
@@ -148,8 +146,7 @@ class SearchBrain:
                 return self._done("dwell budget spent during exploration")
             else:
                 return self._explore(current, f"explore: {self._above()} of 3 readings above background")
-        belief = self._estimate(frames, current)
-        sigma = self._sigma(belief)
+        belief, sigma = self._estimate(frames)
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
                 sigma < self.config.stop_sigma_m and self._stable():
             return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
@@ -182,21 +179,15 @@ class SearchBrain:
             return self._done("exploration found no frontier left")
         return Decision(Phase.EXPLORE, plan, reason)
 
-    def _sigma(self, belief: SourceBelief | None) -> float:
-        """1-sigma semi-major axis (m) of a trustworthy estimate, inf otherwise: a fit that did not
-        converge, or whose covariance collapsed (parameters pinned at a bound), proves nothing."""
-        if belief is None or self.localizer is None or not getattr(self.localizer, "info_", {}).get("converged", True):
-            return np.inf
-        sigma = belief.semi_major_axis()
-        # per-dwell pose offsets of centimetres make a millimetre ellipse a numerical artefact, not certainty
-        return sigma if np.isfinite(sigma) and sigma > 5e-3 else np.inf
-
     def _stable(self) -> bool:
-        """The last two estimates agree within 2 combined sigmas: a small ellipse around an estimate that
-        is still jumping between likelihood modes (few dwells, all on one side) is not a found source."""
+        """The last two estimates are trustworthy and agree within 2 combined sigmas: a small ellipse around
+        an estimate that is still jumping between likelihood modes (few dwells, all on one side) is not a
+        found source."""
         if len(self.estimates) < 2:
             return False
         a, b = self.estimates[-2], self.estimates[-1]
+        if not (math.isfinite(a["sigma_m"]) and math.isfinite(b["sigma_m"])):
+            return False
         return math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 2 * math.hypot(a["sigma_m"], b["sigma_m"])
 
     def _pattern_points(self) -> np.ndarray:
@@ -236,55 +227,25 @@ class SearchBrain:
         self.phase = Phase.DONE
         return Decision(Phase.DONE, None, reason)
 
-    def _fit(self, frames: Frames, settings: dict) -> Localizer | None:
-        loc = make_localizer(self.config.localizer)
-        loc.set_params(**{k: v for k, v in settings.items() if k in loc.get_params()})
-        try:
-            loc.fit(frames, self.scenario)
-        except (ValueError, np.linalg.LinAlgError, RuntimeError):
-            return None
-        return loc
+    def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
+        """The in-flight estimate from every frame recorded so far (``estimator.inflight``) as the
+        planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy)."""
+        est = self.estimator.update(frames, dwell=len(self.history))
+        if est is None:
+            return None, math.inf
+        belief = SourceBelief(np.array([est["x"], est["y"], est["z"]]), np.array(est["covariance"]),
+                              max(est["cps_at_1m"], 1e-3), max(est["background_cps"], 0.0))
+        return belief, est["sigma_m"]
 
-    def _estimate(self, frames: Frames, current: np.ndarray) -> SourceBelief | None:
-        if len(frames) < 10:
-            return None
-        # in-flight models depend on the pose only: 1 s chunks of a dwell lose nothing but jitter
-        frames = pooled(frames, 10, dwells_only=True)
-        settings = dict(self.config.localizer_settings)
-        if self.estimates:
-            prev = self.estimates[-1]
-            settings["init"] = {k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")}
-        loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
-        if loc is None:
-            return None
-        if self.scenario.walls and "effects" not in self.config.localizer_settings:
-            # a mapped wall matters only if a recorded line of sight to the source crosses it: then fit its
-            # attenuation too (mu is unidentifiable otherwise); keep the wall-free fit if that one fails
-            # (asked of every point within 1 m of the wall-free estimate, which a wall itself may have biased)
-            src = np.array([loc.sources_[0][k] for k in ("x", "y", "z")])
-            around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
-            if path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0:
-                # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
-                # local optimum of the walled model (mu = 0), so starting only there never leaves it
-                prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
-                init = ({k: prev[k] for k in ("x", "y", "cps_at_1m", "background_cps")} if prev else
-                        {**loc.sources_[0], "background_cps": loc.background_})
-                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
-                                            "n_starts": max(settings.get("n_starts", 3), 5)})
-                if walled is not None:  # even unconverged: _sigma() then refuses to call it confident
-                    loc = walled
-        self.localizer = loc
-        src = loc.sources_[0]
-        cov = np.asarray(loc.covariance_, dtype=float)[:3, :3]
-        cov = np.where(np.isfinite(cov), cov, 0.0)
-        cov = 0.5 * (cov + cov.T)
-        w, v = np.linalg.eigh(cov)
-        cov = (v * np.clip(w, 0, None)) @ v.T
-        self.estimates.append({"dwell": len(self.history), **src, "background_cps": float(loc.background_),
-                               "sigma_m": float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0))),
-                               "effects": list(getattr(loc, "effects", ()))})
-        return SourceBelief(np.array([src["x"], src["y"], src["z"]]), cov, max(src["cps_at_1m"], 1e-3),
-                            max(float(loc.background_), 0.0))
+    @property
+    def estimates(self) -> list[dict]:
+        """The in-flight estimate records, one per dwell from the first search estimate on."""
+        return self.estimator.estimates
+
+    @property
+    def localizer(self) -> Localizer | None:
+        """The last fitted localizer (its full ``estimate`` message is what the mission publishes)."""
+        return self.estimator.localizer
 
     @property
     def estimate(self) -> dict | None:

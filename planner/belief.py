@@ -14,7 +14,7 @@ import numpy as np
 from radseek import topics
 from radseek.count_model import expected_rate
 from radseek.dataset import Wall
-from radseek.geometry import path_lengths
+from radseek.geometry import path_lengths, semi_major_axis
 
 
 @dataclass(frozen=True)
@@ -54,9 +54,10 @@ class SourceBelief:
         return cls(np.array([s["x"], s["y"], s["z"]]), cov, float(s["cps_at_1m"]), float(msg.background_cps))
 
     def semi_major_axis(self, extra_covariance: np.ndarray | None = None) -> float:
-        """Largest semi-axis (m) of the 1-sigma ellipsoid of covariance (+ extra, e.g. the pose's)."""
+        """Largest semi-axis (m) of the 1-sigma ellipsoid of covariance (+ extra, e.g. the pose's): the
+        planner's geometric size of the belief (3-D); the estimate's 1-sigma is ``estimator.inflight.sigma_m``."""
         cov = self.covariance if extra_covariance is None else self.covariance + np.asarray(extra_covariance)
-        return float(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
+        return semi_major_axis(cov)
 
     def predicted_net_rate(self, points: np.ndarray, walls: Sequence[Wall] = (), wall_mu_per_m: float = 0.0
                            ) -> np.ndarray:

@@ -82,3 +82,10 @@ def segment_hits_walls(a: np.ndarray, b: np.ndarray, walls: np.ndarray | Sequenc
     # a degenerate segment (a == b) still counts if the point is inside a wall
     eps = np.where(np.linalg.norm(b - a, axis=-1, keepdims=True) == 0, 1e-9, 0.0)
     return path_lengths(a, b + eps, wi) > 0
+
+
+def semi_major_axis(covariance: np.ndarray) -> float:
+    """Largest semi-axis (m) of the 1-sigma ellipse (ellipsoid) of a symmetric covariance (m^2): the square
+    root of its largest eigenvalue, 0 for a negative one. The one formula behind every "1-sigma" in radseek
+    (``estimator.inflight.sigma_m`` on the x-y block, the planner's ``SourceBelief.semi_major_axis``)."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(np.asarray(covariance, dtype=float)).max(), 0.0)))
