@@ -221,6 +221,9 @@ class Histogram(_Payload):
     ``board_time`` is the board's own clock (s); ``t`` the sim time at the frame's end;
     ``duration`` the real time integrated. The board reports no live time (dead time loses counts
     silently); ``live_time`` is the emulator's truth and is present only for diagnostics.
+    Receivers drop (and count) a histogram outside the board's limits: counts 0..65535 per channel
+    (u16), seq u32, flags u8, 0 < duration <= 4295 s (u32 us), 0 <= live_time <= duration; like every
+    payload here, its ``t`` must lie in [0, 1e7] s of sim time.
     """
 
     TOPIC: ClassVar[str] = HISTOGRAM
