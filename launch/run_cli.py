@@ -220,18 +220,28 @@ def main(argv: list[str] | None = None) -> int:
             "--connect", endpoint, *args.detector_arg)
         stack.start("detector", detector_cmd)
         # the vehicle owns sim time: start it only once the detector has built its response and is
-        # waiting for the clock, so no simulated time passes unmeasured
+        # waiting for the clock, and the mission is up and recording (its first mission/state follows its
+        # subscriptions), so no simulated time passes unmeasured, however slowly the processes start
         stack.wait_for_line("detector", "waiting for", timeout_s=180.0)
-        stack.start("vehicle", _radseek(
-            "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
-            "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
-            "--gcs-local-port", gcs_local, "--max-speed", "1.0", *args.vehicle_arg))
-
-        mission = stack.start("mission", _radseek(
-            "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
-            "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
-            "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
         with open_session(connect=endpoint) as session:
+            mission_up = threading.Event()
+            state_sub = session.declare_subscriber(topics.key(topics.MISSION_STATE, topics.DEFAULT_VEHICLE),
+                                                   lambda _sample: mission_up.set())
+            mission = stack.start("mission", _radseek(
+                "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
+                "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
+                "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
+            ready_by = time.monotonic() + 180.0
+            while not mission_up.wait(0.1):
+                if mission.poll() is not None:
+                    raise RuntimeError(f"mission exited with {mission.returncode}: see {out}/logs/mission.log")
+                if time.monotonic() > ready_by:
+                    raise RuntimeError(f"mission did not get ready in 180 s: see {out}/logs/mission.log")
+            state_sub.undeclare()
+            stack.start("vehicle", _radseek(
+                "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
+                "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
+                "--gcs-local-port", gcs_local, "--max-speed", "1.0", *args.vehicle_arg))
             progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
             clock = ZenohClock(session, topics.DEFAULT_VEHICLE)
             kill_at = args.kill_detector_at
