@@ -147,7 +147,7 @@ def parse_duration(path: str | Path, where: str, text: str | None) -> float:
 
 
 def format_duration(seconds: float) -> str:
-    return f"PT{seconds:.6g}S" if seconds < 1e6 else f"PT{seconds:.3f}S"
+    return f"PT{seconds:.10g}S"
 
 
 def _check_counts(path: str | Path, where: str, values: list[float]) -> np.ndarray:
@@ -455,7 +455,7 @@ def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
 def write_spe(path: str | Path, sp: Spectrum) -> Path:
     """An Ortec ASCII .spe (used by the tests; polynomial calibration only)."""
     lines = ["$SPEC_ID:", sp.title or "radseek", "$DATE_MEA:", sp.start_time or "01/01/1970 00:00:00", "$MEAS_TIM:",
-             f"{sp.live_time_s:g} {sp.real_time_s or sp.live_time_s:g}", "$DATA:", f"0 {sp.n_channels - 1}"]
+             f"{sp.live_time_s:.10g} {sp.real_time_s or sp.live_time_s:.10g}", "$DATA:", f"0 {sp.n_channels - 1}"]
     lines += [str(int(c)) for c in sp.counts]
     lines += ["$MCA_CAL:", str(len(sp.calibration)), " ".join(f"{c:.9g}" for c in sp.calibration) + " keV"]
     Path(path).write_text("\n".join(lines) + "\n")

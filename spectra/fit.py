@@ -189,8 +189,7 @@ def _discrete_grid(effect: str, params: dict[str, float]) -> list[dict[str, floa
         return [{"k_escape": 1.0}]
     if effect == "crystal_size":
         c = params["crystal_mm"]
-        return [{"crystal_mm": v, "escape_scale": s} for v in (0.7 * c, 0.85 * c, 1.2 * c, 1.45 * c)
-                for s in (0.6, 1.0, 1.6)]
+        return [{"crystal_mm": 0.75 * c}, {"crystal_mm": 1.3 * c}, {"escape_scale": 0.6}, {"escape_scale": 1.6}]
     return [{}]
 
 

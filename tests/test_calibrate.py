@@ -1,0 +1,183 @@
+"""radseek calibrate: the analytic case (known parameters recovered within their errors), the CLI end to end,
+the detector file in a scene and in the estimator's spectral model, N42 export and flight import."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radseek import spectrum_files as sf
+from radseek.detector_file import DetectorFileError, read_detector_file
+from spectra import fit as F
+from spectra import model as M
+
+DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
+TRUE = {"gain": 1.02, "offset_keV": -3.0, "fwhm_at_662": 0.095, "fwhm_exponent": 0.42, "scatter_side": 0.12}
+EFFECTS = ("energy_calibration", "resolution_law", "side_scatter")
+
+
+def synthetic(seed: int, total: float = 2.0e5) -> tuple[F.Problem, dict[str, float]]:
+    """A Cs-137 spectrum drawn from the model itself (RadiaCode-like 1024-channel calibration), plus a flat
+    background known to the fit."""
+    p = M.baseline_params()
+    p.update(TRUE)
+    cal = (-6.0, 2.4, 4e-4)
+    base = sf.Spectrum(np.ones(1024), 300.0, calibration=cal)
+    prob = F.Problem(base, ("Cs-137",), None)
+    shape = prob.shape(p)
+    lam = total * shape / shape.sum() + 0.2
+    rng = np.random.default_rng(seed)
+    sp = sf.Spectrum(rng.poisson(lam).astype(float), 300.0, calibration=cal)
+    bg = sf.Spectrum(np.full(1024, 0.2 * 6), 1800.0, calibration=cal)  # 0.2 counts per channel in 300 s
+    return F.Problem(sp, ("Cs-137",), bg), p
+
+
+def test_synthetic_spectrum_recovers_parameters_within_errors():
+    prob, true = synthetic(seed=3)
+    start = M.baseline_params()
+    res = F.fit(prob, start, EFFECTS)
+    for k in ("gain", "offset_keV", "fwhm_at_662", "fwhm_exponent", "scatter_side"):
+        err = res.errors[k]
+        assert err > 0
+        # 4 sigma: five parameters, a false alarm probability of 3e-4 in all
+        assert abs(res.params[k] - true[k]) < 4 * err, (k, res.params[k], true[k], err)
+    # the model is the truth: deviance per dof is chi-square / dof, ~1 within its spread sqrt(2 / dof)
+    assert abs(res.deviance_per_dof - 1) < 5 * np.sqrt(2 / res.dof)
+
+
+def test_forward_selection_finds_the_effects_the_baseline_lacks():
+    prob, _ = synthetic(seed=5)
+    res = F.forward_select(prob, candidates=EFFECTS + ("absorber",))
+    assert set(EFFECTS) <= set(res.effects)
+    devs = [s["deviance"] for s in res.steps]
+    assert all(b < a for a, b in zip(devs, devs[1:], strict=False))  # each added effect lowers the deviance
+    assert res.steps[-1]["total_variation_32"] < res.steps[0]["total_variation_32"]
+
+
+def test_shape_distance_is_zero_for_the_model_itself():
+    prob, true = synthetic(seed=1)
+    shape = prob.shape(true)
+    ideal = F.Problem(sf.Spectrum(shape * 1e6, 300.0, calibration=prob.spectrum.calibration), ("Cs-137",))
+    d = F.shape_distances(ideal, shape)
+    assert d["total_variation_32"] < 1e-9 and d["total_variation_native"] < 1e-9
+
+
+@pytest.fixture(scope="module")
+def detector_file(tmp_path_factory) -> Path:
+    from spectra.calibrate_cli import main
+
+    out = tmp_path_factory.mktemp("det") / "rc102.json"
+    rc = main([str(DATA / "Cs137_b.xml"), "--nuclide", "Cs-137", "--background", str(DATA / "bg.xml"),
+               "--effects", "resolution_law,energy_calibration", "--out", str(out), "--json"])
+    assert rc == 0
+    return out
+
+
+def test_cli_calibrate_writes_detector_file_and_json(detector_file, capsys):
+    from spectra.calibrate_cli import main
+
+    det = read_detector_file(detector_file)
+    assert {"resolution_law", "energy_calibration"} <= set(det.effects)
+    assert 0.05 < det.parameters["fwhm_at_662"] < 0.2
+    assert det.fit["total_variation_32"] < det.fit["baseline"]["total_variation_32"]
+    assert set(det.cdf) >= {"Cs-137", "Co-60", "Ba-133", "Am-241"}
+    capsys.readouterr()
+    rc = main([str(DATA / "Ba133_a.xml"), "--nuclide", "Ba-133", "--background", str(DATA / "bg.xml"),
+               "--detector", str(detector_file), "--no-fit", "--json"])
+    assert rc == 0
+    r = json.loads(capsys.readouterr().out)
+    for key in ("parameters", "missing", "deviance_per_dof", "total_variation_32", "total_variation_native"):
+        assert key in r
+    assert r["parameters"]["fwhm_at_662"] == pytest.approx(det.parameters["fwhm_at_662"], rel=1e-5)
+    assert 0 <= r["total_variation_32"] <= 1
+
+
+def test_cli_errors_name_the_file(tmp_path, capsys):
+    from radseek.cli import main
+
+    bad = tmp_path / "x.spe"
+    bad.write_text("$DATA:\n0 1\n5\n")
+    assert main(["calibrate", str(bad), "--nuclide", "Cs-137"]) == 2
+    assert str(bad) in capsys.readouterr().err
+    with pytest.raises(DetectorFileError, match="format"):
+        (tmp_path / "d.json").write_text('{"format": "other"}')
+        read_detector_file(tmp_path / "d.json")
+
+
+def test_detector_file_drives_the_emulator(detector_file):
+    from detector_fw_sim.emulator import DetectorEmulator
+    from detector_fw_sim.scene import load_scene
+
+    det = read_detector_file(detector_file)
+    data = load_scene().model_dump()
+    data["detector"] = str(detector_file)
+    from detector_fw_sim.scene import validate_scene
+
+    scene = validate_scene(data, "test")
+    assert scene.detector.fwhm_at_662 == pytest.approx(det.parameters["fwhm_at_662"])
+    assert scene.detector.crystal.effects is not None
+    em = DetectorEmulator(scene, seed=0)
+    plain = DetectorEmulator(load_scene(), seed=0)
+    pose = np.array([[scene.sources[0].position[0] + 1.0, scene.sources[0].position[1], 1.0, 0.0]])
+    r_cal, r_plain = em.source_rates(pose, np.zeros(1))[0], plain.source_rates(pose, np.zeros(1))[0]
+    # the calibrated crystal's photopeak channel holds a smaller share (10 % FWHM, not 7 %)
+    k = int(np.argmax(r_plain))
+    assert r_cal[k] / r_cal.sum() < r_plain[k] / r_plain.sum()
+
+
+def test_detector_file_template_in_the_spectral_model(detector_file):
+    from detector_fw_sim.scene import load_scene
+    from detector_fw_sim.simulate import simulate_flight
+    from estimator.spectral import SpectralModel
+
+    det = read_detector_file(detector_file)
+    scene = load_scene()
+    ds = simulate_flight(scene, "lattice", seed=1)
+    model = SpectralModel.from_detector_file(scene.channel_edges_keV, det, "Cs-137")
+    assert model.source_template is not None and model.source_template.sum() == pytest.approx(1.0)
+    fit = model.fit(ds.frames, drift=False)
+    np.testing.assert_allclose(fit.templates[0], model.source_template)  # held fixed
+    assert np.isfinite(fit.deviance_per_dof_null)
+
+
+def test_n42_export_of_dwells_and_flight_import(tmp_path):
+    from detector_fw_sim.scene import load_scene
+    from detector_fw_sim.simulate import simulate_flight
+    from radseek.dataset import read_dataset, write_dataset
+    from spectra.flight_cli import main as spectra_main
+
+    scene = load_scene()
+    ds = simulate_flight(scene, "lattice", seed=2)
+    d = write_dataset(tmp_path / "flight", ds.frames, ds.scenario, ds.truth)
+    assert spectra_main(["export-n42", str(d), "--out", str(tmp_path / "f.n42")]) == 0
+    ds = read_dataset(d)  # as written (frames.csv rounds durations)
+    spectra = sf.read_n42(tmp_path / "f.n42")
+    dwells = [int(v) for v in dict.fromkeys(ds.frames.dwell) if v >= 0]
+    assert len(spectra) == len(dwells)
+    for sp, dw in zip(spectra, dwells, strict=True):
+        sel = ds.frames.dwell == dw
+        np.testing.assert_array_equal(sp.counts, ds.frames.counts[sel].sum(axis=0))
+        assert sp.live_time_s == pytest.approx(ds.frames.duration[sel].sum(), rel=1e-9)
+        np.testing.assert_allclose(sp.boundaries_keV, ds.scenario.channel_edges_keV)
+    # a flight in another tool's format: native 1024-channel spectrogram + pose track
+    real = sf.read_spectrum(DATA / "Cs137_b.xml")
+    rng = np.random.default_rng(0)
+    t = np.arange(20) * 1.0
+    rows = rng.poisson(real.counts / 300.0, size=(20, 1024))
+    cal = " ".join(map(str, real.calibration))
+    lines = [f"# calibration: {cal}", "time_s,duration_s," + ",".join(f"c{i}" for i in range(1024))]
+    lines += [f"{ti},1.0," + ",".join(map(str, r)) for ti, r in zip(t, rows, strict=True)]
+    (tmp_path / "spg.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "poses.csv").write_text("time_s,x,y,z,yaw,dwell\n0,0,0,1,0,0\n10,1,0,1,0.5,0\n30,2,0,1,1.0,1\n")
+    assert spectra_main(["import-flight", str(tmp_path / "spg.csv"), str(tmp_path / "poses.csv"),
+                         "--out", str(tmp_path / "imported")]) == 0
+    back = read_dataset(tmp_path / "imported")
+    assert len(back.frames) == 20
+    edges = back.scenario.channel_edges_keV
+    centre = 0.5 * (real.edges_keV()[1:] + real.edges_keV()[:-1])
+    above = centre >= edges[0]
+    assert back.frames.counts.sum() == rows[:, above].sum()  # every count at or above the threshold kept
+    assert back.frames.x[5] == pytest.approx(0.55)  # interpolated at mid-time 5.5 s

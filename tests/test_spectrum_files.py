@@ -1,0 +1,187 @@
+"""Spectrum file readers and the N42 writer (radseek.spectrum_files), on the real RadiaCode-102 files."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from radseek import spectrum_files as sf
+
+DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
+
+
+def test_radiacode_xml_reads_counts_time_calibration_serial():
+    sp = sf.read_spectrum(DATA / "Cs137_b.xml")
+    assert sp.n_channels == 1024
+    assert sp.live_time_s == 300.0
+    assert sp.counts.sum() == 83512
+    assert sp.calibration == pytest.approx((-6.38159, 2.36593, 4.39819e-4))
+    assert sp.serial == "RC-102-001272"
+    # lower edge of channel i is c0 + c1 i + c2 i^2 (the N42 / SpecUtils convention)
+    assert sp.edges_keV()[280] == pytest.approx(-6.38159 + 2.36593 * 280 + 4.39819e-4 * 280**2)
+
+
+def test_n42_2011_from_radiacode_tools():
+    sp = sf.read_spectrum(DATA / "data_am241.n42")
+    assert sp.n_channels == 1024
+    assert sp.live_time_s == 613.0 and sp.real_time_s == 613.0
+    assert sp.calibration == pytest.approx((-6.2832313, 2.4383054, 0.0003818))
+    assert sp.serial == "RC-102-000115"
+    assert sp.kind == "foreground"
+    assert sp.counts.sum() == 306058
+
+
+def test_background_and_ba133_read():
+    assert sf.read_spectrum(DATA / "bg.xml").live_time_s == 1800.0
+    assert sf.read_spectrum(DATA / "Ba133_a.xml").counts.sum() == 207680
+
+
+@pytest.mark.parametrize("writer,suffix", [(sf.write_spe, ".spe"), (sf.write_chn, ".chn"), (sf.write_csv, ".csv")])
+def test_ortec_and_csv_round_trip(tmp_path, writer, suffix):
+    sp = sf.read_spectrum(DATA / "Cs137_b.xml")
+    p = writer(tmp_path / f"cs{suffix}", sp)
+    back = sf.read_spectrum(p)
+    np.testing.assert_array_equal(back.counts, sp.counts)
+    assert back.live_time_s == pytest.approx(300.0)
+    np.testing.assert_allclose(back.edges_keV(), sp.edges_keV(), rtol=1e-6, atol=1e-3)  # .chn stores float32
+
+
+def test_n42_writer_round_trip_with_boundaries_and_background(tmp_path):
+    edges = np.linspace(40, 3000, 33)
+    fg = sf.Spectrum(np.arange(32.0), 10.0, 12.0, boundaries_keV=edges, start_time="2026-01-01T00:00:00Z", title="d0")
+    bg = sf.Spectrum(np.ones(1024), 100.0, calibration=(1.0, 3.0), kind="background")
+    p = sf.write_n42(tmp_path / "x.n42", [fg, bg])
+    a, b = sf.read_n42(p)
+    np.testing.assert_array_equal(a.counts, fg.counts)
+    np.testing.assert_allclose(a.boundaries_keV, edges)
+    assert (a.live_time_s, a.real_time_s, a.title) == (10.0, 12.0, "d0")
+    assert b.kind == "background" and b.calibration == (1.0, 3.0)
+    assert sf.read_spectrum(p, kind="background").live_time_s == 100.0
+
+
+def test_n42_counted_zeroes(tmp_path):
+    text = (DATA / "data_am241.n42").read_text()
+    doc = text.replace('compressionCode="None">', 'compressionCode="CountedZeroes">', 1)
+    sp = sf.read_spectrum(DATA / "data_am241.n42")
+    packed = []
+    zeros = 0
+    for c in sp.counts:
+        if c == 0:
+            zeros += 1
+            continue
+        if zeros:
+            packed += [0, zeros]
+            zeros = 0
+        packed.append(int(c))
+    if zeros:
+        packed += [0, zeros]
+    start = doc.index('compressionCode="CountedZeroes">') + len('compressionCode="CountedZeroes">')
+    end = doc.index("</ChannelData>")
+    doc = doc[:start] + " ".join(map(str, packed)) + doc[end:]
+    (tmp_path / "cz.n42").write_text(doc)
+    np.testing.assert_array_equal(sf.read_spectrum(tmp_path / "cz.n42").counts, sp.counts)
+
+
+@pytest.mark.parametrize("mutate,expect", [
+    (lambda t: t.replace("<MeasurementTime>300</MeasurementTime>", "<MeasurementTime>abc</MeasurementTime>"),
+     "EnergySpectrum/MeasurementTime: not a number"),
+    (lambda t: t.replace("<DataPoint>21</DataPoint>", "<DataPoint>-1</DataPoint>", 1), "DataPoint"),
+    (lambda t: t.replace("<NumberOfChannels>1024", "<NumberOfChannels>1000"), "NumberOfChannels"),
+    (lambda t: t[: len(t) // 2], "not well-formed XML"),
+])
+def test_radiacode_errors_name_file_and_element(tmp_path, mutate, expect):
+    p = tmp_path / "bad.xml"
+    p.write_text(mutate((DATA / "Cs137_b.xml").read_text()))
+    with pytest.raises(sf.SpectrumFileError) as exc:
+        sf.read_spectrum(p)
+    assert str(p) in str(exc.value) and expect in str(exc.value)
+
+
+def test_n42_errors_name_element(tmp_path):
+    text = (DATA / "data_am241.n42").read_text()
+    p = tmp_path / "bad.n42"
+    p.write_text(text.replace("<LiveTimeDuration>PT613S", "<LiveTimeDuration>613 s"))
+    with pytest.raises(sf.SpectrumFileError, match=r"bad\.n42: RadMeasurement\[0\] id='rm-fg'/Spectrum\[0\]/"
+                                                    r"LiveTimeDuration: not an xs:duration"):
+        sf.read_spectrum(p)
+    p.write_text(text.replace('energyCalibrationReference="ec-fg"', 'energyCalibrationReference="nope"'))
+    with pytest.raises(sf.SpectrumFileError, match="energyCalibrationReference 'nope'"):
+        sf.read_spectrum(p)
+
+
+def test_spe_and_chn_errors(tmp_path):
+    p = tmp_path / "bad.spe"
+    p.write_text("$MEAS_TIM:\n10 10\n$DATA:\n0 3\n1\n2\n")
+    with pytest.raises(sf.SpectrumFileError, match=r"bad\.spe: \$DATA:: range 0..3 needs 4 counts, found 2"):
+        sf.read_spectrum(p)
+    c = tmp_path / "bad.chn"
+    c.write_bytes(struct.pack("<hhh2sii8s4shh", -1, 1, 1, b"00", 50, 50, b"01JAN70*", b"0000", 0, 100) + b"\0" * 40)
+    with pytest.raises(sf.SpectrumFileError, match=r"bad\.chn: channel data \(bytes 32..432\): file ends at byte 72"):
+        sf.read_spectrum(c)
+
+
+def test_spe_agrees_with_becquerel(tmp_path):
+    bq = pytest.importorskip("becquerel")  # optional cross-check: becquerel is not a dependency
+    sp = sf.read_spectrum(DATA / "Cs137_b.xml")
+    p = sf.write_spe(tmp_path / "cs.spe", sp)
+    data, _cal = bq.parsers.spe.read(p)
+    np.testing.assert_array_equal(np.asarray(data["counts"])[: sp.n_channels], sp.counts)
+    assert data["livetime"] == pytest.approx(sp.live_time_s)
+
+
+def test_n42_export_opens_in_specutils(tmp_path):
+    SpecUtils = pytest.importorskip("SpecUtils")  # InterSpec's library (sandiaspecutils), optional
+    sp = sf.read_spectrum(DATA / "Cs137_b.xml")
+    p = sf.write_n42(tmp_path / "cs.n42", [sp])
+    f = SpecUtils.SpecFile()
+    f.loadFile(str(p), SpecUtils.ParserType.Auto)
+    m = f.measurements()[0]
+    assert m.gammaCountSum() == pytest.approx(sp.counts.sum())
+    assert m.gammaChannelLower(1) == pytest.approx(sp.edges_keV()[1], abs=1e-3)
+
+
+REAL = [(DATA / n).read_bytes() for n in ("Cs137_b.xml", "data_am241.n42")]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(which=st.integers(0, 1), pos=st.floats(0, 1), cut=st.integers(0, 200), junk=st.binary(max_size=40))
+def test_fuzzed_xml_raises_only_spectrum_file_error(which, pos, cut, junk):
+    data = REAL[which]
+    i = int(pos * len(data))
+    mutated = data[:i] + junk + data[i + cut:]
+    try:
+        sp = sf.read_spectra(Path("fuzz.n42" if which else "fuzz.xml"), mutated)
+    except sf.SpectrumFileError as exc:
+        assert "fuzz." in str(exc)
+    else:
+        assert all(np.all(s.counts >= 0) and s.live_time_s > 0 for s in sp)
+
+
+@settings(max_examples=80, deadline=None)
+@given(data=st.binary(max_size=600), suffix=st.sampled_from([".spe", ".chn", ".csv", ".n42", ".xml"]))
+def test_fuzzed_bytes_raise_only_spectrum_file_error(data, suffix):
+    try:
+        sp = sf.read_spectra(Path("fuzz" + suffix), data)
+    except sf.SpectrumFileError as exc:
+        assert "fuzz" in str(exc)
+    else:
+        assert all(np.all(s.counts >= 0) for s in sp)
+
+
+@settings(max_examples=40, deadline=None)
+@given(counts=st.lists(st.integers(0, 10**6), min_size=2, max_size=300), live=st.floats(0.01, 1e5),
+       c0=st.floats(-20, 20), c1=st.floats(0.1, 10))
+def test_writers_round_trip_any_spectrum(tmp_path_factory, counts, live, c0, c1):
+    d = tmp_path_factory.mktemp("rt")
+    sp = sf.Spectrum(np.array(counts, dtype=float), live, calibration=(c0, c1))
+    for writer, suffix in ((sf.write_spe, ".spe"), (sf.write_csv, ".csv"), (sf.write_n42, ".n42")):
+        p = d / f"s{suffix}"
+        writer(p, [sp]) if writer is sf.write_n42 else writer(p, sp)
+        back = sf.read_spectrum(p)
+        np.testing.assert_array_equal(back.counts, sp.counts)
+        assert back.live_time_s == pytest.approx(live, rel=1e-6)
