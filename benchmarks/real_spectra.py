@@ -44,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     for name, r in rows.items():
         b = r["baseline"]
         print(f"{name:<40} {b['total_variation_32']:>11.4f} {r['total_variation_32']:>10.4f} "
-              f"{b['total_variation_native']:>13.4f} {r['total_variation_native']:>12.4f} {r['deviance_per_dof']:>8.2f}")
+              f"{b['total_variation_native']:>13.4f} {r['total_variation_native']:>12.4f} "
+              f"{r['deviance_per_dof']:>8.2f}")
     print(f"selected effects: {', '.join(cs['effects'])}; CPU {time.process_time() - t0:.0f} s")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
