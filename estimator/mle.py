@@ -1,13 +1,16 @@
 """Poisson maximum likelihood for a ``MeasurementModel``: multi-start, bounded, with pose uncertainty,
 Fisher-information covariance and the Cramér-Rao bound.
 
-Likelihood: per-frame total counts n_i ~ Poisson(mu_i(theta)). With ``pose_uncertainty=True`` every
-dwell point (and every contiguous stretch of transit frames) gets an uncertain position offset
-delta_k ~ N(0, diag(var_x, var_y, var_z)) taken from the dataset's variance columns (paper 003: the
-GPS-denied pose estimate is uncertain, and near a strong source 4 cm move the rate by several %).
-The offsets are profiled out for each theta by two vectorised Newton steps of the penalised
-likelihood (the Jacobian of mu with respect to the offset is taken once, at zero offset), so the
-objective stays smooth in theta and costs six model evaluations.
+Likelihood: per-frame total counts n_i ~ Poisson(mu_i(theta)). With ``pose_uncertainty=True`` the
+recorded poses are uncertain (paper 003: the GPS-denied pose estimate drifts, and near a strong source
+4 cm move the rate by several %): frames are grouped (:class:`PoseGroups`) and each group gets a position
+offset with a Gaussian prior from the dataset's variance columns. When the reported variance grows along
+the flight the error is odometry drift, one random walk in distance flown, correlated across all dwells
+(so a common shift of every pose, which moves the source with it, is as uncertain as the drift itself);
+otherwise the offsets are independent per dwell. The offsets are profiled out for each theta by two
+Newton steps of the penalised likelihood (the Jacobian of mu with respect to the offset is taken once,
+at zero offset; the random walk's system is banded), so the objective stays smooth in theta, its Hessian
+(the reported covariance) includes the pose error, and it costs six model evaluations.
 
 Goodness of fit: the Poisson deviance D = 2 sum [n log(n/mu) - (n - mu)] plus the offsets' penalty
 sum delta^T Sigma^-1 delta. At low counts E[D] per frame is not 1 (about 1 + 1/(6 mu)), so the
@@ -38,32 +41,132 @@ _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
 
 # ----------------------------------------------------------------------------------- pose groups
 
+RANDOM_WALK = "random_walk"
+INDEPENDENT = "independent"
+POSE_ERROR_MODELS = (RANDOM_WALK, INDEPENDENT)
+#: transit frames per pose group under a random walk: ~1 m of flight at 1 m/s, so the drift a group
+#: averages over (0.03 m/sqrt(m) x sqrt(1 m)) stays below the offsets it estimates
+TRANSIT_CHUNK = 10
+#: smallest variance increment between consecutive groups (m^2): hovering adds no drift, and a zero
+#: increment would make the prior precision infinite
+_MIN_INCREMENT = 1e-6
+
+
+def pose_error_model(frames: Frames, declared: str | None = None) -> str:
+    """Which prior the recorded pose errors follow: ``declared`` (scenario.json ``pose_error``) if given,
+    else ``random_walk`` when the reported variance grows along the flight (odometry drift: a random
+    walk in distance flown, whose variance grows with each metre) and ``independent`` when it does not
+    (an error that does not accumulate, e.g. a fix per dwell point)."""
+    if declared is not None:
+        if declared not in POSE_ERROR_MODELS:
+            raise ValueError(f"pose_error must be one of {POSE_ERROR_MODELS}, got {declared!r}")
+        return declared
+    v = np.asarray(frames.var_x, dtype=float) + np.asarray(frames.var_y, dtype=float)
+    if len(v) < 4 or not np.isfinite(v).all() or v.max() <= _NO_VARIANCE:
+        return INDEPENDENT
+    k = max(len(v) // 10, 1)
+    first, last = float(np.median(v[:k])), float(np.median(v[-k:]))
+    falls = np.diff(v) < -1e-3 * v.max()  # a random walk's variance never falls (rounding aside)
+    return RANDOM_WALK if last > 1.5 * max(first, _NO_VARIANCE) and falls.mean() < 0.05 else INDEPENDENT
+
 
 @dataclass(frozen=True)
 class PoseGroups:
-    """Frames sharing one uncertain position offset: each dwell, and each contiguous transit run."""
+    """Frames sharing one uncertain position offset, and the prior on the offsets.
+
+    ``independent`` (per-dwell fixes): each dwell (merged across revisits) and each contiguous transit
+    run has its own offset delta_g ~ N(0, diag(var_g)).
+    ``random_walk`` (odometry drift, paper 003's GPS-denied flight): the pose error is one process that
+    accumulates with distance flown, e(s) = sum of independent increments, so groups are consecutive runs
+    (transit runs cut every ``TRANSIT_CHUNK`` frames) in time order, e_0 ~ N(0, var_0) and
+    e_g - e_(g-1) ~ N(0, var_g - var_(g-1)): the reported variance's growth is the increment. Its prior
+    precision is tridiagonal per axis; ``increments`` (G, 3) holds the increment variances.
+    """
 
     index: np.ndarray  # (N,) group of each frame
-    variance: np.ndarray  # (G, 3) prior variance of each group's offset
+    variance: np.ndarray  # (G, 3) marginal prior variance of each group's offset
+    kind: str = INDEPENDENT
+    increments: np.ndarray | None = None  # (G, 3) random-walk increment variances (random_walk only)
 
     @property
     def n_groups(self) -> int:
         return len(self.variance)
 
+    @property
+    def active(self) -> np.ndarray:
+        """(3,) axes that carry an offset (a variance was reported)."""
+        return (self.variance > _NO_VARIANCE).any(axis=0)
+
     @staticmethod
-    def from_frames(frames: Frames) -> PoseGroups:
-        dwell = frames.dwell
-        # a new group starts at every change of dwell index (transit runs between dwells split too)
+    def from_frames(frames: Frames, kind: str | None = None) -> PoseGroups:
+        kind = pose_error_model(frames, kind)
+        dwell = np.asarray(frames.dwell)
         starts = np.r_[True, dwell[1:] != dwell[:-1]]
         run = np.cumsum(starts) - 1
-        key = np.where(dwell >= 0, dwell, -1 - run)  # dwells merge across revisits; transit runs stay apart
-        _, index = np.unique(key, return_inverse=True)
-        g = index.max() + 1
+        if kind == RANDOM_WALK:
+            first = np.flatnonzero(starts)
+            within = np.arange(len(dwell)) - first[run]
+            starts = starts | ((dwell < 0) & (within % TRANSIT_CHUNK == 0))
+            index = np.cumsum(starts) - 1
+        else:
+            key = np.where(dwell >= 0, dwell, -1 - run)  # dwells merge across revisits; transit runs stay apart
+            _, index = np.unique(key, return_inverse=True)
+        g = int(index.max()) + 1
         var = np.zeros((g, 3))
         counts = np.bincount(index, minlength=g)
         for j, v in enumerate((frames.var_x, frames.var_y, frames.var_z)):
             var[:, j] = np.bincount(index, weights=v, minlength=g) / counts
-        return PoseGroups(index=index, variance=var)
+        if kind != RANDOM_WALK:
+            return PoseGroups(index=index, variance=var)
+        inc = np.maximum(np.diff(var, axis=0, prepend=0.0), _MIN_INCREMENT)
+        return PoseGroups(index=index, variance=np.cumsum(inc, axis=0), kind=RANDOM_WALK, increments=inc)
+
+    # -- the prior: precision-vector products and the banded system (random walk) or 3 x 3 blocks
+
+    def prior_times(self, delta: np.ndarray) -> np.ndarray:
+        """Sigma^-1 delta for offsets (G, 3)."""
+        if self.increments is None:
+            return delta / np.maximum(self.variance, _NO_VARIANCE)
+        w = 1.0 / self.increments  # (G, 3): precision of each step e_g - e_(g-1), with e_(-1) = 0
+        step = np.diff(delta, axis=0, prepend=0.0) * w  # (G, 3)
+        return step - np.r_[step[1:], np.zeros((1, 3))]
+
+    def penalty(self, delta: np.ndarray) -> float:
+        """delta^T Sigma^-1 delta over the active axes."""
+        a = self.active
+        return float(np.sum(delta[:, a] * self.prior_times(delta)[:, a]))
+
+    def solve(self, fisher: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Solve (F + Sigma^-1) x = rhs with F (G, 3, 3) the data information of each group's offset and
+        rhs (G, 3) or (G, 3, m); inactive axes get x = 0. The random-walk system is banded (bandwidth 3 in
+        the stacked (group, axis) order), so this is O(G)."""
+        from scipy.linalg import solveh_banded
+
+        a = self.active
+        g = self.n_groups
+        squeeze = rhs.ndim == 2
+        r = rhs[..., None] if squeeze else rhs
+        f = fisher * (a[:, None] & a[None, :])
+        if self.increments is None:
+            inv = np.where(a, 1.0 / np.maximum(self.variance, _NO_VARIANCE), 1.0)
+            x = np.linalg.solve(f + inv[:, :, None] * np.eye(3), r * a[None, :, None])
+        else:
+            w = np.where(a, 1.0 / self.increments, 0.0)  # (G, 3)
+            diag = w + np.r_[w[1:], np.zeros((1, 3))] + np.where(a, 0.0, 1.0)
+            ab = np.zeros((4, 3 * g))
+            ab[3] = (np.einsum("gjj->gj", f) + diag).ravel()
+            up1 = np.zeros((g, 3))
+            up1[:, 1], up1[:, 2] = f[:, 0, 1], f[:, 1, 2]  # A[3g+j-1, 3g+j]
+            ab[2] = up1.ravel()
+            up2 = np.zeros((g, 3))
+            up2[:, 2] = f[:, 0, 2]
+            ab[1] = up2.ravel()
+            up3 = np.zeros((g, 3))
+            up3[1:] = -w[1:]  # A[3(g-1)+j, 3g+j] couples consecutive groups
+            ab[0] = up3.ravel()
+            x = solveh_banded(ab, (r * a[None, :, None]).reshape(3 * g, -1)).reshape(g, 3, -1)
+        x = x * a[None, :, None]
+        return x[..., 0] if squeeze else x
 
 
 def _group_sum(index: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
@@ -73,38 +176,47 @@ def _group_sum(index: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarr
     return out
 
 
-def profile_offsets(
-    model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups, newton_steps: int = 2
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Per-group offsets maximising the penalised likelihood at ``theta``.
-
-    Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty sum delta^T Sigma^-1 delta).
-    """
-    n = model.observed_counts(frames)
-    mu0 = model.expected_counts(theta, frames)
-    inv_var = 1.0 / np.maximum(groups.variance, _NO_VARIANCE)
-    active = groups.variance > _NO_VARIANCE
-    if not active.any():
-        return np.zeros((groups.n_groups, 3)), mu0, 0.0
+def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Frames, mu0: np.ndarray,
+                    central: bool = False) -> np.ndarray:
+    """d mu_i / d offset (N, 3): how each frame's expected counts move with its position offset."""
     jac = np.empty((len(frames), 3))
     for j in range(3):
         shift = np.zeros((len(frames), 3))
         shift[:, j] = OFFSET_STEP_M
-        jac[:, j] = (model.expected_counts(theta, frames, offsets=shift) - mu0) / OFFSET_STEP_M
-    jac[:, ~active.any(axis=0)] = 0.0
+        up = model.expected_counts(theta, frames, offsets=shift)
+        if central:
+            jac[:, j] = (up - model.expected_counts(theta, frames, offsets=-shift)) / (2 * OFFSET_STEP_M)
+        else:
+            jac[:, j] = (up - mu0) / OFFSET_STEP_M
+    return jac
+
+
+def profile_offsets(
+    model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups, newton_steps: int = 2
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Per-group offsets maximising the penalised likelihood at ``theta`` (independent or random-walk prior).
+
+    Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty delta^T Sigma^-1 delta).
+    """
+    n = model.observed_counts(frames)
+    mu0 = model.expected_counts(theta, frames)
+    active = groups.active
+    if not active.any():
+        return np.zeros((groups.n_groups, 3)), mu0, 0.0
+    jac = offset_jacobian(model, theta, frames, mu0)
+    jac[:, ~active] = 0.0
     mu_safe = np.maximum(mu0, 1e-12)
     fisher = _group_sum(groups.index, jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None], groups.n_groups)
-    fisher += inv_var[:, :, None] * np.eye(3)
     delta = np.zeros((groups.n_groups, 3))
+    sd = np.sqrt(groups.variance)
     mu = mu0
     for _ in range(newton_steps):
         resid = n / np.maximum(mu, 1e-12) - 1.0
-        grad = _group_sum(groups.index, resid[:, None] * jac, groups.n_groups) - inv_var * delta
-        delta = delta + np.linalg.solve(fisher, grad[:, :, None])[:, :, 0]
-        delta = np.where(active, np.clip(delta, -5 * np.sqrt(groups.variance), 5 * np.sqrt(groups.variance)), 0.0)
+        grad = _group_sum(groups.index, resid[:, None] * jac, groups.n_groups) - groups.prior_times(delta)
+        delta = delta + groups.solve(fisher, grad)
+        delta = np.where(active, np.clip(delta, -5 * sd, 5 * sd), 0.0)
         mu = model.expected_counts(theta, frames, offsets=delta[groups.index])
-    penalty = float(np.sum(delta**2 * inv_var * active))
-    return delta, mu, penalty
+    return delta, mu, groups.penalty(delta)
 
 
 # ----------------------------------------------------------------------------------- statistics
@@ -279,6 +391,7 @@ class FitResult:
     n_frames: int
     starts_tried: int = 0
     all_nll: list[float] = field(default_factory=list)
+    pose_error: str = ""  # the pose-error prior used: random_walk, independent, or "" (poses taken as exact)
 
     @property
     def deviance_per_dof(self) -> float:
@@ -305,6 +418,12 @@ class FitResult:
         if "second_source" in self.model.effects:
             out.append({k: self.values[f"second_source.{k}"] for k in ("x", "y", "z", "cps_at_1m")})
         return out
+
+
+def declared_pose_error(model: MeasurementModel) -> str | None:
+    """The pose-error model a dataset declares (scenario.json ``pose_error``), or None to infer it."""
+    declared = model.scenario.extra.get("pose_error")
+    return declared if isinstance(declared, str) else None
 
 
 def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed: dict[str, float],
@@ -338,8 +457,8 @@ def fit(
     rng = np.random.default_rng(seed)
     names = model.free_names
     fixed = {p.name: p.value for p in model.params if p.fixed}
-    groups = PoseGroups.from_frames(frames) if pose_uncertainty else None
-    if groups is not None and not (groups.variance > _NO_VARIANCE).any():
+    groups = PoseGroups.from_frames(frames, declared_pose_error(model)) if pose_uncertainty else None
+    if groups is not None and not groups.active.any():
         groups = None
     defaults = model.defaults()
     base_starts: list[dict[str, float]] = []
@@ -401,6 +520,7 @@ def fit(
         n_frames=len(frames),
         starts_tried=len(starts),
         all_nll=all_nll,
+        pose_error=groups.kind if groups is not None else "",
     )
 
 

@@ -53,38 +53,30 @@ def _embed(mat: np.ndarray, names: list[str], per_source: list[list[str]]) -> np
     return out
 
 
-def pose_aware_crlb(model, theta: dict[str, float], frames: Frames, step_m: float = 1e-3) -> np.ndarray:
-    """CRLB of the free parameters when every dwell's pose offset is an unknown with its reported prior.
+def pose_aware_crlb(model, theta: dict[str, float], frames: Frames) -> np.ndarray:
+    """Hybrid Cramér-Rao bound of the free parameters when the pose offsets are unknowns with their prior.
 
-    The Poisson CRLB (:func:`estimator.mle.crlb`) assumes the recorded poses are exact. With per-dwell offsets
-    delta_g ~ N(0, diag(var)) as nuisance parameters (as :func:`estimator.mle.fit` models them), the hybrid
-    information is [[J_tt, J_td], [J_dt, J_dd + Sigma^-1]] and the bound on theta is the inverse of its Schur
-    complement J_tt - sum_g J_td,g (J_dd,g + Sigma_g^-1)^-1 J_dt,g (one 3 x 3 block per dwell/transit run).
+    The Poisson CRLB (:func:`estimator.mle.crlb`) takes the recorded poses as exact. With the offsets of
+    :class:`estimator.mle.PoseGroups` as nuisance parameters with Gaussian prior precision Sigma^-1 (a random
+    walk in distance flown for odometry drift, independent per dwell otherwise), the hybrid information is
+    [[J_tt, J_td], [J_dt, J_dd + Sigma^-1]] (Bayesian in the offsets, van Trees; Fisher in theta) and the
+    bound on theta is the inverse of its Schur complement J_tt - J_td (J_dd + Sigma^-1)^-1 J_dt.
     """
-    from estimator.mle import PoseGroups, expected_count_gradient
+    from estimator.mle import PoseGroups, _group_sum, declared_pose_error, expected_count_gradient, offset_jacobian
 
     full = {**model.defaults(), **theta}
     mu = np.maximum(model.expected_counts(full, frames), 1e-12)
     gt = expected_count_gradient(model, full, frames)  # (N, k)
-    gd = np.empty((len(frames), 3))
-    for a in range(3):
-        shift = np.zeros((len(frames), 3))
-        shift[:, a] = step_m
-        up = model.expected_counts(full, frames, offsets=shift)
-        dn = model.expected_counts(full, frames, offsets=-shift)
-        gd[:, a] = (up - dn) / (2 * step_m)
     j = (gt / mu[:, None]).T @ gt
-    groups = PoseGroups.from_frames(frames)
-    for g in range(groups.n_groups):
-        var = groups.variance[g]
-        active = var > 1e-12
-        if not active.any():
-            continue
-        m = groups.index == g
-        a_ = gd[m][:, active]
-        jdd = (a_ / mu[m, None]).T @ a_ + np.diag(1.0 / var[active])
-        jtd = (gt[m] / mu[m, None]).T @ a_
-        j -= jtd @ np.linalg.solve(jdd, jtd.T)
+    groups = PoseGroups.from_frames(frames, declared_pose_error(model))
+    if not groups.active.any():
+        return np.linalg.pinv(j)
+    gd = offset_jacobian(model, full, frames, mu, central=True)  # (N, 3)
+    gd[:, ~groups.active] = 0.0
+    jdd = _group_sum(groups.index, gd[:, :, None] * gd[:, None, :] / mu[:, None, None], groups.n_groups)
+    jdt = _group_sum(groups.index, gd[:, :, None] * (gt / mu[:, None])[:, None, :], groups.n_groups)  # (G, 3, k)
+    x = groups.solve(jdd, jdt)  # (J_dd + Sigma^-1)^-1 J_dt
+    j = j - np.einsum("gak,gal->kl", jdt, x)
     return np.linalg.pinv(j)
 
 
