@@ -43,4 +43,8 @@ def router():
         yield endpoint
     finally:
         proc.terminate()
-        proc.wait(10)
+        try:  # a wait bound only (a loaded host may be slow to shut it down); never leave it running
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
