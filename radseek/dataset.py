@@ -517,7 +517,10 @@ def _read_header(file: Path) -> tuple[list[str], int]:
     if not line.strip():
         raise _err(file, "file is empty (expected a header line)")
     text = line.decode("utf-8", errors="replace").removeprefix("\ufeff")
-    header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]), [])]
+    try:
+        header = [h.strip() for h in next(csv.reader([text.rstrip("\r\n")]), [])]
+    except csv.Error as exc:  # e.g. a bare CR inside the line: not a header this format knows
+        raise _err(file, f"row 1 (header): not a CSV header line ({exc})") from None
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         shown = ", ".join(repr(h) for h in header[:12]) + (", ..." if len(header) > 12 else "")
@@ -565,9 +568,13 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
     invalid: list[tuple[int, int, str]] = []
 
     def on_invalid(row: Any) -> str:
-        if not row.text.strip(" \t\r\n,"):
+        try:
+            text = row.text
+        except UnicodeDecodeError:  # not UTF-8: the exact reader names the row
+            text = "\x00"
+        if not text.strip(" \t\r\n,"):
             return "skip"  # a blank (or commas-only) line, as the exact reader skips it
-        invalid.append((row.actual_columns, row.expected_columns, row.text))
+        invalid.append((row.actual_columns, row.expected_columns, text))
         return "skip"
 
     read_opts = pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=_BLOCK_BYTES, use_threads=False)
@@ -575,6 +582,18 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
     convert_opts = pacsv.ConvertOptions(
         include_columns=list(COLUMNS), column_types={c: pa.float64() for c in COLUMNS}, null_values=[],
         strings_can_be_null=False, quoted_strings_can_be_null=False)
+    # pyarrow decodes an invalid row's text before calling on_invalid; on non-UTF-8 bytes that fails inside
+    # pyarrow ("Exception ignored in on_invalid" on stderr) and the read stops, which sends the file to the exact
+    # reader anyway: keep those messages off the user's terminal, pass every other one on
+    previous_hook = sys.unraisablehook
+
+    def hook(u: Any) -> None:
+        if getattr(u, "object", None) is on_invalid:
+            invalid.append((0, 0, "\x00"))
+        else:
+            previous_hook(u)
+
+    sys.unraisablehook = hook
     try:
         reader = pacsv.open_csv(file, read_options=read_opts, parse_options=parse_opts,
                                 convert_options=convert_opts)
@@ -590,9 +609,12 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
                 progress(sink.n, total)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, UnicodeDecodeError) as exc:
         raise _FastPathFailed(str(exc)) from None
+    finally:
+        sys.unraisablehook = previous_hook
     if invalid:
         n_fields, n_header, text = invalid[0]
-        if len(invalid) > 1 or text.encode().rstrip(b" \t\r\n,") != last_line or policy == "error":
+        if (len(invalid) > 1 or policy == "error"
+                or text.encode("utf-8", errors="surrogatepass").rstrip(b" \t\r\n,") != last_line):
             raise _FastPathFailed("invalid row")
         _truncated_last_row(file, last_lineno, n_fields, n_header, policy)
 
