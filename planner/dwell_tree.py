@@ -90,6 +90,19 @@ class Tree:
             i = int(self.parent[i])
         return self.states[idx[::-1]]
 
+    def path_lengths(self) -> np.ndarray:
+        """(N,) metres (position only) from the root to every node along tree edges; vectorised by
+        pointer jumping (log2(depth) numpy steps)."""
+        parent = np.asarray(self.parent, dtype=int)
+        pos = self.states[:, :3]
+        acc = np.where(parent >= 0, np.linalg.norm(pos - pos[np.maximum(parent, 0)], axis=1), 0.0)
+        anc = parent.copy()
+        while (anc >= 0).any():
+            up = anc >= 0
+            acc = acc + np.where(up, acc[np.maximum(anc, 0)], 0.0)
+            anc = np.where(up, anc[np.maximum(anc, 0)], -1)
+        return acc
+
     def edges(self) -> tuple[np.ndarray, np.ndarray]:
         """(E, 4) parent states and (E, 4) child states of every edge."""
         child = np.flatnonzero(self.parent >= 0)

@@ -71,3 +71,77 @@ def gain_eq6_as_printed(nodes: np.ndarray, source: np.ndarray, dwell_points: np.
     d = np.asarray(dwell_points, dtype=float).reshape(-1, 3)
     rep = np.exp(-_sq_dist(nodes, d).sum(-1) / (2 * len(d))) if len(d) else 1.0
     return source_term(nodes, source, delta) * rep
+
+
+# ----------------------------------------------------------------------------------- gain under pose covariance
+
+
+def rate_gradient(nodes: np.ndarray, source: np.ndarray, cps_at_1m: float) -> np.ndarray:
+    """d lambda / d p_s (cps/m) of the inverse-square rate lambda = A / r^2 at nodes (N, 3) -> (N, 3).
+
+    Paper 004 eq. 5.5-5.6 (there in 2-D): d lambda / d x_0 = -2 A (x_0 - x_k) / r^4, here in 3-D,
+    i.e. 2 A (p - p_s) / r^4. The rate depends on p - p_s only, so d lambda / d p = -d lambda / d p_s.
+    """
+    d = np.asarray(nodes, dtype=float) - np.asarray(source, dtype=float)
+    r2 = np.maximum((d**2).sum(-1), 1e-6)
+    return 2.0 * cps_at_1m * d / r2[..., None] ** 2
+
+
+def pose_information_factor(nodes: np.ndarray, path_length: np.ndarray, source: np.ndarray,
+                            source_covariance: np.ndarray, cps_at_1m: float, background_cps: float,
+                            drift_density: np.ndarray | float, dwell_s: float = 10.0) -> np.ndarray:
+    """Fraction kappa in [0, 1] of a dwell's value that survives the pose drift its path adds: (N,) for
+    nodes (N, 3) reached after ``path_length`` (N,) metres.
+
+    Linearise the dwell's mean rate about the belief (mean p_s, covariance Sigma_s, drift included, as the
+    in-flight estimate reports it) and the planned pose:
+
+        y = lambda(p - p_s - e) ~ lambda_0 - g^T (u - mean) + n,   u = p_s + e,
+        g = d lambda / d p_s (paper 004 eq. 5.5-5.6),   var n = s2 = lambda / T (Poisson, paper 004 eq. 5.3),
+
+    where e ~ N(0, Sigma_p), Sigma_p = diag(drift_density) * L, is the odometry drift the path adds (a
+    random walk in distance flown: variance density x length). The dwell measures the source in the
+    drifted frame, u, whose prior is Sigma_u = Sigma_s + Sigma_p; and because a random walk never
+    returns, e stays in every later pose too, so the world-frame posterior of the source carries it in full.
+    The expected reduction of the source's posterior covariance trace (a rank-one Kalman update: the
+    Gaussian form of the expected information gain of paper 004 eq. 4.7-4.9) is
+
+        Delta(Sigma_p) = |Sigma_u g|^2 / (s2 + g^T Sigma_u g) - tr Sigma_p,
+
+    and kappa = max(Delta(Sigma_p), 0) / Delta(0). Kalman updates are monotone in the prior, so
+    Delta(Sigma_p) <= Delta(0): kappa = 1 at zero density or zero path, and falls with the path length,
+    the faster the tighter the belief already is (late in the search a metre flown adds drift the dwell
+    cannot measure away; early the dwell's information dominates). ``lambda`` is the gross rate
+    cps_at_1m / r^2 + background.
+    """
+    pos = np.asarray(nodes, dtype=float).reshape(-1, 3)
+    length = np.maximum(np.asarray(path_length, dtype=float).reshape(-1), 0.0)
+    dens = np.broadcast_to(np.asarray(drift_density, dtype=float), (3,))
+    if not np.any(dens > 0):
+        return np.ones(len(pos))
+    src = np.asarray(source, dtype=float).reshape(3)
+    cov = np.asarray(source_covariance, dtype=float).reshape(3, 3)
+    g = rate_gradient(pos, src, cps_at_1m)
+    s2 = (cps_at_1m / np.maximum(((pos - src) ** 2).sum(-1), 1e-6) + background_cps) / dwell_s
+
+    def reduction(extra: np.ndarray) -> np.ndarray:  # extra (N, 3): diagonal of Sigma_p per node
+        sg = g @ cov + extra * g  # (Sigma_s + Sigma_p) g, (N, 3)
+        return (sg**2).sum(-1) / (s2 + (sg * g).sum(-1)) - extra.sum(-1)
+
+    base = reduction(np.zeros_like(pos))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kappa = np.clip(reduction(length[:, None] * dens) / base, 0.0, 1.0)
+    return np.where(base > 0, kappa, np.where(length > 0, 0.0, 1.0))
+
+
+def gain_eq6_pose(nodes: np.ndarray, source: np.ndarray, dwell_points: np.ndarray, path_length: np.ndarray,
+                  source_covariance: np.ndarray, cps_at_1m: float, background_cps: float,
+                  drift_density: np.ndarray | float, config: GainConfig = GainConfig(),
+                  dwell_s: float = 10.0) -> np.ndarray:
+    """Eq. 6 under pose covariance: ``gain_eq6`` x :func:`pose_information_factor` for nodes (N, 3).
+
+    Equals ``gain_eq6`` when ``drift_density`` is zero; with drift, of two nodes with equal eq. 6 gain the
+    one reached by the shorter path wins.
+    """
+    return gain_eq6(nodes, source, dwell_points, config) * pose_information_factor(
+        nodes, path_length, source, source_covariance, cps_at_1m, background_cps, drift_density, dwell_s)

@@ -1,6 +1,12 @@
 """Next-best dwell point (paper 003 sec. IV-B-3): grow a tree, score nodes with eq. 6, apply the
 constraints, extract the path to the best node and choose the yaw along it.
 
+Two gains (``NextBestConfig.gain_kind``): ``"eq6"``, paper 003 eq. 6 alone, and ``"eq6_pose"``, eq. 6
+under pose covariance (``planner.gain.gain_eq6_pose``): the drift variance a candidate's path adds
+(``SourceBelief.drift_density`` x path length, the path being the straight segment when it is free,
+else the tree path) discounts the information the dwell can give, so of two equally informative
+candidates the nearer wins. With zero drift density both gains are the same.
+
 Constraints on candidate nodes (paper 003, text after eq. 6):
 
 * nodes "closer than 1 semi-major axis of the ellipsoid corresponding to the position covariance" are
@@ -22,10 +28,12 @@ import numpy as np
 
 from planner.belief import DwellHistory, SourceBelief
 from planner.dwell_tree import Tree, TreeConfig, densify, grow_tree, shortcut_path
-from planner.gain import GainConfig, gain_eq6
+from planner.gain import GainConfig, gain_eq6, gain_eq6_pose
 from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from planner.yaw_sampling import bearing_score, bearings, sample_yaw, track_yaw
+
+GAIN_KINDS = ("eq6", "eq6_pose")
 
 
 @dataclass(frozen=True)
@@ -39,10 +47,16 @@ class NextBestConfig:
     wall_mu_per_m: float = 0.0  # 1/m, >= 0: wall attenuation used in the rate prediction (0 = ignore)
     nu: int = 12  # path samples for the yaw choice (paper's nu), >= 2
     q: int = 8  # random yaw candidates per sample (paper's q), >= 1
+    gain_kind: str = "eq6"  # one of GAIN_KINDS: eq. 6, or eq. 6 under the pose covariance the path adds
+    dwell_s: float = 10.0  # s, > 0: dwell length assumed by the pose-covariance gain's counting noise
 
     def __post_init__(self) -> None:
         if self.lambda_min_cps < 0 or self.ellipsoid_sigma < 0 or self.wall_mu_per_m < 0:
             raise ValueError("lambda_min_cps, ellipsoid_sigma and wall_mu_per_m must be >= 0")
+        if self.gain_kind not in GAIN_KINDS:
+            raise ValueError(f"gain_kind must be one of {GAIN_KINDS}, got {self.gain_kind!r}")
+        if not self.dwell_s > 0:
+            raise ValueError("dwell_s must be > 0")
         if self.nu < 2 or self.q < 1:
             raise ValueError("need nu >= 2 and q >= 1")
 
@@ -66,10 +80,20 @@ class NodeScores:
 
 def score_nodes(positions: np.ndarray, belief: SourceBelief, history: DwellHistory, occ: OccupancyMap,
                 config: NextBestConfig = NextBestConfig(), pose_covariance: np.ndarray | None = None,
-                root: int | None = 0) -> NodeScores:
-    """Eq. 6 gain and constraints for node positions (N, 3); ``root`` (index or None) is excluded."""
+                root: int | None = 0, path_length: np.ndarray | None = None) -> NodeScores:
+    """Gain (``config.gain_kind``) and constraints for node positions (N, 3); ``root`` (index or None) is
+    excluded. ``path_length`` (N,) m: how far each node is flown from the current pose (the
+    pose-covariance gain needs it; None: straight-line distance from ``positions[root]``, or zero)."""
     pos = np.asarray(positions, dtype=float).reshape(-1, 3)
-    gain = gain_eq6(pos, belief.mean, history.positions, config.gain)
+    if config.gain_kind == "eq6_pose":
+        if path_length is None:
+            path_length = (np.linalg.norm(pos - pos[root], axis=1) if root is not None and len(pos)
+                           else np.zeros(len(pos)))
+        gain = gain_eq6_pose(pos, belief.mean, history.positions, path_length, belief.covariance,
+                             belief.cps_at_1m, belief.background_cps, belief.drift_density, config.gain,
+                             config.dwell_s)
+    else:
+        gain = gain_eq6(pos, belief.mean, history.positions, config.gain)
     a = config.ellipsoid_sigma * belief.semi_major_axis(pose_covariance)
     too_close = np.linalg.norm(pos - belief.mean, axis=1) < a
     rate = belief.predicted_net_rate(pos, occ.walls, config.wall_mu_per_m)
@@ -111,7 +135,12 @@ def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHis
     t0 = time.perf_counter()
     tree = tree if tree is not None else grow_tree(current, occ, config.tree)
     t_tree = time.perf_counter() - t0
-    scores = score_nodes(tree.states[:, :3], belief, history, occ, config, pose_covariance)
+    pos = tree.states[:, :3]
+    length = None
+    if config.gain_kind == "eq6_pose":  # what will be flown: the straight segment if free, else the tree path
+        straight = occ.segments_valid(np.broadcast_to(pos[0], pos.shape), pos)
+        length = np.where(straight, np.linalg.norm(pos - pos[0], axis=1), tree.path_lengths())
+    scores = score_nodes(pos, belief, history, occ, config, pose_covariance, path_length=length)
     info = {
         "nodes": len(tree), "tree_time_s": t_tree, "valid_nodes": int(scores.valid.sum()),
         "rejected_close": int(scores.too_close.sum()), "rejected_weak": int(scores.too_weak.sum()),
@@ -119,8 +148,10 @@ def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHis
     best = scores.best
     if best < 0:
         info["plan_time_s"] = time.perf_counter() - t0
-        return DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), "next_best_eq6", info=info)
+        return DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), f"next_best_{config.gain_kind}", info=info)
     path = finish_path(tree.path_to(best), current[3], belief.mean, occ, config, rng)
     info["plan_time_s"] = time.perf_counter() - t0
     info["best_node"] = best
-    return DwellPlan(path[-1:], path, "next_best_eq6", gains=scores.gain[best:best + 1], info=info)
+    if length is not None:
+        info["path_length_m"] = float(length[best])
+    return DwellPlan(path[-1:], path, f"next_best_{config.gain_kind}", gains=scores.gain[best:best + 1], info=info)
