@@ -24,7 +24,7 @@ import numpy as np
 from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator
 from estimator.localizers.base import Localizer
 from planner.baselines import fixed_lattice, lawnmower
-from planner.belief import DwellHistory, SourceBelief
+from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
 from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
 from planner.dwell_tree import grow_tree, shortcut_path
 from planner.exploration import FrontierConfig, exploration_done, plan_exploration
@@ -234,7 +234,8 @@ class SearchBrain:
         if est is None:
             return None, math.inf
         belief = SourceBelief(np.array([est["x"], est["y"], est["z"]]), np.array(est["covariance"]),
-                              max(est["cps_at_1m"], 1e-3), max(est["background_cps"], 0.0))
+                              max(est["cps_at_1m"], 1e-3), max(est["background_cps"], 0.0),
+                              drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell))
         return belief, est["sigma_m"]
 
     @property
