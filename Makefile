@@ -4,6 +4,10 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# MAVSDK-Python's examples use the gRPC API (`from mavsdk import System`): `mavsdk<4` (3.x, bundling
+# mavsdk_server), whose import name collides with radseek's native `mavsdk` 4.x, so they get their own venv.
+GRPC_VENV := .venv-mavsdk-grpc
+GRPC_STAMP := $(GRPC_VENV)/.installed
 
 .PHONY: run test lint bench clean
 
@@ -15,10 +19,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --no-deps mavproxy pyserial
 	touch $(STAMP)
 
+$(GRPC_STAMP):
+	$(PY) -m venv $(GRPC_VENV)
+	$(GRPC_VENV)/bin/pip install --quiet 'mavsdk>=3.15,<4'
+	touch $(GRPC_STAMP)
+
 run: $(STAMP)
 	$(BIN)/radseek run
 
-test: $(STAMP)
+test: $(STAMP) $(GRPC_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/pytest -q
 
@@ -29,4 +38,4 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) $(GRPC_VENV) runs

@@ -17,7 +17,7 @@ def test_defaults_are_px4_sitl_ports_on_loopback():
     assert (c.api_port, c.gcs_port, c.api_local_port, c.gcs_local_port) == (14540, 14550, 14580, 18570)
     assert c.bind_host == "127.0.0.1" and c.remote_host == "127.0.0.1"
     assert (c.sysid, c.compid, c.speedup, c.signing_key, c.drop_rate) == (1, 1, 1.0, None, 0.0)
-    assert c.fence.xmin == -500 and c.fence.zmax == 120
+    assert c.fence.xmin == -1000 and c.fence.zmax == 120
 
 
 def test_geofence_from_bounds_or_scene():

@@ -66,7 +66,8 @@ def test_commands_fly_and_answer(flying_setup):
     gcs.recv("EXTENDED_SYS_STATE", lambda m: m.landed_state == M.MAV_LANDED_STATE_IN_AIR)
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0) == M.MAV_RESULT_DENIED  # in the air
     assert gcs.command(31999) == M.MAV_RESULT_UNSUPPORTED
-    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0) == M.MAV_RESULT_UNSUPPORTED  # offboard: not offered
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0) == M.MAV_RESULT_DENIED  # offboard: no setpoint stream yet
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 9, 0) == M.MAV_RESULT_UNSUPPORTED  # no such PX4 main mode
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 0, 4, 3) == M.MAV_RESULT_DENIED  # no custom-mode flag
     home = vehicle.home
     # go-to outside the geofence is denied, inside accepted and flown
@@ -89,9 +90,11 @@ def test_parameters(flying_setup):
     _, gcs, _ = flying_setup
     gcs.send(M.MAVLink_param_request_list_message(1, 1))
     values = {}
-    while len(values) < 10:
+    total = 1
+    while len(values) < total:  # the whole list, however long (param_count)
         m = gcs.recv("PARAM_VALUE")
-        values[m.param_id] = m
+        values[m.param_id], total = m, m.param_count
+    assert {"MIS_TAKEOFF_ALT", "COM_OF_LOSS_T"} <= set(values)
     assert values["MIS_TAKEOFF_ALT"].param_value == pytest.approx(2.5)
     gcs.send(M.MAVLink_param_set_message(1, 1, b"MIS_TAKEOFF_ALT", 4.0, M.MAV_PARAM_TYPE_REAL32))
     assert gcs.recv("PARAM_VALUE").param_value == pytest.approx(4.0)

@@ -94,9 +94,12 @@ def test_bad_items_refused_with_their_result(msg, result):
 def test_count_limits_types_and_clear():
     p = MissionProtocol(max_items=10, final_ack_copies=1)
     assert types(p.handle(count(11), 0)) == [("MISSION_ACK", M.MAV_MISSION_NO_SPACE)]
-    assert types(p.handle(count(2, mission_type=1), 0)) == [("MISSION_ACK", M.MAV_MISSION_UNSUPPORTED)]
+    # fence (1) and rally (2) lists are transferred like the mission; an unknown type is unsupported
+    assert types(p.handle(count(2, mission_type=1), 0)) == [("MISSION_REQUEST_INT", 0)]
+    assert types(p.handle(count(2, mission_type=7), 0)) == [("MISSION_ACK", M.MAV_MISSION_UNSUPPORTED)]
+    p.handle(count(0, mission_type=1), 0)
     (c,) = p.handle(from_gcs(M.MAVLink_mission_request_list_message(1, 1, 2)), 0)
-    assert c.count == 0  # rally points download as empty
+    assert c.count == 0  # no rally points stored yet
     p.handle(count(1), 0)
     p.handle(wp(0), 0)
     assert len(p.items) == 1
@@ -119,8 +122,9 @@ def test_geofence_rejects_items_outside_bounds_per_axis():
             return wp(0, alt=z, lat=lat, lon=lon, **kw)
 
         p = v.protocol
-        cases = [(at(10, 10, 5), M.MAV_MISSION_ACCEPTED), (at(80, 0, 5), M.MAV_MISSION_INVALID_PARAM5_X),
-                 (at(0, -70, 5), M.MAV_MISSION_INVALID_PARAM6_Y), (at(0, 0, 45), M.MAV_MISSION_INVALID_PARAM7),
+        # param5 (x) is the latitude, i.e. north (ENU y); param6 (y) the longitude, i.e. east (ENU x)
+        cases = [(at(10, 10, 5), M.MAV_MISSION_ACCEPTED), (at(80, 0, 5), M.MAV_MISSION_INVALID_PARAM6_Y),
+                 (at(0, -70, 5), M.MAV_MISSION_INVALID_PARAM5_X), (at(0, 0, 45), M.MAV_MISSION_INVALID_PARAM7),
                  (wp(0, lat=91.0, lon=0.0), M.MAV_MISSION_INVALID_PARAM5_X)]
         for msg, result in cases:
             p.handle(count(1), 0)

@@ -3,7 +3,8 @@ navigator (or the vehicle's services) and answered with COMMAND_ACK.
 
 PX4-flavoured, since that is the autopilot type announced: arm 400, takeoff 22, land 21, RTL 20,
 hold 17 or DO_SET_MODE AUTO.LOITER, set mode 176 (PX4 main/sub modes), mission start 300 or
-DO_SET_MODE AUTO.MISSION, set current item 224, reposition/go-to 192, change speed 178, plus the
+DO_SET_MODE AUTO.MISSION, set current item 224, reposition/go-to 192, change speed 178, orbit 34
+(DO_ORBIT), OFFBOARD through DO_SET_MODE (only with a live setpoint stream), plus the
 message services MAVSDK uses (SET_MESSAGE_INTERVAL 511, REQUEST_MESSAGE 512, capabilities 520).
 Every command is answered (``answer``): unknown commands get MAV_RESULT_UNSUPPORTED; bad parameters
 MAV_RESULT_DENIED, and a parameter that must be a number but is NaN or infinite is named: its index
@@ -24,7 +25,7 @@ from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, geodetic_to_enu, yaw_ned_to_enu
 from vehicle_sim.geofence import Geofence
-from vehicle_sim.navigator import Navigator, mode_from_px4
+from vehicle_sim.navigator import Mode, Navigator, Orbit, mode_from_px4
 
 log = logging.getLogger(__name__)
 FORCE_MAGIC = 21196
@@ -53,6 +54,10 @@ class Command:
             return cls(int(msg.command), p, lat, lon, float(msg.z), int(msg.frame))
         return cls(int(msg.command), p, float(msg.param5), float(msg.param6), float(msg.param7),
                    M.MAV_FRAME_GLOBAL)
+
+
+class Refused(Exception):
+    """A command refused (DENIED) for a reason worth telling the operator (STATUSTEXT)."""
 
 
 class InvalidParam(ValueError):
@@ -95,6 +100,8 @@ def answer(cmd: Command, svc: Services) -> Answer:
         return Answer(result, [m for m in extra if m is not None])
     except InvalidParam as exc:
         return Answer(M.MAV_RESULT_DENIED, [], exc.index, str(exc))
+    except Refused as exc:
+        return Answer(M.MAV_RESULT_DENIED, [], 0, str(exc))
     except Exception as exc:  # noqa: BLE001 - a command must never go unanswered
         log.exception("command %d %s failed", cmd.command, cmd.params)
         return Answer(M.MAV_RESULT_FAILED, [], 0, f"{type(exc).__name__}: {exc}")
@@ -111,6 +118,9 @@ class Services(Protocol):
         ...
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool: ...
+
+    def offboard_alive(self) -> bool:  # a setpoint stream is on (offboard.OffboardStream.alive)
+        ...
 
 
 def _alt_to_enu_z(cmd: Command, home: Home) -> float:
@@ -151,7 +161,11 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
         mode = mode_from_px4(int(main), int(sub))
         if mode is None:
             return M.MAV_RESULT_UNSUPPORTED, []
+        if mode is Mode.OFFBOARD and not svc.offboard_alive():
+            raise Refused("offboard needs a setpoint stream first (SET_POSITION_TARGET_*, > 1 Hz)")
         return (ok if nav.set_mode(mode) else denied), []
+    if c == M.MAV_CMD_DO_ORBIT:
+        return _orbit(cmd, svc), []
     if c == M.MAV_CMD_MISSION_START:
         first = _optional(cmd, 1)  # NaN: from the current item
         if first is not None and first > 0 and not nav.set_current(int(first)):
@@ -199,6 +213,50 @@ def _reposition(cmd: Command, svc: Services) -> int:
         nav.limits = nav.limits.with_speed_xy(speed)
     yaw = yaw_ned_to_enu(math.radians(yaw_deg)) if yaw_deg is not None else None
     return M.MAV_RESULT_ACCEPTED if nav.goto(target, yaw) else M.MAV_RESULT_DENIED
+
+
+ORBIT_MAX_RADIUS = 1000.0  # m, PX4's FlightTaskOrbit limit
+ORBIT_DEFAULT_RADIUS, ORBIT_DEFAULT_SPEED = 10.0, 1.0  # m, m/s when NaN (PX4's defaults)
+
+
+def _orbit(cmd: Command, svc: Services) -> int:
+    """MAV_CMD_DO_ORBIT: p1 radius (m; positive clockwise, negative counter-clockwise; NaN default),
+    p2 tangential speed (m/s; NaN default), p3 yaw behaviour (ORBIT_YAW_BEHAVIOUR; NaN = front to
+    centre), p4 orbits (NaN/0 = forever), centre lat/lon (NaN = here), altitude (NaN = current). As in PX4
+    the altitude is AMSL whatever the frame (MAVSDK's do_orbit sends AMSL in a relative-frame COMMAND_INT).
+    Only in the air; the whole circle must be inside the geofence."""
+    nav = svc.nav
+    if not nav.armed or nav.landed:
+        raise Refused("orbit needs the vehicle in the air")
+    radius = _optional(cmd, 1)
+    radius = ORBIT_DEFAULT_RADIUS if radius is None else radius
+    if not 1.0 <= abs(radius) <= ORBIT_MAX_RADIUS:
+        raise InvalidParam(1, f"radius {radius} m must be within 1-{ORBIT_MAX_RADIUS:g} m in magnitude")
+    speed = _optional(cmd, 2)
+    speed = ORBIT_DEFAULT_SPEED if speed is None else abs(speed)
+    if not 0 < speed <= 20:
+        raise InvalidParam(2, f"speed {speed} m/s must be in (0, 20]")
+    behaviour = _optional(cmd, 3)
+    behaviour = 0 if behaviour is None else int(behaviour)
+    if behaviour not in (0, 1, 2, 3, 4):
+        raise InvalidParam(3, f"yaw behaviour {behaviour} is not an ORBIT_YAW_BEHAVIOUR")
+    orbits = _optional(cmd, 4)
+    orbits = math.inf if orbits is None or orbits <= 0 else orbits
+    center = nav.pos.copy()
+    lat, lon, alt = _optional(cmd, 5), _optional(cmd, 6), _optional(cmd, 7)
+    if lat is not None and lon is not None:
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            raise InvalidParam(5 if not -90 <= lat <= 90 else 6, "is not a valid latitude/longitude")
+        center[:2] = geodetic_to_enu(svc.home, lat, lon, svc.home.alt_m)[:2]
+    if alt is not None:
+        center[2] = alt - svc.home.alt_m
+    r = abs(radius)
+    for dx, dy in ((r, 0), (-r, 0), (0, r), (0, -r), (0, 0)):
+        if not svc.fence.contains(center + np.array([dx, dy, 0.0])):
+            raise Refused(f"orbit of radius {r:g} m about ({center[0]:.1f}, {center[1]:.1f}, {center[2]:.1f}) m "
+                          "leaves the geofence")
+    orbit = Orbit(center, r, -1.0 if radius > 0 else 1.0, speed, behaviour, orbits)
+    return M.MAV_RESULT_ACCEPTED if nav.start_orbit(orbit) else M.MAV_RESULT_DENIED
 
 
 def set_mode_message(msg, nav: Navigator) -> int:

@@ -2,7 +2,8 @@
 and steps the kinematics (``motion.step``) in fixed sim steps.
 
 Modes are PX4's (the autopilot type we announce), so MAVSDK and QGroundControl name them right:
-HOLD (AUTO.LOITER), TAKEOFF, MISSION, RTL, LAND, and POSCTL (treated as hold). The navigator works in
+HOLD (AUTO.LOITER), TAKEOFF, MISSION, RTL, LAND, POSCTL (treated as hold), OFFBOARD (setpoints from
+``offboard``) and ORBIT (MAV_CMD_DO_ORBIT; PX4 reports it as POSCTL sub-mode ORBIT). The navigator works in
 the vehicle's *estimated* local ENU frame: it flies on its own (drifting) estimate, like a real
 GPS-denied vehicle. Mission items are converted from lat/lon here with ``frames``.
 
@@ -33,20 +34,30 @@ class Mode(Enum):
     MISSION = "MISSION"
     RTL = "RTL"
     LAND = "LAND"
+    OFFBOARD = "OFFBOARD"
+    ORBIT = "ORBIT"
 
 
 # PX4 custom_mode = main_mode << 16 | sub_mode << 24
-PX4_MAIN_POSCTL, PX4_MAIN_AUTO = 3, 4
+PX4_MAIN_POSCTL, PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 3, 4, 6
+PX4_SUB_POSCTL_ORBIT = 1
 PX4_SUB = {Mode.TAKEOFF: 2, Mode.HOLD: 3, Mode.MISSION: 4, Mode.RTL: 5, Mode.LAND: 6}
 
 
 def px4_custom_mode(mode: Mode) -> int:
     if mode is Mode.POSCTL:
         return PX4_MAIN_POSCTL << 16
+    if mode is Mode.ORBIT:
+        return (PX4_MAIN_POSCTL << 16) | (PX4_SUB_POSCTL_ORBIT << 24)
+    if mode is Mode.OFFBOARD:
+        return PX4_MAIN_OFFBOARD << 16
     return (PX4_MAIN_AUTO << 16) | (PX4_SUB[mode] << 24)
 
 
 def mode_from_px4(main_mode: int, sub_mode: int) -> Mode | None:
+    """The mode a DO_SET_MODE / SET_MODE asks for (ORBIT is entered by DO_ORBIT only)."""
+    if main_mode == PX4_MAIN_OFFBOARD:
+        return Mode.OFFBOARD
     if main_mode == PX4_MAIN_POSCTL:
         return Mode.POSCTL
     if main_mode == PX4_MAIN_AUTO:
@@ -68,6 +79,25 @@ class NavParams:
 
 class MissionState:  # MAV_MISSION_STATE
     UNKNOWN, NO_MISSION, NOT_STARTED, ACTIVE, PAUSED, COMPLETE = range(6)
+
+
+@dataclass
+class Orbit:
+    """MAV_CMD_DO_ORBIT in ENU: centre (m), radius (m, > 0), signed angular direction (+1 counter-
+    clockwise seen from above, as ENU angles grow; MAVLink's positive radius = clockwise = -1), speed
+    (m/s), yaw behaviour (ORBIT_YAW_BEHAVIOUR), orbits to fly (inf = until another command)."""
+
+    center: np.ndarray
+    radius: float
+    direction: float
+    speed: float
+    yaw_behaviour: int
+    orbits: float = math.inf
+    circling: bool = False
+    angle: float = 0.0  # current angle about the centre (ENU rad)
+    swept: float = 0.0  # rad flown on the circle
+    tangential: float = 0.0  # current speed along the circle, m/s
+    initial_yaw: float = 0.0
 
 
 class Navigator:
@@ -94,6 +124,10 @@ class Navigator:
         self._landed_at: float | None = None
         self._t = 0.0
         self.events: list[tuple[str, object]] = []  # ("reached", seq) | ("text", str) | ("mode", Mode)
+        self.offboard_setpoint = None  # offboard.Setpoint, set by the vehicle from the stream
+        self.orbit: Orbit | None = None
+        self.rally_points: list[np.ndarray] = []  # ENU; RTL goes to the nearest of home and these
+        self._rtl_home = np.zeros(2)
 
     # -- state queries -------------------------------------------------------------------------
     @property
@@ -183,7 +217,16 @@ class Navigator:
             return False
         self._set_mode(Mode.RTL)
         self._phase = "climb"
+        self._rtl_home = self.rtl_destination()
         return True
+
+    def rtl_destination(self) -> np.ndarray:
+        """Where RTL lands: the nearest of home and the rally points (PX4 RTL_TYPE 0), ENU x-y."""
+        best = np.zeros(2)
+        for r in self.rally_points:
+            if np.linalg.norm(r[:2] - self.pos[:2]) < np.linalg.norm(best - self.pos[:2]):
+                best = np.asarray(r[:2], dtype=float)
+        return best
 
     def goto(self, target: np.ndarray, yaw: float | None) -> bool:
         if not self.armed:
@@ -206,8 +249,25 @@ class Navigator:
     def set_mode(self, mode: Mode) -> bool:
         return {
             Mode.HOLD: self.hold, Mode.POSCTL: self._posctl, Mode.MISSION: self.start_mission, Mode.RTL: self.rtl,
-            Mode.LAND: self.land, Mode.TAKEOFF: lambda: self.takeoff(None),
+            Mode.LAND: self.land, Mode.TAKEOFF: lambda: self.takeoff(None), Mode.OFFBOARD: self.start_offboard,
+            Mode.ORBIT: lambda: False,
         }[mode]()
+
+    def start_offboard(self) -> bool:
+        """Switch to OFFBOARD (the caller checked the setpoint stream is alive)."""
+        if self.offboard_setpoint is None:
+            return False
+        self._set_mode(Mode.OFFBOARD)
+        self.target, self.target_yaw = self._stop_point(), None
+        return True
+
+    def start_orbit(self, orbit: Orbit) -> bool:
+        if not self.armed or self.landed:
+            return False
+        orbit.initial_yaw = self.yaw
+        self.orbit = orbit
+        self._set_mode(Mode.ORBIT)
+        return True
 
     def _posctl(self) -> bool:
         self.hold()
@@ -260,6 +320,10 @@ class Navigator:
             self.target = np.array([tgt[0], tgt[1], self.pos[2]])
         elif item.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             self._phase = "climb"
+            self._rtl_home = self.rtl_destination()
+        elif item.command == M.MAV_CMD_NAV_LOITER_UNLIM:
+            self.target = self.item_target(item)
+            self._phase = "loiter"  # holds there until the mission is changed or another mode commanded
         elif item.command == M.MAV_CMD_NAV_DELAY:
             self.target = self._stop_point()
             self._phase = "hold"
@@ -267,6 +331,8 @@ class Navigator:
         elif item.command == M.MAV_CMD_DO_CHANGE_SPEED:
             if math.isfinite(item.param2) and item.param2 > 0:
                 self.limits = self.limits.with_speed_xy(item.param2)
+            self._phase = "done"
+        else:  # DO items that do not move the vehicle (camera, gimbal, ROI): done at once
             self._phase = "done"
 
     def _advance(self) -> None:
@@ -291,6 +357,8 @@ class Navigator:
         cmd = item.command
         if self._phase == "done":
             self._advance()
+        elif self._phase == "loiter":
+            pass
         elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             if self._rtl_step():
                 self._advance()
@@ -331,7 +399,7 @@ class Navigator:
             if self._arrived():
                 self._phase = "return"
         if self._phase == "return":
-            self.target = np.array([0.0, 0.0, self.target[2]])
+            self.target = np.array([self._rtl_home[0], self._rtl_home[1], self.target[2]])
             if self._arrived():
                 self._phase = "descend"
         if self._phase == "descend":
@@ -364,11 +432,16 @@ class Navigator:
                 self._rtl_step()
             elif self.mode is Mode.LAND:
                 self._descend_step()
+            elif self.mode is Mode.ORBIT:
+                return self._orbit_step(dt)
         if self.landed and self.armed and self._landed_at is not None:
             if t - self._landed_at >= self.p.disarm_after_land_s:
                 self.disarm()
-                self._set_mode(Mode.HOLD)
+                if self.mode is not Mode.OFFBOARD:  # PX4 stays in offboard after the auto-disarm
+                    self._set_mode(Mode.HOLD)
                 self.target = self.pos.copy()
+        if self.mode is Mode.OFFBOARD and self.armed and self.offboard_setpoint is not None:
+            return self._offboard_step(dt)
         if not self.armed or self.landed:
             self.accel[:] = 0
             return 0.0
@@ -381,3 +454,75 @@ class Navigator:
                                                    limits, dt)
         self.accel = (self.vel - old_vel) / dt
         return float(np.linalg.norm(self.pos - old))
+
+    # -- offboard and orbit ----------------------------------------------------------------------
+    def _offboard_step(self, dt: float) -> float:
+        """Track the offboard setpoint: position (with a velocity feed-forward ignored) or velocity.
+        Takes off when the setpoint asks to climb; lands (and auto-disarms) when it asks for the ground."""
+        from vehicle_sim.offboard import velocity_step
+
+        sp = self.offboard_setpoint
+        wants_up = (sp.pos is not None and sp.pos[2] > 0.1) or (sp.pos is None and sp.vel[2] > 0.05)
+        if self.landed:
+            if not wants_up:
+                self.accel[:] = 0
+                return 0.0
+            self.landed, self._landed_at = False, None
+        old, old_vel = self.pos, self.vel
+        if sp.pos is not None:
+            self.target = np.array([sp.pos[0], sp.pos[1], max(sp.pos[2], 0.0)])
+            yaw_target = sp.yaw
+            if yaw_target is None and sp.yaw_rate is not None:
+                yaw_target = self.yaw + sp.yaw_rate * dt
+            self.pos, self.vel, self.yaw = motion.step(self.pos, self.vel, self.yaw, self.target, yaw_target,
+                                                       self.limits, dt)
+        else:
+            self.pos, self.vel, self.yaw = velocity_step(self.pos, self.vel, self.yaw, sp.vel, sp.yaw, sp.yaw_rate,
+                                                         self.limits, dt)
+        self.accel = (self.vel - old_vel) / dt
+        if self.pos[2] <= 0.02 and not wants_up and abs(self.vel[2]) < 0.05:
+            self.pos[2], self.vel[:] = 0.0, 0.0
+            self.landed, self._landed_at = True, self._t
+            self.events.append(("text", "Landing detected"))
+        return float(np.linalg.norm(self.pos - old))
+
+    def _orbit_step(self, dt: float) -> float:
+        """Fly to the nearest point of the circle, then around it at the commanded speed (accelerating
+        at the horizontal limit), yaw per the commanded behaviour."""
+        o = self.orbit
+        old, old_vel = self.pos, self.vel
+        rel = self.pos[:2] - o.center[:2]
+        if not o.circling:
+            ang = math.atan2(rel[1], rel[0]) if np.linalg.norm(rel) > 1e-6 else 0.0
+            entry = np.array([o.center[0] + o.radius * math.cos(ang), o.center[1] + o.radius * math.sin(ang),
+                              o.center[2]])
+            yaw = math.atan2(o.center[1] - self.pos[1], o.center[0] - self.pos[0]) if o.yaw_behaviour == 0 else None
+            self.target = entry
+            self.pos, self.vel, self.yaw = motion.step(self.pos, self.vel, self.yaw, entry, yaw, self.limits, dt)
+            if motion.arrived(self.pos, self.vel, entry, max(self.p.acceptance_radius, 0.3), 0.3):
+                o.circling, o.angle = True, ang
+                self.events.append(("text", f"Orbit: circling r={o.radius:.1f} m at {o.speed:.1f} m/s"))
+        else:
+            v = min(o.speed, self.limits.max_speed_xy)
+            o.tangential = min(v, o.tangential + self.limits.max_accel * dt)
+            dang = o.direction * o.tangential / o.radius * dt
+            o.angle = wrap(o.angle + dang)
+            o.swept += abs(dang)
+            c, s = math.cos(o.angle), math.sin(o.angle)
+            new = np.array([o.center[0] + o.radius * c, o.center[1] + o.radius * s, o.center[2]])
+            self.vel = np.array([-s, c, 0.0]) * o.direction * o.tangential
+            self.pos = new
+            self.target = new
+            lim = self.limits.max_yaw_rate * dt
+            want = {0: o.angle + math.pi, 1: o.initial_yaw, 3: o.angle + o.direction * math.pi / 2}.get(o.yaw_behaviour)
+            if want is not None:
+                self.yaw = wrap(self.yaw + max(-lim, min(lim, wrap(want - self.yaw))))
+            if o.swept >= 2 * math.pi * o.orbits:
+                self.events.append(("text", "Orbit: done"))
+                self.hold()
+        self.accel = (self.vel - old_vel) / dt
+        return float(np.linalg.norm(self.pos - old))
+
+
+def wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -3,6 +3,13 @@
 Everything sent is the vehicle's *estimate* (GPS-denied odometry), never the truth. Positions go out
 as NED / WGS-84 (``frames``). Rates are in sim Hz like SITL, capped at ``max_wall_hz`` per message so
 a fast simulation does not flood a ground station.
+
+GPS-denied, honestly: GPS_RAW_INT reports the receiver as connected without a fix (fix_type NO_FIX,
+0 satellites, position and accuracies unknown), so MAVSDK's ``gps_info`` yields ``NO_FIX``. SYS_STATUS
+still marks the GPS sensor bit healthy: MAVSDK (telemetry_impl.cpp, ``process_sys_status``) reads that
+one bit as "global position estimate OK" and nothing else, and the vehicle does have a global estimate
+(VIO anchored at the known home, with its variance in ODOMETRY); clearing it would make every MAVSDK
+client wait forever for ``is_global_position_ok``. VISION_POSITION is marked present and healthy too.
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | 
 DEFAULT_RATES: dict[str, float] = {
     "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "BATTERY_STATUS": 1.0, "GLOBAL_POSITION_INT": 10.0,
     "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 10.0, "ODOMETRY": 10.0, "EXTENDED_SYS_STATE": 2.0,
-    "MISSION_CURRENT": 1.0, "HOME_POSITION": 0.5,
+    "MISSION_CURRENT": 1.0, "HOME_POSITION": 0.5, "GPS_RAW_INT": 1.0,
 }
 MSG_IDS: dict[int, str] = {getattr(M, f"MAVLINK_MSG_ID_{n}"): n for n in (*DEFAULT_RATES, "AUTOPILOT_VERSION")}
 
@@ -146,6 +153,13 @@ def odometry(s: Snapshot):
                                       M.MAV_ESTIMATOR_TYPE_VIO, quality)
 
 
+def gps_raw_int(s: Snapshot):
+    """The GPS receiver as it is in a GPS-denied flight: connected, no fix, nothing known."""
+    unknown16 = 65535
+    return M.MAVLink_gps_raw_int_message(int(s.t * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0, unknown16, unknown16,
+                                         unknown16, unknown16, 0, 0, 0, 0, 0, 0, 0)
+
+
 def home_position(s: Snapshot):
     h = s.home
     return M.MAVLink_home_position_message(int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)),
@@ -172,7 +186,7 @@ BUILDERS = {
     "HEARTBEAT": heartbeat, "SYS_STATUS": sys_status, "BATTERY_STATUS": battery_status,
     "GLOBAL_POSITION_INT": global_position_int, "LOCAL_POSITION_NED": local_position_ned, "ATTITUDE": attitude,
     "ODOMETRY": odometry, "HOME_POSITION": home_position, "EXTENDED_SYS_STATE": extended_sys_state,
-    "MISSION_CURRENT": mission_current, "AUTOPILOT_VERSION": autopilot_version,
+    "MISSION_CURRENT": mission_current, "AUTOPILOT_VERSION": autopilot_version, "GPS_RAW_INT": gps_raw_int,
 }
 
 

@@ -19,9 +19,9 @@ from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, geodetic_to_enu
 from vehicle_sim import battery as battery_model
-from vehicle_sim import commands, telemetry
+from vehicle_sim import commands, offboard, telemetry
 from vehicle_sim.failsafe import Action, Failsafe, FailsafeParams
-from vehicle_sim.geofence import Geofence
+from vehicle_sim.geofence import Geofence, zones_from_items
 from vehicle_sim.link import Endpoint, Link
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 MISSION_MSGS = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT",
                 "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_ACK"}
 PARAM_MSGS = {"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"}
+SETPOINT_MSGS = {"SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"}
 
 
 @dataclass
@@ -143,7 +144,11 @@ class Vehicle:
         self.battery = 1.0
         self.failsafe = Failsafe(cfg.failsafe, cfg.battery.low_threshold, cfg.battery.critical_threshold)
         self.failsafe_active = False
-        self.protocol = MissionProtocol(self._validate_item, sysid=cfg.sysid, compid=cfg.compid)
+        self.protocol = MissionProtocol(self._validate_item, sysid=cfg.sysid, compid=cfg.compid,
+                                        validate_list=self._validate_list)
+        self.offboard = offboard.OffboardStream()
+        self._breached = False
+        self._refused_sp: np.ndarray | None = None
         self._proto_ep: Endpoint | None = None
         self.link = Link(
             [("api", (cfg.bind_host, cfg.api_local_port), (cfg.remote_host, cfg.api_port)),
@@ -187,6 +192,8 @@ class Vehicle:
             Param("MPC_XY_CRUISE", c.limits.max_speed_xy, 0.1, 20, "m/s", set_lim("max_speed_xy")),
             Param("MPC_ACC_HOR", c.limits.max_accel, 0.1, 10, "m/s^2", set_lim("max_accel")),
             Param("COM_DL_LOSS_T", c.failsafe.link_loss_timeout_s, 0.5, 600, "s", set_fs),
+            Param("COM_OF_LOSS_T", self.offboard.loss_timeout_s, 0.1, 60, "s",
+                  lambda v: setattr(self.offboard, "loss_timeout_s", v)),
             Param("BAT_LOW_THR", c.battery.low_threshold, 0, 1, "", None),
             Param("BAT_CRIT_THR", c.battery.critical_threshold, 0, 1, "", None),
             Param("SIM_SPEEDUP", c.speedup, c.speedup, c.speedup, "", None),  # read-only: fixed at start
@@ -197,6 +204,13 @@ class Vehicle:
         result = basic_validate(item)
         if result != M.MAV_MISSION_ACCEPTED or item.frame not in GLOBAL_FRAMES:
             return result
+        if item.mission_type == M.MAV_MISSION_TYPE_FENCE:  # fence vertices: any valid lat/lon
+            lat, lon = item.x / 1e7, item.y / 1e7
+            if not -90 <= lat <= 90:
+                return M.MAV_MISSION_INVALID_PARAM5_X
+            if not -180 <= lon <= 180:
+                return M.MAV_MISSION_INVALID_PARAM6_Y
+            return M.MAV_MISSION_ACCEPTED
         if item.x == 0 and item.y == 0:  # "here": only the altitude matters
             p = np.array([0.0, 0.0, item.z if item.frame in (3, 6) else item.z - self.home.alt_m])
             p[:2] = [(self.fence.xmin + self.fence.xmax) / 2, (self.fence.ymin + self.fence.ymax) / 2]
@@ -210,10 +224,33 @@ class Vehicle:
             p = geodetic_to_enu(self.home, lat, lon, item.z + self.home.alt_m if rel else item.z)
         if item.command == M.MAV_CMD_NAV_LAND:
             p[2] = self.fence.zmin  # a landing ends on the ground: its altitude field is not checked
+        if item.command == M.MAV_CMD_DO_SET_ROI_LOCATION:
+            return M.MAV_MISSION_ACCEPTED  # a point to look at, not to fly to
         axis = self.fence.violated_axis(p)
         if axis is not None:
-            log.warning("mission item %d outside the geofence (axis %d): %s", item.seq, axis, np.round(p, 2))
-            return (M.MAV_MISSION_INVALID_PARAM5_X, M.MAV_MISSION_INVALID_PARAM6_Y, M.MAV_MISSION_INVALID_PARAM7)[axis]
+            # ENU east is the longitude (param6, y), north the latitude (param5, x), up the altitude (param7)
+            name = ("east (longitude, param6)", "north (latitude, param5)", "altitude (param7)")[axis]
+            self.statustext(f"item {item.seq} outside the geofence on {name}: {np.round(p, 1).tolist()} m",
+                            M.MAV_SEVERITY_WARNING)
+            return (M.MAV_MISSION_INVALID_PARAM6_Y, M.MAV_MISSION_INVALID_PARAM5_X, M.MAV_MISSION_INVALID_PARAM7)[axis]
+        why = self.fence.zone_violation(p)
+        if why is not None:
+            self.statustext(f"item {item.seq} {why}", M.MAV_SEVERITY_WARNING)
+            return M.MAV_MISSION_DENIED
+        return M.MAV_MISSION_ACCEPTED
+
+    def _to_enu_xy(self, lat: float, lon: float) -> tuple[float, float]:
+        p = geodetic_to_enu(self.home, lat, lon, self.home.alt_m)
+        return float(p[0]), float(p[1])
+
+    def _validate_list(self, items: list[MissionItem], mtype: int) -> int:
+        """Whole-list checks: a fence's polygons must be complete; the home must stay usable."""
+        if mtype == M.MAV_MISSION_TYPE_FENCE:
+            try:
+                zones_from_items(items, self._to_enu_xy)
+            except ValueError as exc:
+                self.statustext(f"fence refused: {exc}", M.MAV_SEVERITY_WARNING)
+                return M.MAV_MISSION_INVALID_PARAM1
         return M.MAV_MISSION_ACCEPTED
 
     # -- services for commands -------------------------------------------------------------------
@@ -245,6 +282,9 @@ class Vehicle:
             return False
         self.scheduler.set_interval(name, interval_us)
         return True
+
+    def offboard_alive(self) -> bool:
+        return self.offboard.alive(time.monotonic())
 
     def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         log.info("STATUSTEXT: %s", text)
@@ -293,6 +333,9 @@ class Vehicle:
                     result = commands.set_mode_message(msg, self.nav)
                     self.link.send(M.MAVLink_command_ack_message(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0,
                                                                  msg.get_srcSystem(), msg.get_srcComponent()), ep)
+            elif kind in SETPOINT_MSGS:
+                if self._for_us(msg):
+                    self._on_setpoint(msg, now_wall)
             elif kind in PARAM_MSGS:
                 if self._for_us(msg):
                     for m in self.params.handle(msg):
@@ -310,10 +353,60 @@ class Vehicle:
             log.warning("%s from %d/%d ignored: %s: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(),
                         type(exc).__name__, exc)
 
+    def _on_setpoint(self, msg, now_wall: float) -> None:
+        try:
+            sp = offboard.setpoint_from_msg(msg, self.home, self.nav.yaw)
+        except offboard.SetpointError as exc:
+            log.info("%s ignored: %s", msg.get_type(), exc)
+            return
+        if sp.pos is not None and not self.fence.contains(sp.pos):
+            if self._refused_sp is None or not np.array_equal(self._refused_sp, sp.pos):  # say it once
+                self._refused_sp = sp.pos
+                self.statustext(f"offboard setpoint {np.round(sp.pos, 1).tolist()} m outside the geofence: ignored",
+                                M.MAV_SEVERITY_WARNING)
+            return
+        self.offboard.receive(sp, now_wall)
+        self.nav.offboard_setpoint = sp
+
+    def _check_offboard(self, now_wall: float) -> None:
+        """The setpoint stream must go on while in OFFBOARD: lost for COM_OF_LOSS_T -> HOLD."""
+        if self.offboard.setpoint is None or self.offboard.alive(now_wall):
+            return
+        self.nav.offboard_setpoint = None
+        self.offboard.setpoint = None
+        if self.nav.mode is Mode.OFFBOARD:
+            self.nav.hold()
+            self.statustext(f"Failsafe: offboard setpoints lost for {self.offboard.loss_timeout_s:g} s, holding",
+                            M.MAV_SEVERITY_CRITICAL)
+
+    def _check_fence(self) -> None:
+        """Breach check in flight (offboard velocity, drift): leaving the fence -> HOLD, announced once."""
+        nav = self.nav
+        inside = not nav.in_air or self.fence.contains(nav.pos, tol=0.5)
+        if inside:
+            self._breached = False
+            return
+        if not self._breached:
+            self._breached = True
+            if nav.mode not in (Mode.RTL, Mode.LAND):
+                nav.hold()
+            self.statustext(f"Geofence breached at {np.round(nav.pos, 1).tolist()} m, holding",
+                            M.MAV_SEVERITY_CRITICAL)
+
     def _react_to_mission_change(self) -> None:
         if self.protocol.changed:
             self.protocol.changed = False
             self.nav.replace_mission(self.protocol.items)
+        if self.protocol.changed_types:
+            changed, self.protocol.changed_types = self.protocol.changed_types, set()
+            if M.MAV_MISSION_TYPE_FENCE in changed:
+                zones = zones_from_items(self.protocol.lists[M.MAV_MISSION_TYPE_FENCE], self._to_enu_xy)
+                self.fence = self.fence.with_zones(zones)
+                self.statustext(f"Geofence: {len(zones)} zone(s) uploaded")
+            if M.MAV_MISSION_TYPE_RALLY in changed:
+                rally = self.protocol.lists[M.MAV_MISSION_TYPE_RALLY]
+                self.nav.rally_points = [self.nav.item_target(i) for i in rally]
+                self.statustext(f"Rally: {len(rally)} point(s) uploaded")
 
     # -- simulation ------------------------------------------------------------------------------
     def step(self, dt: float, link_age: float | None) -> None:
@@ -334,6 +427,7 @@ class Vehicle:
             elif ev.action is Action.LAND:
                 nav.land()
             self.statustext(ev.text, ev.severity)  # announced once acted upon
+        self._check_fence()
         for kind, data in nav.events:
             if kind == "reached":
                 self.link.send(M.MAVLink_mission_item_reached_message(int(data)))
@@ -382,6 +476,7 @@ class Vehicle:
                     self.dispatch(ep, msg, now_wall)
                 for m in self.protocol.poll(now_wall):
                     self.link.send(m, self._proto_ep)
+                self._check_offboard(now_wall)
                 last = self.link.last_rx_wall
                 link_age = None if last is None else now_wall - last
                 target = clock.now()

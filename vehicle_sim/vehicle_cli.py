@@ -39,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--home", default="47.397742,8.545594,488.0", help="home lat,lon,alt_amsl (default PX4 SITL's)")
     s.add_argument("--bounds", help="geofence xmin,ymin,zmin,xmax,ymax,zmax in local ENU m "
                                     "(write --bounds=-5,... for negative values; "
-                                    "default: from --scene, else -500,-500,0,500,500,120)")
+                                    "default: from --scene, else -1000,-1000,0,1000,1000,120, "
+                                    "wide enough for MAVSDK's examples)")
     s.add_argument("--scene", help="scene (bundled name or TOML/JSON file): its x-y bounds plus a 1 m margin "
                                    "become the geofence, 0-10 m above its top")
     s.add_argument("--max-speed", type=float, default=3.0, help="horizontal speed limit, m/s (default 3)")

@@ -1,0 +1,200 @@
+"""MAVSDK-Python's own example scripts, unchanged, against `radseek vehicle` (PX4-SITL parity).
+
+The examples (../shared/mavsdk-python-examples, BSD-3, never edited) use the gRPC MAVSDK-Python API
+(`from mavsdk import System`), i.e. `mavsdk<4` (3.x, the deprecated name of `mavsdk-grpc`, bundling
+mavsdk_server). radseek's own venv has the native `mavsdk` 4.x binding, under the same import name, so
+the examples run from their own venv, `.venv-mavsdk-grpc/` (made by `make`; made here if missing).
+
+Each example connects to `udpin://0.0.0.0:14540` and its mavsdk_server takes gRPC port 50051, both
+fixed: they run one after the other, the vehicle sending to 14540 from free local ports. A pymavlink
+listener on the vehicle's GCS port records what the vehicle did (sim time, position, mode), so the
+asserts are on events and the vehicle's state, not on wall-clock durations. Examples that never end
+(goto, telemetry) are stopped once the awaited event has happened.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
+
+pytestmark = pytest.mark.slow
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
+VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
+WAIT_S = 240.0  # bounds waiting only
+HOME = (47.397742, 8.545594, 488.0)
+
+
+def grpc_python() -> Path:
+    """The example venv's python with the gRPC MAVSDK-Python (3.x) installed; created if missing."""
+    py = VENV / "bin" / "python"
+    probe = [str(py), "-c", "import mavsdk, sys; from mavsdk import System; sys.exit(mavsdk.__file__ is None)"]
+    if py.exists() and subprocess.run(probe, capture_output=True).returncode == 0:
+        return py
+    subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
+    subprocess.run([str(py), "-m", "pip", "install", "--quiet", "mavsdk>=3.15,<4"], check=True)
+    return py
+
+
+@dataclass
+class Watch:
+    """What the vehicle reported on the GCS port while an example ran."""
+
+    positions: list = field(default_factory=list)  # (t_s, lat, lon, rel_alt_m)
+    modes: set = field(default_factory=set)  # PX4 custom modes seen in HEARTBEATs
+    texts: list = field(default_factory=list)
+    armed_seen: bool = False
+
+    def near(self, lat: float, lon: float, alt: float, tol_m: float) -> bool:
+        return any(_dist_m(p[1], p[2], lat, lon) < tol_m and abs(p[3] - alt) < tol_m for p in self.positions)
+
+    def max_alt(self) -> float:
+        return max((p[3] for p in self.positions), default=0.0)
+
+
+def _dist_m(lat1, lon1, lat2, lon2) -> float:
+    n = math.radians(lat1 - lat2) * 6378137.0
+    e = math.radians(lon1 - lon2) * 6378137.0 * math.cos(math.radians(lat2))
+    return math.hypot(n, e)
+
+
+def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
+    while not stop.is_set():
+        for m in gcs.poll(0.05):
+            kind = m.get_type()
+            if kind == "GLOBAL_POSITION_INT":
+                watch.positions.append((m.time_boot_ms / 1000, m.lat / 1e7, m.lon / 1e7, m.relative_alt / 1000))
+            elif kind == "HEARTBEAT":
+                watch.modes.add(m.custom_mode)
+                watch.armed_seen |= bool(m.base_mode & 128)
+            elif kind == "STATUSTEXT":
+                watch.texts.append(m.text)
+
+
+def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
+                timeout: float = WAIT_S) -> tuple[str, Watch, int | None]:
+    """Run ``script`` unchanged (cwd = the examples folder) against a fresh vehicle. Returns its output,
+    the vehicle's watch and the exit code (None when stopped by us after ``until(output, watch)``)."""
+    py = grpc_python()
+    gcs_port = free_udp_port()
+    watch, stop = Watch(), threading.Event()
+    with VehicleProcess(14540, gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
+        listener = threading.Thread(target=_listen, args=(gcs, watch, stop), daemon=True)
+        listener.start()
+        proc = subprocess.Popen([str(py), "-u", str(EXAMPLES / script)], cwd=EXAMPLES, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+        reader.start()
+        deadline = time.monotonic() + timeout
+        code = None
+        try:
+            while True:
+                out = "".join(lines)
+                if until is not None and all(e in out for e in expect) and until(out, watch):
+                    break
+                code = proc.poll()
+                if code is not None:
+                    break
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.1)
+        finally:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            reader.join(10)
+            stop.set()
+            listener.join(5)
+    out = "".join(lines)
+    print(f"--- {script} (exit {code}):\n{out[-4000:]}\n--- vehicle:\n{vp.output[-2000:]}\n--- texts: {watch.texts}")
+    for e in expect:
+        assert e in out, f"{script}: {e!r} not printed"
+    return out, watch, code
+
+
+def completes(script: str, args: list[str], expect: list[str]) -> tuple[str, Watch]:
+    out, watch, code = run_example(script, args, expect=expect)
+    assert code == 0, f"{script} did not complete (exit {code})"
+    assert "Traceback" not in out, out
+    return out, watch
+
+
+def test_takeoff_and_land():
+    out, w = completes("takeoff_and_land.py", ["--speedup", "2"], ["-- Connected to drone!", "-- Taking off",
+                                                                    "-- Landing"])
+    assert w.max_alt() > 2.0  # MIS_TAKEOFF_ALT 2.5 m
+
+
+def test_goto_reaches_the_location():
+    target = (47.397606, 8.543060, 20.0)
+    out, w, code = run_example("goto.py", ["--speedup", "10"], expect=["-- Taking off", "Staying connected"],
+                               until=lambda out, w: w.near(*target, tol_m=1.0))
+    assert w.near(*target, tol_m=1.0), f"never reached {target}: last {w.positions[-1:]}"
+
+
+def test_telemetry_gps_info_yields_the_gps_denied_state():
+    out, w, code = run_example("telemetry.py", [], expect=["GPS info:", "Battery:", "In air: False"],
+                               until=lambda out, w: "latitude_deg" in out)
+    assert "num_satellites: 0" in out and "fix_type: NO_FIX" in out  # honest: GPS-denied
+
+
+def test_mission_flies_and_returns():
+    out, w = completes("mission.py", ["--speedup", "10"], ["-- Uploading mission", "-- Starting mission",
+                                                           "Mission progress: 3/3"])
+    assert w.near(47.398036222362471, 8.5450146439425509, 25.0, tol_m=1.0)
+    assert w.positions[-1][3] < 0.2 and _dist_m(*w.positions[-1][1:3], *HOME[:2]) < 1.0  # RTL: landed home
+
+
+def test_mission_raw_upload():
+    out, w = completes("mission_raw.py", [], ["-- Uploading mission", "-- Done"])
+
+
+def test_mission_import_with_rally_points():
+    out, w = completes("mission_import.py", [], ["5 mission items and2 rally items imported.", "Mission uploaded"])
+    assert any("Rally: 2 point(s) uploaded" in t for t in w.texts)
+
+
+def test_geofence_upload():
+    out, w = completes("geofence.py", [], ["Geofence uploaded!"])
+    assert any("Geofence: 2 zone(s) uploaded" in t for t in w.texts)
+
+
+def test_offboard_position_ned():
+    out, w = completes("offboard_position_ned.py", [], ["-- Starting offboard", "-- Stopping offboard"])
+    assert "failed" not in out
+    assert 4.5 < w.max_alt() < 5.5  # climbed to 5 m
+    assert w.near(HOME[0] + 5 / 111_194.9, HOME[1] + 10 / (111_194.9 * math.cos(math.radians(HOME[0]))), 5.0, 0.5)
+    assert 6 << 16 in w.modes  # PX4 OFFBOARD
+
+
+def test_offboard_velocity_ned():
+    out, w = completes("offboard_velocity_ned.py", [], ["-- Starting offboard", "-- Go up 2 m/s",
+                                                        "-- Stopping offboard"])
+    assert "failed" not in out
+    assert w.max_alt() > 5.0  # 4 s at 2 m/s up
+    assert 6 << 16 in w.modes
+
+
+def test_do_orbit():
+    out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
+                                           "--- Landing"])
+    center = (47.398036222362471, 8.5450146439425509)
+    on_circle = [p for p in w.positions if abs(_dist_m(p[1], p[2], *center) - 10.0) < 0.5 and abs(p[3] - 10) < 0.5]
+    assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
+    assert (3 << 16 | 1 << 24) in w.modes  # PX4 POSCTL.ORBIT
+    assert any("Orbit: circling" in t for t in w.texts)
