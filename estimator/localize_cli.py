@@ -33,6 +33,12 @@ from radseek.dataset import DatasetError, DatasetWarning, Truth, read_dataset, s
 
 __all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_with_warnings"]
 
+#: a flight longer than this is fitted on pooled frames (consecutive frames of one dwell or transit run
+#: summed): a 1.4 M-frame flight would otherwise need several GB in the localizers' start-point grids
+MAX_FRAMES = 100_000
+#: a fit whose goodness of fit is worse than this misses a physical effect: say so
+GOOD_FIT_P = 1e-3
+
 #: print "still fitting" to stderr this often while a fit runs (a 1.4 M-frame flight takes minutes)
 HEARTBEAT_S = 10.0
 
@@ -153,6 +159,9 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="localizer setting, repeatable (e.g. --set n_particles=20000)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON result")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    p.add_argument("--max-frames", type=int, default=MAX_FRAMES, metavar="N",
+                   help=f"pool consecutive frames of one dwell or transit run so at most N are fitted "
+                        f"(default {MAX_FRAMES}; memory grows with the frames fitted)")
     return p
 
 
@@ -186,10 +195,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek localize: effect wall_attenuation needs walls, but {ds.path}/scenario.json lists none "
               "(key 'walls'); drop the effect or map the walls", file=sys.stderr)
         return 2
+    frames = ds.frames
+    if args.max_frames < 1:
+        print("radseek localize: --max-frames must be >= 1", file=sys.stderr)
+        return 2
+    if len(frames) > args.max_frames:
+        from estimator.mle import pooled
+
+        size = -(-len(frames) // args.max_frames)
+        frames = pooled(frames, size)
+        if not args.quiet:
+            print(f"radseek localize: {len(ds.frames)} frames pooled {size} at a time into {len(frames)} "
+                  f"(--max-frames {args.max_frames})", file=sys.stderr)
     t0 = time.perf_counter()
     try:
-        with heartbeat(f"radseek localize: fitting {args.method} on {len(ds.frames)} frames", quiet=args.quiet):
-            loc.fit(ds.frames, ds.scenario)  # frames and scenario only: the truth stays here
+        with heartbeat(f"radseek localize: fitting {args.method} on {len(frames)} frames", quiet=args.quiet):
+            loc.fit(frames, ds.scenario)  # frames and scenario only: the truth stays here
     except (ValueError, TypeError, ArithmeticError, np.linalg.LinAlgError) as exc:
         print(f"radseek localize: {args.method} failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
@@ -199,6 +220,12 @@ def main(argv: list[str] | None = None) -> int:
     result["elapsed_s"] = elapsed
     result["std"] = [_std(loc.covariance_, i) for i in range(len(loc.sources_))]
     result["crlb_std"] = [_std(loc.crlb_, i) for i in range(len(loc.sources_))] if loc.crlb_ is not None else None
+    result["frames_fitted"] = len(frames)
+    bound = getattr(loc, "crlb_pose_", None)
+    bound = bound if bound is not None else loc.crlb_
+    # the pose-and-drift-aware bound on the horizontal position: rms radial error an unbiased fit can reach
+    result["bound_m"] = ([float(np.sqrt(max(np.trace(np.asarray(bound)[4 * i:4 * i + 2, 4 * i:4 * i + 2]), 0.0)))
+                          for i in range(len(loc.sources_))] if bound is not None else None)
     if ds.truth is not None:
         result["error"] = match_errors(loc.sources_, ds.truth)
     pinned = result["pinned_at_bound"]
@@ -206,12 +233,18 @@ def main(argv: list[str] | None = None) -> int:
         f"source {i + 1}: {k} = {loc.sources_[i][k]:.3f} m is pinned at the bounds' {side} (scenario.json "
         f"'bounds'); it is where the search box stopped the fit, not a measurement: widen the bounds"
         for i, p in enumerate(pinned) for k, side in p.items()]
+    p_fit = result.get("info", {}).get("p_value")
+    if p_fit is not None and p_fit < GOOD_FIT_P:
+        result["warnings"].append(
+            f"goodness of fit p = {p_fit:.2g} < {GOOD_FIT_P:g}: the model misses something here, so the "
+            f"estimate and its ± are not to be trusted; run `radseek diagnose {ds.path}`")
     for w in result["warnings"]:
         print(f"radseek localize: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2, default=float))
         return 0
-    print(f"{ds.name}: method {args.method} ({elapsed:.2f} s, {len(ds.frames)} frames)")
+    print(f"{ds.name}: method {args.method} ({elapsed:.2f} s, {len(frames)} frames"
+          + (f" pooled from {len(ds.frames)})" if len(frames) != len(ds.frames) else ")"))
     for i, s in enumerate(loc.sources_):
         sd = result["std"][i]
         print(f"  source {i + 1}: x = {s['x']:.3f} ± {sd[0]:.3f} m, y = {s['y']:.3f} ± {sd[1]:.3f} m, "
@@ -222,11 +255,16 @@ def main(argv: list[str] | None = None) -> int:
         if result["crlb_std"]:
             cr = result["crlb_std"][i]
             print(f"            CRLB 1-sigma: x {cr[0]:.3f} m, y {cr[1]:.3f} m, cps_at_1m {cr[3]:.0f}")
+        if result["bound_m"]:
+            print(f"            bound with pose errors and drift (rms horizontal): {result['bound_m'][i]:.3f} m")
     bstd = getattr(loc, "background_std_", None)
     print(f"  background: {loc.background_:.1f} cps" + (f" ± {bstd:.1f}" if bstd else ""))
     info = result.get("info", {})
     if "deviance_per_dof" in info:
         print(f"  fit: deviance/dof = {info['deviance_per_dof']:.3f}, p = {info['p_value']:.3g}")
+        if info["p_value"] < GOOD_FIT_P:
+            print(f"  THE MODEL MISSES SOMETHING HERE (p < {GOOD_FIT_P:g}): the ± above assume a model that does "
+                  f"not fit; run `radseek diagnose {ds.path}`")
     for j, e in enumerate(result.get("error", [])):
         if e["position_error_m"] is None:
             print(f"  truth source {j + 1} ({e['true_x']:.2f}, {e['true_y']:.2f}): not found")

@@ -136,5 +136,6 @@ class MaximumLikelihood(Localizer):
             "nll": res.nll,
             "deviance_per_dof": res.deviance_per_dof,
             "p_value": res.p_value,
+            "pose_error": res.pose_error,
             "converged": res.converged,
         }
