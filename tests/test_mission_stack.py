@@ -58,7 +58,13 @@ def test_mission_survives_injected_faults(tmp_path):
             seen[h.seq] = h.t
 
     try:
-        with open_session(connect=f"tcp/127.0.0.1:{PORTS['zenoh']}", wait_for_router_s=60) as session:
+        try:
+            session_cm = open_session(connect=f"tcp/127.0.0.1:{PORTS['zenoh']}", wait_for_router_s=120)
+        except TimeoutError:
+            if proc.poll() is not None:  # the launcher died before its router came up: show why
+                raise AssertionError(f"radseek run exited {proc.returncode}: {proc.stderr.read()[-3000:]}") from None
+            raise
+        with session_cm as session:
             sub = session.declare_subscriber(topics.key(topics.HISTOGRAM), on_hist)
             stdout, stderr = proc.communicate(timeout=RUN_TIMEOUT_S + 60)
             sub.undeclare()
