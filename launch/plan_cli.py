@@ -10,6 +10,12 @@ Examples::
     radseek plan --source 5,4,0 --sigma 0.3 --cps 2000 --dwell 1,1,1.5,40 --dwell 3,1,1.5,90 --plot plan.png
     radseek plan --scene detector_fw_sim/scenes/lattice-wall.toml --method explore --json
     radseek plan --fig4 docs/fig4-replica.png
+    radseek plan --method lawnmower --export-plan search.plan    # open in QGroundControl
+
+With no arguments it plans an exploration of the default scene (``next-best`` needs a belief,
+``--source``). ``--export-plan`` writes the plan as a QGroundControl .plan file: takeoff, the
+collision-free path as pass-through waypoints, each dwell point as a waypoint holding
+``--export-dwell`` s facing its detector yaw, landing; the map's x-y bounds as an inclusion geofence.
 """
 
 from __future__ import annotations
@@ -48,7 +54,8 @@ def _parser() -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--scene", type=Path, help="scene file (TOML/JSON): walls and bounds only")
     src.add_argument("--dataset", type=Path, help="dataset directory: its scenario.json's walls and bounds")
-    p.add_argument("--method", choices=METHODS, default="next-best")
+    p.add_argument("--method", choices=METHODS,
+                   help="planner (default next-best with --source, else explore)")
     p.add_argument("--start", type=lambda s: _floats(s, 4, "--start"), help="x,y,z,yaw of the vehicle now")
     p.add_argument("--source", type=lambda s: _floats(s, 3, "--source"), help="belief mean x,y,z (m)")
     p.add_argument("--sigma", type=float, default=0.3, help="belief std per axis (m), default 0.3")
@@ -63,8 +70,37 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", type=Path, help="write a PNG of the map, tree and plan")
     p.add_argument("--json", action="store_true", help="print the radseek.topics.Plan payload as JSON")
-    p.add_argument("--fig4", type=Path, metavar="PNG", help="only write the paper 003 Fig. 4 replica and exit")
+    p.add_argument("--fig4", type=Path, metavar="PNG", nargs="?", const=Path("fig4-replica.png"),
+                   help="only write the paper 003 Fig. 4 replica (default fig4-replica.png) and exit")
+    p.add_argument("--export-plan", type=Path, metavar="FILE", help="write the plan as a QGroundControl .plan")
+    p.add_argument("--export-dwell", type=float, default=60.0, help="hold per dwell point in the .plan, s (60)")
+    p.add_argument("--home", default="47.397742,8.545594,488.0",
+                   help="home lat,lon,alt_amsl of the local frame, for --export-plan (default PX4 SITL's)")
     return p
+
+
+def export_plan(path: Path, plan: DwellPlan, occ: OccupancyMap, home_text: str, dwell_s: float) -> Path:
+    """The plan as a QGC .plan: takeoff, path via points, dwell waypoints, land; bounds as a fence."""
+    from mission.client.mission_upload import DwellPoint, build_items, waypoint
+    from mission.qgc_plan import write_plan
+    from radseek.coordinates import Home, enu_to_geodetic
+
+    lat, lon, alt = (float(v) for v in home_text.split(","))
+    home = Home(lat, lon, alt)
+    points = [DwellPoint(*map(float, d[:3]), yaw=float(d[3]), max_dwell_s=dwell_s) for d in plan.dwell_points]
+    first_z = float(plan.path[0, 2]) if len(plan.path) else float(plan.dwell_points[0, 2])
+    items = build_items([], home, takeoff_alt=max(first_z, 0.5))
+    for q in plan.path[1:-1] if len(plan.path) > 2 else []:  # the path to the first dwell point: no stops
+        items.append(waypoint(len(items), home, *map(float, q[:3])))
+    for pt in points:
+        items.append(waypoint(len(items), home, pt.x, pt.y, pt.z, pt.max_dwell_s, pt.yaw))
+    items += build_items([], home, finish="land")
+    for k, it in enumerate(items):
+        it.seq = k
+    lo, hi = occ.bounds_min, occ.bounds_max
+    corners = [enu_to_geodetic(home, (x, y, 0.0))[:2] for x, y in ((lo[0], lo[1]), (hi[0], lo[1]),
+                                                                    (hi[0], hi[1]), (lo[0], hi[1]))]
+    return write_plan(path, items, home, polygons=[(True, corners)])
 
 
 def _load_map(args: argparse.Namespace) -> tuple[OccupancyMap, float]:
@@ -172,6 +208,10 @@ def main(argv: list[str] | None = None) -> int:
     tree_xy = node_gain = nodes = None
     z_mid = float(start[2])
 
+    if args.method is None:
+        args.method = "next-best" if belief is not None else "explore"
+        if belief is None:
+            print("radseek plan: no --source belief: planning an exploration (--method explore)", file=sys.stderr)
     if args.method == "next-best":
         if belief is None:
             print("radseek plan: --method next-best needs --source (use --method explore without a belief)",
@@ -215,4 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.plot is not None:
         _plot(args.plot, occ, plan, history, belief, tree_xy, node_gain, nodes)
         print(f"wrote {args.plot}", file=sys.stderr)
+    if args.export_plan is not None and plan.ok:
+        export_plan(args.export_plan, plan, occ, args.home, args.export_dwell)
+        print(f"wrote {args.export_plan}", file=sys.stderr)
     return 0 if plan.ok else 1

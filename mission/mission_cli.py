@@ -29,9 +29,9 @@ MISSION_OUTPUTS = ("mission_summary.json", "truth.json", "frames.csv", "frames_f
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek mission", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenario", required=True, help="scenario.json (the operator's view of the scene)")
-    p.add_argument("--out", required=True, help="directory for the recorded dataset and mission summary "
-                   "(must be empty unless --force)")
+    p.add_argument("--scenario", help="scenario.json (the operator's view of the scene); required unless --plan")
+    p.add_argument("--out", help="directory for the recorded dataset and mission summary "
+                   "(must be empty unless --force); required unless --plan")
     p.add_argument("--force", action="store_true",
                    help="use a non-empty --out: remove its previous mission outputs first (other files are kept)")
     p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
@@ -42,8 +42,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--localizer", default="mle", help="estimator used in flight (default mle)")
     p.add_argument("--strategy", default="active", choices=STRATEGIES,
                    help="active search (paper 003) or a fixed pattern baseline (default active)")
+    p.add_argument("--plan", type=Path, metavar="FILE",
+                   help="instead of a search: fly a QGroundControl .plan file (mission, geofence, rally points)")
     zenoh_session.add_arguments(p)
     args = p.parse_args(argv)
+    if args.plan is not None:
+        from mission.client.connection import ConnectionFailed
+        from mission.client.mission_upload import MissionFailed
+        from mission.plan_flight import run
+
+        if not args.plan.is_file():
+            p.error(f"--plan {args.plan}: no such file")
+        try:
+            print(json.dumps(run(args.plan, args.url)))
+        except (ConnectionFailed, MissionFailed) as exc:
+            print(f"radseek mission: {exc}", file=sys.stderr)
+            return 1
+        return 0
+    if args.scenario is None or args.out is None:
+        p.error("--scenario and --out are required (or --plan FILE)")
 
     from mission.mission_process import MissionSettings, run_mission
     from mission.search import SearchConfig

@@ -1,14 +1,18 @@
 """Export a planned mission as a QGroundControl ``.plan`` file (JSON, mission version 2).
 
 Items are written as QGC "SimpleItem"s with their raw command, frame and the seven params
-(lat/lon in degrees); NaN params become ``null`` as QGC writes them. QGroundControl opens the file,
-and MAVSDK's ``mission_raw.import_qgroundcontrol_mission`` reads it back.
+(lat/lon in degrees); NaN params become ``null`` as QGC writes them. A geofence (inclusion/exclusion
+polygons and circles, lat/lon degrees) and rally points go in the file's ``geoFence`` and
+``rallyPoints`` sections. QGroundControl opens the file, and MAVSDK's
+``mission_raw.import_qgroundcontrol_mission`` reads it back. ``read_plan`` reads one (ours or QGC's
+SimpleItems) into raw mission, fence and rally items ready for the mission protocol.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +28,13 @@ def _num(v: float) -> float | None:
     return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
 
-def plan_dict(items: list[Any], home: Home, *, cruise_speed: float = 3.0, hover_speed: float = 3.0) -> dict:
-    """``items`` are raw mission items (MAVSDK mission_raw ``MissionItem`` or anything with its fields)."""
+def plan_dict(items: list[Any], home: Home, *, cruise_speed: float = 3.0, hover_speed: float = 3.0,
+              polygons: list[tuple[bool, list[tuple[float, float]]]] = (),
+              circles: list[tuple[bool, tuple[float, float], float]] = (),
+              rally: list[tuple[float, float, float]] = ()) -> dict:
+    """``items`` are raw mission items (MAVSDK mission_raw ``MissionItem`` or anything with its fields);
+    ``polygons`` (inclusion?, [(lat, lon), ...]), ``circles`` (inclusion?, (lat, lon), radius m) and
+    ``rally`` points (lat, lon, alt m relative to home) fill the geofence and rally sections."""
     out = []
     for k, it in enumerate(items):
         glob = it.frame in GLOBAL_FRAMES
@@ -48,8 +57,13 @@ def plan_dict(items: list[Any], home: Home, *, cruise_speed: float = 3.0, hover_
         "mission": {"version": 2, "firmwareType": MAV_AUTOPILOT_PX4, "vehicleType": MAV_TYPE_QUADROTOR,
                     "cruiseSpeed": cruise_speed, "hoverSpeed": hover_speed, "items": out,
                     "plannedHomePosition": [home.lat_deg, home.lon_deg, home.alt_m]},
-        "geoFence": {"version": 2, "circles": [], "polygons": []},
-        "rallyPoints": {"version": 2, "points": []},
+        "geoFence": {"version": 2,
+                     "circles": [{"inclusion": bool(inc), "version": 1,
+                                  "circle": {"center": [float(c[0]), float(c[1])], "radius": float(r)}}
+                                 for inc, c, r in circles],
+                     "polygons": [{"inclusion": bool(inc), "version": 1,
+                                   "polygon": [[float(a), float(b)] for a, b in pts]} for inc, pts in polygons]},
+        "rallyPoints": {"version": 2, "points": [[float(a), float(b), float(c)] for a, b, c in rally]},
     }
 
 
@@ -57,3 +71,68 @@ def write_plan(path: str | Path, items: list[Any], home: Home, **kwargs: Any) ->
     path = Path(path)
     path.write_text(json.dumps(plan_dict(items, home, **kwargs), indent=2, allow_nan=False))
     return path
+
+
+@dataclass
+class RawItem:
+    """One mission-protocol item (the fields of MISSION_ITEM_INT; x, y degE7 in global frames)."""
+
+    seq: int
+    frame: int
+    command: int
+    current: int
+    autocontinue: int
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+    x: int
+    y: int
+    z: float
+    mission_type: int
+
+
+class PlanError(ValueError):
+    pass
+
+
+def _f(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+def read_plan(path: str | Path) -> tuple[list[RawItem], list[RawItem], list[RawItem]]:
+    """(mission, fence, rally) items of a QGC .plan file. Only SimpleItems are read (a ComplexItem,
+    e.g. a survey, must be flattened in QGC first: PlanError)."""
+    try:
+        doc = json.loads(Path(path).read_text())
+        raw_items = doc["mission"]["items"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise PlanError(f"{path}: not a QGC .plan file ({exc})") from None
+    mission: list[RawItem] = []
+    for k, it in enumerate(raw_items):
+        if it.get("type") != "SimpleItem":
+            raise PlanError(f"{path}: item {k} is a {it.get('type')}, only SimpleItems are supported")
+        p = [_f(v) for v in it["params"]]
+        frame = int(it["frame"])
+        glob = frame in GLOBAL_FRAMES
+        x = int(round(p[4] * 1e7)) if glob else int(0 if math.isnan(p[4]) else p[4])
+        y = int(round(p[5] * 1e7)) if glob else int(0 if math.isnan(p[5]) else p[5])
+        mission.append(RawItem(len(mission), frame, int(it["command"]), 1 if not mission else 0,
+                               int(bool(it.get("autoContinue", True))), p[0], p[1], p[2], p[3], x, y,
+                               0.0 if math.isnan(p[6]) else p[6], 0))
+    fence: list[RawItem] = []
+    gf = doc.get("geoFence") or {}
+    for poly in gf.get("polygons", []):
+        pts = poly["polygon"]
+        cmd = 5001 if poly.get("inclusion", True) else 5002  # NAV_FENCE_POLYGON_VERTEX_INCLUSION/EXCLUSION
+        for lat, lon in pts:
+            fence.append(RawItem(len(fence), 5, cmd, 0, 1, float(len(pts)), 0, 0, 0, int(round(lat * 1e7)),
+                                 int(round(lon * 1e7)), 0.0, 1))
+    for c in gf.get("circles", []):
+        cmd = 5003 if c.get("inclusion", True) else 5004  # NAV_FENCE_CIRCLE_INCLUSION/EXCLUSION
+        lat, lon = c["circle"]["center"]
+        fence.append(RawItem(len(fence), 5, cmd, 0, 1, float(c["circle"]["radius"]), 0, 0, 0,
+                             int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0, 1))
+    rally = [RawItem(k, 3, 5100, 0, 1, 0, 0, 0, 0, int(round(lat * 1e7)), int(round(lon * 1e7)), float(alt), 2)
+             for k, (lat, lon, alt) in enumerate((doc.get("rallyPoints") or {}).get("points", []))]
+    return mission, fence, rally

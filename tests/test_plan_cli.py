@@ -45,8 +45,11 @@ def test_every_method_plans(dataset, capsys, method):
 
 def test_bad_start_and_missing_belief_are_reported(dataset, capsys):
     assert plan_cli.main(["--dataset", str(dataset), "--start", "4,1,1.5,0", "--source", "6,2,0"]) == 2
-    assert plan_cli.main(["--dataset", str(dataset), "--start", "1,1,1.5,0"]) == 2
+    assert plan_cli.main(["--dataset", str(dataset), "--start", "1,1,1.5,0", "--method", "next-best"]) == 2
     assert "needs --source" in capsys.readouterr().err
+    # with no method and no belief it explores (so `radseek plan` runs with no arguments), and says so
+    assert plan_cli.main(["--dataset", str(dataset), "--start", "1,1,1.5,0"]) in (0, 1)
+    assert "planning an exploration" in capsys.readouterr().err
 
 
 def test_fig4_replica_is_written(tmp_path):

@@ -1,0 +1,65 @@
+"""QGroundControl .plan files: `radseek plan --export-plan` writes one, `radseek mission --plan` flies one
+(mission, geofence and rally points uploaded through MAVSDK's importer) against the vehicle process;
+its RTL lands at the rally point, the nearest safe point (PX4 RTL_TYPE 0)."""
+
+import json
+import math
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from mission.client.mission_upload import build_items, waypoint
+from mission.qgc_plan import read_plan, write_plan
+from radseek.coordinates import Home, enu_to_geodetic
+from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
+
+
+def test_export_plan_from_the_planner(tmp_path):
+    out = tmp_path / "search.plan"
+    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "plan", "--method", "lawnmower", "--export-plan",
+                           str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(out.read_text())
+    cmds = [i["command"] for i in doc["mission"]["items"]]
+    assert cmds[0] == 22 and cmds[-1] == 21 and cmds.count(16) >= 2
+    assert any(i["params"][0] == 60.0 for i in doc["mission"]["items"])  # dwell holds
+    assert len(doc["geoFence"]["polygons"]) == 1 and doc["geoFence"]["polygons"][0]["inclusion"]
+    mission, fence, rally = read_plan(out)
+    assert [m.command for m in mission] == cmds and len(fence) == 4 and all(f.param1 == 4 for f in fence)
+    assert rally == []
+
+
+@pytest.mark.slow
+def test_mission_flies_a_plan_with_fence_and_rally(tmp_path):
+    home = Home()
+    items = build_items([], home, takeoff_alt=3.0)
+    items.append(waypoint(1, home, 10.0, 0.0, 3.0))
+    items += build_items([], home, finish="rtl")
+    items[-1].seq = 2
+    rally = enu_to_geodetic(home, (12.0, 4.0, 0.0))
+    corners = [enu_to_geodetic(home, c)[:2] for c in ((-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0))]
+    plan = write_plan(tmp_path / "m.plan", items, home, polygons=[(True, corners)],
+                      rally=[(rally[0], rally[1], 3.0)])
+    api, gcs_port = free_udp_port(), free_udp_port()
+    with VehicleProcess(api, gcs_port, ["--speedup", "20"]), Gcs(gcs_port) as gcs:
+        positions, stop = [], threading.Event()
+
+        def listen():
+            while not stop.is_set():
+                positions.extend(m for m in gcs.poll(0.05) if m.get_type() == "GLOBAL_POSITION_INT")
+
+        listener = threading.Thread(target=listen, daemon=True)
+        listener.start()
+        proc = subprocess.run([sys.executable, "-m", "radseek.cli", "mission", "--plan", str(plan), "--url",
+                               f"udpin://127.0.0.1:{api}"], capture_output=True, text=True, timeout=400)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        summary = json.loads(proc.stdout.strip().splitlines()[-1])
+        assert summary == {"mission_items": 3, "fence_items": 4, "rally_points": 1, "landed": True}
+        stop.set()
+        listener.join(5)
+        last = positions[-1]  # sent once the mission process saw the vehicle landed
+    n = math.radians(last.lat / 1e7 - home.lat_deg) * 6378137.0
+    e = math.radians(last.lon / 1e7 - home.lon_deg) * 6378137.0 * math.cos(math.radians(home.lat_deg))
+    assert math.hypot(e - 12.0, n - 4.0) < 0.5 and last.relative_alt < 200  # landed at the rally point
