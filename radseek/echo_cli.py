@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         p.error(str(exc))
     try:
-        session = session_from_args(args)
+        session = session_from_args(args, wait_for_router_s=3.0)  # say so at once when no router answers
     except (TimeoutError, FileNotFoundError) as exc:
         print(f"radseek echo: {exc}", file=sys.stderr)
         return 1

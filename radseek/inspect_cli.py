@@ -20,6 +20,8 @@ from dataclasses import dataclass, fields
 from radseek import topics
 from radseek.zenoh_session import add_arguments, session_from_args
 
+ROUTER_WAIT_S = 3.0  # s: an inspection tool says at once that no router answers, instead of waiting silently
+
 # who publishes each topic (documentation only; the schema itself lives in radseek/topics.py)
 PUBLISHERS: dict[str, str] = {
     topics.SIM_CLOCK: "vehicle, or `radseek detector --clock own`",
@@ -101,6 +103,21 @@ def _field_comments(cls: type) -> dict[str, tuple[str, str]]:
     return out
 
 
+ZENOH_CLI_COMMAND = ("zenoh --mode peer --connect tcp/127.0.0.1:7447 --cfg 'scouting/multicast/enabled:false' "
+                     "--cfg 'listen/endpoints:[]' subscribe -k 'radseek/**' --decoder json --line '{key} {value}'")
+ZENOH_CLI_RECIPE = f"""The third-party `zenoh` command (PyPI `zenoh-cli`, installed with radseek's dev extras) shows the
+same keys. It needs the router's endpoint (without `--connect` it finds nothing: multicast scouting is off
+on radseek's loopback network) and `--decoder json` (without it payloads print as base64):
+
+```sh
+{ZENOH_CLI_COMMAND}
+```
+
+prints one line per message, e.g. `radseek/uav0/sim/clock {{"t": 12.3, "speedup": 1.0}}`. Narrow the key
+(`-k 'radseek/uav0/detector/histogram'`) to follow one topic; `detector/raw` is binary, leave it out of
+a JSON subscription or use `radseek echo detector/raw`. `tests/test_cli_promises.py` runs this command."""
+
+
 def topics_markdown() -> str:
     """The topic table of docs/topics.md, generated from ``radseek/topics.py``."""
     lines = [
@@ -125,6 +142,7 @@ def topics_markdown() -> str:
         payload = f"`{cls.__name__}` (JSON)" if cls else "board frame (90 bytes binary)"
         lines.append(f"| `{topics.PREFIX}/<vehicle>/{t}` | {PUBLISHERS.get(t, '?')} | {RATES.get(t, 'on change')} "
                      f"| {payload} |")
+    lines += ["", "## Watching with zenoh-cli", "", ZENOH_CLI_RECIPE]
     flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
     lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]
     src = inspect.getsource(topics)
@@ -159,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.duration <= 0:
         p.error("--duration must be > 0")
     try:
-        session = session_from_args(args)
+        session = session_from_args(args, wait_for_router_s=ROUTER_WAIT_S)
     except (TimeoutError, FileNotFoundError) as exc:
         print(f"radseek topics: {exc}", file=sys.stderr)
         return 1

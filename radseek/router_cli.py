@@ -4,11 +4,29 @@ from __future__ import annotations
 
 import argparse
 import signal
+import socket
+import sys
 import threading
 
 import zenoh
 
 from radseek.zenoh_session import DEFAULT_ENDPOINT, router_config
+
+
+def _in_use(endpoint: str) -> bool:
+    """True if a tcp/HOST:PORT endpoint cannot be bound because something holds it."""
+    try:
+        proto, addr = endpoint.split("/", 1)
+        host, port = addr.rsplit(":", 1)
+        if proto != "tcp":
+            return False
+        with socket.socket() as s:
+            s.bind((host.strip("[]"), int(port)))
+        return False
+    except OSError:
+        return True
+    except ValueError:
+        return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -19,7 +37,17 @@ def main(argv: list[str] | None = None) -> int:
     conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else router_config(args.listen)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with zenoh.open(conf) as session:
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        if args.zenoh_config is None and _in_use(args.listen):
+            print(f"radseek router: {args.listen} is already in use (another router?): stop it, or listen "
+                  "elsewhere with --listen tcp/127.0.0.1:PORT and give the others --connect tcp/127.0.0.1:PORT",
+                  file=sys.stderr)
+        else:
+            print(f"radseek router: cannot listen on {args.listen}: {exc}", file=sys.stderr)
+        return 1
+    with session:
         print(f"radseek router {session.zid()} listening on {args.listen}", flush=True)
         try:
             stop.wait()

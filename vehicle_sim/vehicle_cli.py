@@ -102,6 +102,22 @@ def config_from_args(args: argparse.Namespace):
     )
 
 
+def _bind_problem(args: argparse.Namespace) -> str | None:
+    """Which local UDP port could not be bound, and the flag that moves it (None if both bind)."""
+    import socket
+
+    for port, flag in ((args.api_local_port, "--api-local-port"), (args.gcs_local_port, "--gcs-local-port")):
+        if port == 0:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind((args.bind, port))
+            except OSError as exc:
+                return (f"UDP port {port} on {args.bind} is in use ({exc.strerror}): another vehicle or SITL? "
+                        f"Stop it, or choose another port with {flag} PORT (0 = any free port)")
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr,
@@ -111,7 +127,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = config_from_args(args)
         vehicle = Vehicle(cfg)
-    except (ValueError, OSError) as exc:
+    except OSError as exc:
+        print(f"radseek vehicle: {_bind_problem(args) or exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
         print(f"radseek vehicle: {exc}", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, lambda *_: vehicle.stop())

@@ -1,0 +1,77 @@
+"""The CLI keeps its promises (issue 16): the zenoh-cli recipe of docs/topics.md works as written, the
+inspection tools say at once when no router answers, a port in use is named with the flag that moves
+it, and `radseek plan` runs with no arguments. Real processes on loopback."""
+
+import json
+import shlex
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from radseek.inspect_cli import ZENOH_CLI_COMMAND
+from radseek.zenoh_session import open_session
+from tests.conftest import free_port
+
+RADSEEK = [sys.executable, "-m", "radseek.cli"]
+WAIT_S = 60.0  # bounds waiting only
+
+
+def test_zenoh_cli_recipe_prints_decoded_json(router):
+    port = router.rsplit(":", 1)[1]
+    cmd = shlex.split(ZENOH_CLI_COMMAND.replace("7447", port))  # the documented command, on this router
+    cmd[0] = str(Path(sys.executable).parent / "zenoh")
+    sub = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(sub.stdout), daemon=True)
+    reader.start()
+    session = open_session(None, router)
+    try:
+        deadline = time.monotonic() + WAIT_S
+        k = 0
+        while not any(ln.startswith("radseek/uav0/sim/clock ") for ln in lines):  # no history: publish until seen
+            assert sub.poll() is None, "".join(lines)
+            assert time.monotonic() < deadline, f"zenoh-cli printed nothing:\n{''.join(lines)}"
+            session.put("radseek/uav0/sim/clock", json.dumps({"t": 0.5 * k, "speedup": 1.0}))
+            k += 1
+            time.sleep(0.2)
+    finally:
+        session.close()
+        sub.terminate()
+        sub.wait(10)
+        reader.join(5)
+    line = next(ln for ln in lines if ln.startswith("radseek/uav0/sim/clock "))
+    assert json.loads(line.split(" ", 1)[1])["speedup"] == 1.0  # JSON, not base64
+
+
+def test_topics_and_echo_say_when_no_router_answers():
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    for cmd in (["topics"], ["echo", "sim/clock"]):
+        proc = subprocess.run([*RADSEEK, *cmd, "--connect", nobody], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 1
+        assert f"no zenoh router at {nobody} after 3 s" in proc.stderr and "radseek router" in proc.stderr
+
+
+def test_router_port_in_use_is_named_with_the_flag(router):
+    proc = subprocess.run([*RADSEEK, "router", "--listen", router], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    assert f"{router} is already in use" in proc.stderr and "--listen" in proc.stderr
+
+
+def test_vehicle_port_in_use_is_named_with_the_flag():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:
+        held.bind(("127.0.0.1", 0))
+        port = held.getsockname()[1]
+        proc = subprocess.run([*RADSEEK, "vehicle", "--no-zenoh", "--api-local-port", str(port),
+                               "--gcs-local-port", "0", "--duration", "1"], capture_output=True, text=True,
+                              timeout=120)
+    assert proc.returncode == 2
+    assert f"UDP port {port}" in proc.stderr and "--api-local-port" in proc.stderr
+
+
+def test_plan_runs_with_no_arguments(tmp_path):
+    proc = subprocess.run([*RADSEEK, "plan"], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "planning an exploration" in proc.stderr and "dwell point(s)" in proc.stdout
