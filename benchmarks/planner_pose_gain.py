@@ -16,6 +16,7 @@ and drift (odometry standard deviation at the end of the flight).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import time
@@ -55,6 +56,37 @@ def fly(scene_name: str, gain_kind: str, seed: int) -> dict:
             "drift_m": float(math.sqrt(var[0] + var[1])), "wall_s": wall}
 
 
+def same_tree_choices(scene_name: str, seed: int, flown_gain: str = "eq6") -> list[dict]:
+    """Fly one search with ``flown_gain`` and, at every next-best decision, score the *same* tree with both
+    gains: the chosen node's path length (m) and tree/eq. 6 numbers under each. This removes the trees'
+    randomness from the comparison (a per-decision paired test of what the gain changes)."""
+    import mission.search as ms
+    from planner.dwell_tree import grow_tree
+    from planner.next_best import score_nodes
+
+    out: list[dict] = []
+    plan = ms.plan_next_dwell
+
+    def both(current, belief, history, occ, config, rng=None):
+        tree = grow_tree(current, occ, config.tree)
+        pos = tree.states[:, :3]
+        straight = occ.segments_valid(np.broadcast_to(pos[0], pos.shape), pos)
+        length = np.where(straight, np.linalg.norm(pos - pos[0], axis=1), tree.path_lengths())
+        row = {"seed": seed, "sigma_m": float(np.sqrt(np.linalg.eigvalsh(belief.covariance[:2, :2]).max()))}
+        for g in GAIN_KINDS:
+            s = score_nodes(pos, belief, history, occ, dataclasses.replace(config, gain_kind=g), path_length=length)
+            row[f"L_{g}"] = float(length[s.best]) if s.best >= 0 else math.nan
+        out.append(row)
+        return plan(current, belief, history, occ, config, rng=rng, tree=tree)
+
+    ms.plan_next_dwell = both
+    try:
+        fly_offline(load_scene(scene_name), SearchConfig(next_best=NextBestConfig(gain_kind=flown_gain)), seed=seed)
+    finally:
+        ms.plan_next_dwell = plan
+    return out
+
+
 def summarise(rows: list[dict]) -> dict:
     a = {k: np.array([r[k] for r in rows], dtype=float) for k in rows[0] if k != "gain"}
     return {
@@ -82,7 +114,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gains", nargs="+", default=list(GAIN_KINDS), choices=GAIN_KINDS)
     p.add_argument("--jobs", type=int, default=1, help="worker processes (the searches are independent)")
     p.add_argument("--json", action="store_true", help="also print one JSON object per gain and the raw rows")
+    p.add_argument("--same-tree", action="store_true",
+                   help="instead: per decision, the path length each gain chooses on the same tree (eq6 flights)")
     args = p.parse_args(argv)
+    if args.same_tree:
+        rows = [r for s in range(args.first_seed, args.first_seed + args.seeds)
+                for r in same_tree_choices(args.scene, s)]
+        d = np.array([r["L_eq6_pose"] - r["L_eq6"] for r in rows])
+        med = {g: float(np.median([r[f"L_{g}"] for r in rows])) for g in GAIN_KINDS}
+        print(f"{len(rows)} decisions: eq6_pose chose another node in {int((d != 0).sum())}; path length "
+              f"eq6_pose - eq6 mean {d.mean():+.3f} m (s.e. {d.std(ddof=1) / math.sqrt(len(d)):.3f}), "
+              f"median L eq6 {med['eq6']:.2f} m, eq6_pose {med['eq6_pose']:.2f} m")
+        if args.json:
+            for r in rows:
+                print(json.dumps(r))
+        return 0
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     tasks = [(args.scene, g, s) for s in seeds for g in args.gains]  # interleaved: load hits both alike
     if args.jobs > 1:

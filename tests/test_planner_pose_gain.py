@@ -133,16 +133,17 @@ def test_tree_path_lengths_follow_the_parents():
 
 
 @pytest.mark.slow
-def test_pose_gain_flies_no_more_metres_than_eq6_on_average():
-    """Seeded whole searches (launch.offline) on the default scene: the paired mean of the metres flown
-    in the search phase (eq6_pose - eq6) is not above zero by more than its spread allows (3 standard
-    errors). Trees are not seedable per call, so the bound comes from the spread, not from identity."""
-    from benchmarks.planner_pose_gain import fly, paired
+def test_pose_gain_commits_to_no_more_metres_than_eq6_on_the_same_trees():
+    """Seeded whole searches (launch.offline, default scene, real drift): at every next-best decision both
+    gains score the same tree, so the paired difference of the chosen node's path length isolates the gain
+    (OMPL's trees are not seedable per call). Its mean over the decisions of a few seeds must not exceed
+    zero by more than its spread allows (3 standard errors, plus 5 cm for the case where every pair is
+    equal and the spread is zero)."""
+    from benchmarks.planner_pose_gain import same_tree_choices
 
-    seeds = range(6)
-    base = [fly("default", "eq6", s) for s in seeds]
-    new = [fly("default", "eq6_pose", s) for s in seeds]
-    for key in ("search_m", "flown_m"):
-        mean, se = paired(base, new, key)
-        assert mean <= 3 * se + 0.25, (key, mean, se)
-    assert all(np.isfinite(r["error_m"]) for r in new)
+    rows = [r for seed in range(5) for r in same_tree_choices("default", seed)]
+    assert len(rows) >= 5
+    d = np.array([r["L_eq6_pose"] - r["L_eq6"] for r in rows])
+    assert np.isfinite(d).all()
+    se = d.std(ddof=1) / np.sqrt(len(d))
+    assert d.mean() <= 3 * se + 0.05, (d.mean(), se)
