@@ -60,6 +60,10 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
         start.update({k: v for k, v in det.parameters.items() if k in M.PARAMS})
     base = F.evaluate(problem, M.baseline_params())
     base_d = F.shape_distances(problem, base.shape)
+    rate = float(sp.counts.sum()) / sp.live_time_s
+    if det is not None and "pileup_resolving_time_s" in det.parameters:
+        # random summing scales with the rate: pileup = 2 r tau, tau the device's resolving time
+        start["pileup"] = min(2 * rate * det.parameters["pileup_resolving_time_s"], M.PARAMS["pileup"].hi)
     if no_fit:
         if det is None:
             raise SystemExit("radseek calibrate: --no-fit needs --detector DET.json")
@@ -88,12 +92,12 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
         "baseline": {"deviance_per_dof": round(base.deviance_per_dof, 4),
                      "total_variation_32": round(base_d["total_variation_32"], 4),
                      "total_variation_native": round(base_d["total_variation_native"], 4)},
-        "pileup_resolving_time_us": round(res.params["pileup"] / max(2 * sp.counts.sum() / sp.live_time_s, 1e-9)
-                                          * 1e6, 3),
+        "pileup_resolving_time_us": round(res.params["pileup"] / max(2 * rate, 1e-9) * 1e6, 3),
     }
     if out and not no_fit:
         tnucs = tuple(dict.fromkeys(list(nuclides) + list(TEMPLATE_NUCLIDES)))
-        df = DetectorFile(name=sp.serial or Path(spectrum).stem, parameters=dict(res.params), errors=dict(res.errors),
+        saved = dict(res.params, pileup_resolving_time_s=res.params["pileup"] / max(2 * rate, 1e-9))
+        df = DetectorFile(name=sp.serial or Path(spectrum).stem, parameters=saved, errors=dict(res.errors),
                           effects=list(res.effects), missing=result["still_missing"],
                           calibrated_on={"spectrum": Path(spectrum).name, "nuclides": list(nuclides),
                                          "background": Path(background).name if background else None,

@@ -38,7 +38,8 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     ax[0].set_title(title)
     mu = np.maximum(res.expected, 1e-9)
     pr = (problem.n - mu) / np.sqrt(mu)
-    ax[1].plot(centre[m], pr[m], ".", ms=2, color="C3")
+    ax[1].plot(centre[m], np.clip(pr[m], -8, 8), ".", ms=2, color="C3")
+    ax[1].set_ylim(-8.5, 8.5)  # clipped at +-8 so that channels where the model is ~0 do not hide the rest
     ax[1].axhline(0, color="k", lw=0.5)
     ax[1].set_ylabel("Pearson residual")
     ax[1].set_xlim(ax[0].get_xlim())
