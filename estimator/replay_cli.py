@@ -1,9 +1,14 @@
-"""``radseek replay DATASET``: re-run an estimator on a recorded flight, dwell by dwell, as in the air.
+"""``radseek replay DATASET``: re-run the estimate on a recorded flight, dwell by dwell, as in the air.
 
-After each dwell point the chosen localizer (default ``mle``, the mission's) is fitted on every frame
-recorded up to the end of that dwell; the table shows how the estimate and its 1-sigma ellipse evolved,
-and its error when ``truth.json`` exists. ``--plot FILE`` draws error and sigma against dwell number;
-``--json`` prints the rows. Works on any dataset in the shared format, recorded by radseek or not.
+By default (``--method inflight``) it runs the mission's own in-flight estimate (``estimator.inflight``:
+pooling, warm start from the previous estimate, wall shadow test, sigma) on the frames recorded up to
+the end of each dwell, from the dwell the mission first estimated at (the end of exploration: read from
+``mission_log.jsonl`` beside ``frames.csv`` when the flight wrote one, else ``--from-dwell``, else every
+dwell), so on a recorded flight it reproduces the estimates the mission flew with. ``--method NAME``
+instead fits another localizer (``sphere``, ``pf``, ``multi-pf``, ``gp``, ``mle``) afresh after every dwell.
+The table shows how the estimate and its 1-sigma ellipse evolved, and its error when ``truth.json`` exists.
+``--plot FILE`` draws error and sigma against dwell number; ``--json`` prints the rows. Works on any
+dataset in the shared format, recorded by radseek or not.
 """
 
 from __future__ import annotations
@@ -12,30 +17,55 @@ import argparse
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 
+INFLIGHT = "inflight"
 
-def replay(dataset, method: str = "mle", settings: dict | None = None) -> list[dict]:
+
+def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_dwell: int = 1) -> list[dict]:
+    """One row per dwell: the estimate from the frames recorded up to the end of that dwell.
+
+    ``method`` ``inflight`` runs :class:`estimator.inflight.InflightEstimator` (``settings`` update its
+    localizer settings) from dwell count ``first_dwell`` on, as the mission did; any other name fits that
+    localizer with ``settings`` afresh after every dwell. Rows: ``dwells`` (count), ``dwell`` (index),
+    ``t``, ``x``, ``y``, ``cps_at_1m``, ``background_cps``, ``sigma_m`` (``estimator.inflight.sigma_m``),
+    ``error_m`` with truth; ``error`` instead when there is no estimate.
+    """
+    from estimator.inflight import DEFAULT_SETTINGS, InflightEstimator, sigma_m
     from estimator.localizers.base import make_localizer
 
     f = dataset.frames
+    inflight = InflightEstimator(dataset.scenario, settings={**DEFAULT_SETTINGS, **(settings or {})}) \
+        if method == INFLIGHT else None
     rows = []
     dwells = [int(d) for d in np.unique(f.dwell[f.dwell >= 0])]
     ends = [int(np.flatnonzero(f.dwell == d).max()) for d in dwells]
     for k, (d, end) in enumerate(sorted(zip(dwells, ends, strict=True), key=lambda de: de[1])):
-        upto = f.select(np.arange(len(f)) <= end)
-        loc = make_localizer(method, **(settings or {}))
-        try:
-            loc.fit(upto, dataset.scenario)
-        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
-            rows.append({"dwells": k + 1, "dwell": d, "t": float(upto.t[-1]), "error": str(exc)})
+        if k + 1 < first_dwell:
             continue
-        s = loc.sources_[0]
-        cov = np.asarray(loc.covariance_, dtype=float)[:2, :2]
-        sigma = float(math.sqrt(max(np.linalg.eigvalsh(np.nan_to_num(cov)).max(), 0.0)))
-        row = {"dwells": k + 1, "dwell": d, "t": float(upto.t[-1]), "x": s["x"], "y": s["y"],
-               "cps_at_1m": s["cps_at_1m"], "background_cps": float(loc.background_), "sigma_m": sigma}
+        upto = f.select(np.arange(len(f)) <= end)
+        row = {"dwells": k + 1, "dwell": d, "t": float(upto.t[-1])}
+        if inflight is not None:
+            est = inflight.update(upto, dwell=k + 1)
+            if est is None:
+                rows.append({**row, "error": "no estimate (too few frames, or the fit failed)"})
+                continue
+            s = est
+            row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "effects",
+                                                  "converged")})
+        else:
+            loc = make_localizer(method, **(settings or {}))
+            try:
+                loc.fit(upto, dataset.scenario)
+            except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+                rows.append({**row, "error": str(exc)})
+                continue
+            s = loc.sources_[0]
+            converged = bool(getattr(loc, "info_", {}).get("converged", True))
+            row.update({"x": s["x"], "y": s["y"], "cps_at_1m": s["cps_at_1m"], "background_cps": float(loc.background_),
+                        "sigma_m": sigma_m(loc.covariance_, converged)})
         if dataset.truth is not None:
             tr = dataset.truth.sources[0]
             row["error_m"] = math.hypot(s["x"] - tr.x, s["y"] - tr.y)
@@ -43,13 +73,35 @@ def replay(dataset, method: str = "mle", settings: dict | None = None) -> list[d
     return rows
 
 
+def flown_first_dwell(path: str | Path) -> int | None:
+    """The dwell count at which the mission that recorded ``path`` first had an estimate (from its
+    ``mission_log.jsonl``), or None when the dataset has no such log."""
+    log = Path(path) / "mission_log.jsonl"
+    if not log.is_file():
+        return None
+    for line in log.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        est = entry.get("estimate") if isinstance(entry, dict) else None
+        if entry.get("event") == "decision" and isinstance(est, dict) and "dwell" in est:
+            return int(est["dwell"])
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek replay", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json[, truth.json])")
-    p.add_argument("--method", default="mle", help="localizer: sphere, pf, multi-pf, gp, mle (default mle)")
+    p.add_argument("--method", default=INFLIGHT,
+                   help="inflight (the mission's in-flight estimate, default) or a localizer fitted afresh after "
+                        "every dwell: sphere, pf, multi-pf, gp, mle")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="localizer setting, e.g. --set n_starts=4 (JSON values)")
+    p.add_argument("--from-dwell", type=int, default=None, metavar="N",
+                   help="inflight: the dwell count the mission first estimated at (default: from the flight's "
+                        "mission_log.jsonl, else 1)")
     p.add_argument("--plot", help="write error/sigma against dwell number to this PNG")
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = p.parse_args(argv)
@@ -69,7 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError:
             settings[key] = value
     try:
-        rows = replay(ds, args.method, settings)
+        flown = flown_first_dwell(args.dataset) if args.method == INFLIGHT else None
+        first = args.from_dwell if args.from_dwell is not None else flown or 1
+        rows = replay(ds, args.method, settings, first_dwell=first)
     except ValueError as exc:
         print(f"radseek replay: {exc}", file=sys.stderr)
         return 2

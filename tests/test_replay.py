@@ -1,11 +1,63 @@
 """radseek replay: the estimate after each dwell of a recorded flight, as the mission had it in the air."""
 
 import json
+import math
+import shutil
 import subprocess
 import sys
 
-from estimator.replay_cli import replay
+import numpy as np
+import pytest
+
+from detector_fw_sim.scene import load_scene
+from estimator.inflight import MIN_SIGMA_M, sigma_m
+from estimator.replay_cli import flown_first_dwell, replay
+from launch.offline import fly_offline
+from mission.search import SearchConfig
 from radseek.dataset import read_dataset
+
+
+def test_replay_reproduces_the_flown_estimates():
+    """The brain's in-flight estimates, dwell for dwell, from nothing but the recorded dataset: the same
+    frames up to the end of each dwell, pooling, warm start from the previous estimate and wall test."""
+    r = fly_offline(load_scene(), SearchConfig(), seed=3)
+    flown = r.brain.estimates
+    assert len(flown) >= 2, r.log
+    # the mission estimates from the end of exploration on; its mission_log.jsonl records that dwell
+    rows = replay(r.dataset, first_dwell=flown[0]["dwell"])
+    assert [row["dwells"] for row in rows] == [e["dwell"] for e in flown]
+    for row, est in zip(rows, flown, strict=True):
+        assert row["effects"] == est["effects"] and row["converged"] == est["converged"]
+        for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m"):
+            assert row[key] == pytest.approx(est[key], rel=1e-9, abs=1e-12), (row["dwells"], key)
+
+
+def test_sigma_is_the_xy_semi_major_axis_of_a_trustworthy_estimate():
+    cov = np.diag([0.04, 0.09, 0.0, 100.0])  # (x, y, z, cps_at_1m)
+    cov[0, 1] = cov[1, 0] = 0.03
+    expected = math.sqrt(np.linalg.eigvalsh(cov[:2, :2]).max())
+    assert sigma_m(cov) == pytest.approx(expected)
+    assert sigma_m(cov[:3, :3].tolist()) == pytest.approx(expected)
+    assert sigma_m(cov, converged=False) == math.inf
+    assert sigma_m(np.eye(2) * (MIN_SIGMA_M / 2) ** 2) == math.inf  # collapsed: pinned at a bound
+    assert sigma_m(np.full((2, 2), np.nan)) == math.inf
+
+
+def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
+    ds = tmp_path / "flight"
+    shutil.copytree(shared_datasets / "lattice-clean", ds)
+    assert flown_first_dwell(ds) is None
+    log = [{"t": 1.0, "event": "decision", "phase": "explore", "estimate": None},
+           {"t": 2.0, "event": "dwell", "index": 7},
+           {"t": 3.0, "event": "decision", "phase": "search", "estimate": {"dwell": 8, "x": 1.0, "y": 2.0}}]
+    (ds / "mission_log.jsonl").write_text("".join(json.dumps(e) + "\n" for e in log))
+    assert flown_first_dwell(ds) == 8
+    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)
+    assert [r["dwells"] for r in rows] == [8, 9]
+    assert all(math.isfinite(r["x"]) and r["sigma_m"] > 0 for r in rows)
 
 
 def test_replay_converges_on_the_reference_lattice(shared_datasets):
