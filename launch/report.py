@@ -56,6 +56,8 @@ def final_fit(ds: Dataset):
 
 
 def write_report(out: str | Path, wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
+    from estimator.inflight import sigma_m
+
     out = Path(out)
     ds = read_dataset(out / "dataset")
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
@@ -106,7 +108,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         ax.set_xlabel("dwell points flown")
         ax.set_ylabel("m")
         ax2 = ax.twinx()
-        ent = [gaussian_entropy(np.diag([max(s, 1e-6) ** 2] * 2)) for s in sig]
+        ent = [gaussian_entropy(np.diag([max(s, 1e-6) ** 2] * 2)) if math.isfinite(s) else math.nan for s in sig]
         ax2.plot(k, ent, "^:", color="tab:green", label="Gaussian entropy (nats)")
         ax2.set_ylabel("entropy (nats, paper 000 eq. 15)")
         ax.legend(fontsize=8, loc="upper right")
@@ -148,6 +150,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         "mission_time_s": float(mission["mission_time_s"]),
         "flight_time_s": float(mission.get("flight_time_s", math.nan)),
         "estimate": {**src, "background_cps": float(loc.background_),
+                     "sigma_m": sigma_m(loc.covariance_, bool(loc.info_.get("converged", True))),
                      "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
         "in_flight_estimate": mission.get("estimate"),
         "truth": truth.to_dict() if truth else None,

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import subprocess
@@ -38,6 +37,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from estimator.inflight import sigma_m
 from mission.search import STRATEGIES
 from radseek import topics
 from radseek.simclock import ZenohClock
@@ -146,7 +146,7 @@ class Progress:
         if est is not None and est.sources:
             s = est.sources[0]
             cov = est.covariance_block(0)
-            sig = math.sqrt(max(cov[0][0] + cov[1][1], 0.0))
+            sig = sigma_m(cov)  # the in-flight estimate's one definition (inf: not trustworthy yet)
             line += f"  estimate ({s['x']:.2f}, {s['y']:.2f}) m  {s['cps_at_1m']:.0f} cps@1m  sigma {sig:.2f} m"
         line += f"  {st.progress}"
         if line != self._last:
