@@ -24,21 +24,23 @@ import numpy as np
 INFLIGHT = "inflight"
 
 
-def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_dwell: int = 1) -> list[dict]:
+def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_dwell: int = 1,
+           localizer: str | None = None) -> list[dict]:
     """One row per dwell: the estimate from the frames recorded up to the end of that dwell.
 
-    ``method`` ``inflight`` runs :class:`estimator.inflight.InflightEstimator` (``settings`` update its
-    localizer settings) from dwell count ``first_dwell`` on, as the mission did; any other name fits that
-    localizer with ``settings`` afresh after every dwell. Rows: ``dwells`` (count), ``dwell`` (index),
+    ``method`` ``inflight`` runs :class:`estimator.inflight.InflightEstimator` (with the mission's
+    ``localizer``, default mle; ``settings`` update its localizer settings) from dwell count ``first_dwell``
+    on, as the mission did; any other name fits that localizer with ``settings`` afresh after every dwell.
+    Rows: ``dwells`` (count), ``dwell`` (index),
     ``t``, ``x``, ``y``, ``cps_at_1m``, ``background_cps``, ``sigma_m`` (``estimator.inflight.sigma_m``),
     ``error_m`` with truth; ``error`` instead when there is no estimate.
     """
-    from estimator.inflight import DEFAULT_SETTINGS, InflightEstimator, sigma_m
+    from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator, sigma_m
     from estimator.localizers.base import make_localizer
 
     f = dataset.frames
-    inflight = InflightEstimator(dataset.scenario, settings={**DEFAULT_SETTINGS, **(settings or {})}) \
-        if method == INFLIGHT else None
+    inflight = InflightEstimator(dataset.scenario, localizer or DEFAULT_LOCALIZER,
+                                 {**DEFAULT_SETTINGS, **(settings or {})}) if method == INFLIGHT else None
     rows = []
     dwells = [int(d) for d in np.unique(f.dwell[f.dwell >= 0])]
     ends = [int(np.flatnonzero(f.dwell == d).max()) for d in dwells]
@@ -99,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
                         "every dwell: sphere, pf, multi-pf, gp, mle")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="localizer setting, e.g. --set n_starts=4 (JSON values)")
+    p.add_argument("--localizer", default=None,
+                   help="inflight: the localizer the mission flew with (mission --localizer; default mle)")
     p.add_argument("--from-dwell", type=int, default=None, metavar="N",
                    help="inflight: the dwell count the mission first estimated at (default: from the flight's "
                         "mission_log.jsonl, else 1)")
@@ -123,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         flown = flown_first_dwell(args.dataset) if args.method == INFLIGHT else None
         first = args.from_dwell if args.from_dwell is not None else flown or 1
-        rows = replay(ds, args.method, settings, first_dwell=first)
+        rows = replay(ds, args.method, settings, first_dwell=first, localizer=args.localizer)
     except ValueError as exc:
         print(f"radseek replay: {exc}", file=sys.stderr)
         return 2
