@@ -481,7 +481,8 @@ class Vehicle:
                 link_age = None if last is None else now_wall - last
                 target = clock.now()
                 n = 0
-                while self.t + dt <= target + 1e-9 and n < 50:
+                end = math.inf if max_sim_time is None else max_sim_time - 1e-9  # --duration: never step past it
+                while self.t + dt <= target + 1e-9 and n < 50 and self.t < end:
                     self.step(dt, link_age)
                     n += 1
                 if target - self.t > 1.0:  # fell behind: shed the debt rather than run in a burst
