@@ -488,7 +488,7 @@ class Vehicle:
                 if target - self.t > 1.0:  # fell behind: shed the debt rather than run in a burst
                     clock = FreeRunningClock(cfg.speedup, t0=self.t)
                 self.emit()
-                if max_sim_time is not None and self.t >= max_sim_time:
+                if self.t >= end:
                     break
                 wait = (self.t + dt - clock.now()) / cfg.speedup
                 if wait > 0:
