@@ -26,6 +26,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("launch.plan_cli", "plan the next dwell points for a scene and print/plot them"),
     "calibrate": ("spectra.calibrate_cli", "fit the detector response to a measured spectrum; name what it misses"),
     "spectra": ("spectra.flight_cli", "export dwell spectra as N42; import a flight from spectrogram + pose CSVs"),
+    "campaign": ("launch.campaign_cli", "fly many seeded searches as Ray tasks (local or a cluster) into Parquet"),
 }
 
 
