@@ -1,0 +1,249 @@
+"""radseek campaign: sweeps, rows, resume, failures, embedded Ray and an existing loopback Ray cluster."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_one, open_campaign, parse_effect, summarize
+from radseek.outdir import OutputDirError
+
+BIN = Path(sys.executable).parent
+#: a fast search: the 9-point lattice cut to 3 dwell points of 1-2 s (a few CPU seconds per flight)
+FAST = ["--strategies", "lattice", "--set", "max_dwells=3", "--set", "max_search_dwells=2",
+        "--set", "min_search_dwells=1", "--set", "dwell.t_min=1.0", "--set", "dwell.t_max=2.0"]
+FAST_PARAMS = {"max_dwells": 3, "max_search_dwells": 2, "min_search_dwells": 1, "dwell.t_min": 1.0,
+               "dwell.t_max": 2.0}
+ROW_COLUMNS = {"scene", "strategy", "seed", "effect", "error_m", "sigma_m", "covered_95", "dwell_points",
+               "mission_time_s", "wall_s", "cpu_s", "radseek_version", "status", "error", "p.max_dwells",
+               "p.dwell.t_max"}
+
+
+# ------------------------------------------------------------------------------------------------ units
+
+
+def test_effect_spec_parses_name_and_typed_parameters():
+    assert parse_effect("none") is None
+    assert parse_effect("dead_time") == ("dead_time", {})
+    assert parse_effect("wall_attenuation:mu_per_m=0.5, enabled=true") == \
+        ("wall_attenuation", {"mu_per_m": 0.5, "enabled": True})
+    with pytest.raises(ValueError, match="key=value"):
+        parse_effect("dead_time:tau_s")
+
+
+def test_sweep_is_the_product_with_stable_keys_and_a_seedless_fingerprint(tmp_path):
+    s = Sweep(scenes=["default", "outdoor"], strategies=["active", "lattice"], seeds=[0, 1, 2],
+              effects=["none", "dead_time:tau_s=2e-5"], params={"max_dwells": [8, 16], "dwell.t_max": 10.0})
+    flights = s.flights()
+    assert len(flights) == 2 * 2 * 2 * 2 * 3 == len({f["key"] for f in flights})
+    assert [f["seed"] for f in flights[:16]] == [0] * 16  # every case gets seed 0 first
+    more = Sweep(**{**s.to_dict(), "seeds": [0, 1, 2, 3]})
+    assert more.fingerprint() == s.fingerprint()  # more seeds: the same campaign, resumed
+    assert {f["key"] for f in s.flights()} <= {f["key"] for f in more.flights()}
+    other = Sweep(**{**s.to_dict(), "params": {"max_dwells": [8, 16], "dwell.t_max": 12.0}})
+    assert other.fingerprint() != s.fingerprint()
+    with pytest.raises(ValueError, match="unknown parameter"):
+        Sweep(params={"dwell.t_maxx": 1.0})
+    with pytest.raises(ValueError, match="unknown strategy"):
+        Sweep(strategies=["spiral"])
+    toml = tmp_path / "sweep.toml"
+    toml.write_text('[sweep]\nscenes = ["default"]\nseeds = {start = 5, stop = 8}\n'
+                    '[sweep.params]\n"next_best.gain_kind" = ["eq6", "eq6_pose"]\n"odometry.sigma_xy" = 0.01\n')
+    t = Sweep.from_toml(toml)
+    assert t.seeds == [5, 6, 7] and len(t.cases()) == 2
+
+
+def test_coverage_is_the_95_percent_ellipse_of_the_xy_covariance():
+    est = {"x": 0.0, "y": 0.0, "covariance": [[0.04, 0, 0], [0, 0.01, 0], [0, 0, 1.0]]}  # sigmas 0.2, 0.1
+    d2, covered = coverage(est, (0.2, 0.0))
+    assert d2 == pytest.approx(1.0) and covered
+    r = math.sqrt(CHI2_95_2D)  # on the 95 % ellipse along each axis
+    assert coverage(est, (0.0, 0.1 * r * 0.999))[1] and not coverage(est, (0.0, 0.1 * r * 1.001))[1]
+    assert not coverage({**est, "covariance": np.zeros((3, 3)).tolist()}, (0.01, 0))[1]  # collapsed ellipse
+    assert coverage(None, (0, 0)) == (pytest.approx(math.nan, nan_ok=True), None)
+
+
+def test_a_failing_flight_is_a_row_with_its_error():
+    s = Sweep(scenes=["default"], strategies=["lattice"], seeds=[0], effects=["dead_time:tau_s=-1"],
+              params=FAST_PARAMS)
+    row = fly_one(s.flights()[0])
+    assert row["status"] == "error" and "tau_s" in row["error"]
+    assert row["scene"] == "default" and row["seed"] == 0 and row["p.max_dwells"] == 3
+
+
+def test_one_flight_row_has_the_figures():
+    s = Sweep(scenes=["default"], strategies=["lattice"], seeds=[3], params=FAST_PARAMS)
+    row = fly_one(s.flights()[0])
+    assert row["status"] == "ok", row["error"]
+    assert row["dwell_points"] == 3 and row["mission_time_s"] > 0 and row["wall_s"] > 0
+    assert math.isfinite(row["error_m"]) and row["error_m"] == pytest.approx(
+        math.hypot(row["est_x"] - row["true_x"], row["est_y"] - row["true_y"]))
+    assert isinstance(row["covered_95"], bool)
+    assert summarize([row])[0]["estimated"] == 1
+
+
+def test_output_folder_holds_one_sweep(tmp_path):
+    s = Sweep(scenes=["default"], seeds=[0])
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(OutputDirError, match="holds no campaign"):
+        open_campaign(s, tmp_path)
+    out = tmp_path / "c"
+    open_campaign(s, out)
+    (out / "campaign.json").write_text(json.dumps({"fingerprint": s.fingerprint()}))
+    assert open_campaign(Sweep(scenes=["default"], seeds=[0, 1]), out) == out  # same sweep: resume
+    with pytest.raises(OutputDirError, match="another sweep"):
+        open_campaign(Sweep(scenes=["outdoor"], seeds=[0]), out)
+    open_campaign(Sweep(scenes=["outdoor"], seeds=[0]), out, force=True)
+    assert not (out / "campaign.json").exists()
+
+
+# ------------------------------------------------------------------------------------------------ Ray
+
+
+def _campaign(*args: str, env: dict | None = None, timeout: float = 500) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "radseek"), "campaign", *args], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, **(env or {})})
+
+
+def _rows(out: Path) -> list[dict]:
+    return pq.read_table(out / "flights.parquet").to_pylist()
+
+
+@pytest.mark.slow
+def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path):
+    out = tmp_path / "c"
+
+    def args(seeds: str) -> list[str]:
+        return ["--scenes", "default", "outdoor", "--seeds", seeds, *FAST, "--effect", "none",
+                "--effect", "dead_time:tau_s=-1", "--workers", "2", "--out", str(out)]
+
+    r = _campaign(*args("2"))
+    assert r.returncode == 0, r.stderr
+    rows = _rows(out)
+    assert len(rows) == 8 and ROW_COLUMNS <= set(rows[0])
+    ok = [x for x in rows if x["status"] == "ok"]
+    bad = [x for x in rows if x["status"] != "ok"]
+    assert {(x["scene"], x["seed"]) for x in ok} == {(s, k) for s in ("default", "outdoor") for k in (0, 1)}
+    assert all(x["dwell_points"] == 3 and math.isfinite(x["error_m"]) for x in ok)
+    assert len(bad) == 4 and all("tau_s" in x["error"] for x in bad)  # recorded, not fatal
+    assert {x["radseek_version"] for x in rows} == {__import__("radseek").__version__}
+    summary = (out / "summary.md").read_text()
+    assert summary.count("| default | lattice | none |") == 1 and "## Failed flights" in summary
+    assert (out / "error_vs_dwells.png").stat().st_size > 0 and (out / "coverage.png").stat().st_size > 0
+    first = {x["key"]: x["finished_at"] for x in rows}
+
+    r = _campaign(*args("2"))  # rerun: nothing left to fly
+    assert r.returncode == 0, r.stderr
+    assert "0 flights flown, 8 already recorded" in r.stdout
+    assert {x["key"]: x["finished_at"] for x in _rows(out)} == first
+
+    r = _campaign(*args("3"))  # one more seed: only seed 2 is flown
+    assert r.returncode == 0, r.stderr
+    assert "4 flights flown, 8 already recorded" in r.stdout
+    rows = _rows(out)
+    assert len(rows) == 12 and {x["key"]: x["finished_at"] for x in rows if x["key"] in first} == first
+
+    r = _campaign("--scenes", "default", "--seeds", "1", *FAST, "--out", str(out))  # another sweep
+    assert r.returncode == 2 and "--force" in r.stderr
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _pids_of(temp_dir: str) -> set[int]:
+    """Processes whose command line names ``temp_dir`` (the cluster this test started), and their children."""
+    mine: set[int] = set()
+    parents: dict[int, int] = {}
+    for p in Path("/proc").iterdir():
+        if not p.name.isdigit():
+            continue
+        try:
+            if temp_dir.encode() in (p / "cmdline").read_bytes():
+                mine.add(int(p.name))
+            parents[int(p.name)] = int((p / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+    grew = True
+    while grew:
+        kids = {pid for pid, ppid in parents.items() if ppid in mine} - mine
+        mine |= kids
+        grew = bool(kids)
+    return mine
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses listening on ``port`` (hex, from /proc/net/tcp and tcp6)."""
+    found = []
+    for f in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(f).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:
+                found.append(local.rsplit(":", 1)[0])
+    return found
+
+
+LOOPBACK_HEX = {"0100007F", "0000000000000000FFFF00000100007F", "00000000000000000000000001000000"}
+
+
+def _alive(pids: set[int]) -> set[int]:
+    alive = set()
+    for pid in pids:
+        try:
+            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                alive.add(pid)
+        except (OSError, IndexError):
+            pass
+    return alive
+
+
+def _stop(pids: set[int]) -> None:
+    """SIGTERM the given processes, SIGKILL what is left after 15 s (gcs_server may ignore SIGTERM)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in _alive(pids):
+            try:
+                os.kill(pid, sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + 15
+        while _alive(pids) and time.monotonic() < deadline:
+            time.sleep(0.3)
+
+
+@pytest.mark.slow
+def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
+    temp_dir = f"/tmp/rsk-test-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
+    port = _free_port()
+    env = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
+                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "2",
+                            "--temp-dir", temp_dir, "--disable-usage-stats"],
+                           capture_output=True, text=True, timeout=180, env={**os.environ, **env})
+    try:
+        assert start.returncode == 0, start.stdout + start.stderr
+        assert _listening(port) and set(_listening(port)) <= LOOPBACK_HEX, _listening(port)
+        out = tmp_path / "c"
+        r = _campaign("--address", f"127.0.0.1:{port}", "--scenes", "default", "outdoor", "--seeds", "1", *FAST,
+                      "--out", str(out), env=env)
+        assert r.returncode == 0, r.stderr
+        rows = _rows(out)
+        assert len(rows) == 2 and all(x["status"] == "ok" for x in rows), rows
+        assert "2 flights flown" in r.stdout and "on 2 CPUs" in r.stdout
+    finally:
+        pids = _pids_of(temp_dir)
+        _stop(pids)
+        subprocess.run(["rm", "-rf", temp_dir], check=False)
+    assert pids and not _alive(pids)
