@@ -4,37 +4,37 @@ planner as `radseek run`, the emulator for counts, odometry drift as on the mock
 
 Reports per scene and strategy: median and 90th-percentile position error, median dwell points (and, for
 the active search, dwell points after exploration), median mission time (simulated seconds from the first
-dwell flight to the stop decision) and wall time per search.
+dwell flight to the stop decision), the share of flights whose 95 % ellipse covers the truth, and wall time
+per search.
 
-    python benchmarks/mission_search.py [--seeds 20] [--quick] [--scenes default lattice-wall]
+The seeds run as a campaign (``radseek campaign``, launch.campaign: one Ray task per flight, all CPUs unless
+--workers; --address for an existing Ray cluster); --out keeps its Parquet rows and a rerun resumes them.
+
+    python benchmarks/mission_search.py [--seeds 20] [--quick] [--scenes default lattice-wall] [--workers 2]
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import tempfile
 
 import numpy as np
 
-from detector_fw_sim.scene import load_scene
-from launch.offline import fly_offline
-from mission.search import STRATEGIES, SearchConfig
+from launch.campaign import Sweep, run_campaign
+from mission.search import STRATEGIES
 
 
-def run(scene_name: str, strategy: str, seeds: range) -> dict:
-    scene = load_scene(scene_name)
-    rows = []
-    for seed in seeds:
-        t0 = time.perf_counter()
-        r = fly_offline(scene, SearchConfig(strategy=strategy), seed=seed)
-        rows.append((r.error_m, len(r.dwell_rates), r.brain.search_dwells, r.mission_time_s,
-                     time.perf_counter() - t0))
-    a = np.array(rows)
+def summarize(rows: list[dict], scene_name: str, strategy: str) -> dict:
+    rows = [r for r in rows if r["scene"] == scene_name and r["strategy"] == strategy and r["status"] == "ok"]
+    a = np.array([(r["error_m"], r["dwell_points"], r["search_dwells"], r["mission_time_s"], r["wall_s"])
+                  for r in rows], dtype=float).reshape(-1, 5)
+    cov = [r["covered_95"] for r in rows if r["covered_95"] is not None]
     return {
         "scene": scene_name, "strategy": strategy, "runs": len(a),
         "median_error_m": float(np.median(a[:, 0])), "p90_error_m": float(np.percentile(a[:, 0], 90)),
         "median_dwells": float(np.median(a[:, 1])), "median_search_dwells": float(np.median(a[:, 2])),
         "median_mission_s": float(np.median(a[:, 3])), "median_wall_s": float(np.median(a[:, 4])),
+        "coverage_95": float(np.mean(cov)) if cov else float("nan"),
     }
 
 
@@ -44,20 +44,29 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="5 seeds, default scene only")
     p.add_argument("--scenes", nargs="+", default=["default", "lattice-wall"])
     p.add_argument("--strategies", nargs="+", default=list(STRATEGIES))
+    p.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
+    p.add_argument("--address", help="an existing Ray cluster (HOST:PORT)")
+    p.add_argument("--out", help="campaign folder to keep (and resume); default a temporary one")
     args = p.parse_args(argv)
     seeds = range(5) if args.quick else range(args.seeds)
     scenes = ["default"] if args.quick else args.scenes
+    sweep = Sweep(scenes=scenes, strategies=args.strategies, seeds=list(seeds))
+    with tempfile.TemporaryDirectory(prefix="mission-search-") as tmp:
+        res = run_campaign(sweep, args.out or tmp, workers=args.workers, address=args.address, plots=False)
     print("| scene | strategy | runs | median error (m) | p90 error (m) | median dwells (after exploration) "
-          "| median mission time (s) | wall per search (s) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| median mission time (s) | 95 % ellipse coverage | wall per search (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for scene in scenes:
         for strategy in args.strategies:
-            r = run(scene, strategy, seeds)
+            r = summarize(res.rows, scene, strategy)
             after = f" ({r['median_search_dwells']:.0f})" if strategy == "active" else ""
             print(f"| {scene} | {strategy} | {r['runs']} | {r['median_error_m']:.3f} | {r['p90_error_m']:.3f} "
-                  f"| {r['median_dwells']:.0f}{after} | {r['median_mission_s']:.0f} | {r['median_wall_s']:.1f} |",
-                  flush=True)
-    return 0
+                  f"| {r['median_dwells']:.0f}{after} | {r['median_mission_s']:.0f} | {r['coverage_95']:.2f} "
+                  f"| {r['median_wall_s']:.1f} |", flush=True)
+    failed = [r for r in res.rows if r["status"] != "ok"]
+    for r in failed:
+        print(f"failed: {r['scene']} {r['strategy']} seed {r['seed']}: {r['error']}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
