@@ -10,7 +10,8 @@ after exploration, median metres flown (whole flight, and during the search phas
 gain decides), the mean paired difference of metres flown with its standard error, and the median 1-sigma
 and drift (odometry standard deviation at the end of the flight).
 
-    python benchmarks/planner_pose_gain.py [--seeds 40] [--scene default] [--jobs 1] [--json]
+    python benchmarks/planner_pose_gain.py [--seeds 40] [--scene default] [--stop-sigma 0.1] [--jobs 1] [--json]
+    python benchmarks/planner_pose_gain.py --same-tree [--seeds 30]
 """
 
 from __future__ import annotations
@@ -32,11 +33,12 @@ from planner.next_best import GAIN_KINDS, NextBestConfig
 CHI2_2D_95 = 5.991464547107979  # chi-square quantile, 2 dof, 0.95
 
 
-def fly(scene_name: str, gain_kind: str, seed: int) -> dict:
+def fly(scene_name: str, gain_kind: str, seed: int, stop_sigma_m: float = SearchConfig.stop_sigma_m) -> dict:
     """One search; the numbers the table needs."""
     scene = load_scene(scene_name)
     t0 = time.perf_counter()
-    r = fly_offline(scene, SearchConfig(next_best=NextBestConfig(gain_kind=gain_kind)), seed=seed)
+    config = SearchConfig(stop_sigma_m=stop_sigma_m, next_best=NextBestConfig(gain_kind=gain_kind))
+    r = fly_offline(scene, config, seed=seed)
     wall = time.perf_counter() - t0
     est, truth = r.estimate, r.dataset.truth.sources[0]
     covered, sigma = False, math.inf
@@ -112,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--scene", default="default")
     p.add_argument("--gains", nargs="+", default=list(GAIN_KINDS), choices=GAIN_KINDS)
+    p.add_argument("--stop-sigma", type=float, default=SearchConfig.stop_sigma_m,
+                   help="m: the search's stop rule (smaller: longer searches, where the gain decides more metres)")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (the searches are independent)")
     p.add_argument("--json", action="store_true", help="also print one JSON object per gain and the raw rows")
     p.add_argument("--same-tree", action="store_true",
@@ -130,14 +134,15 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(r))
         return 0
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    tasks = [(args.scene, g, s) for s in seeds for g in args.gains]  # interleaved: load hits both alike
+    # interleaved, so the machine load hits both gains alike
+    tasks = [(args.scene, g, s, args.stop_sigma) for s in seeds for g in args.gains]
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as ex:
             rows = list(ex.map(fly, *zip(*tasks, strict=True)))
     else:
         rows = [fly(*t) for t in tasks]
     by_gain = {g: [r for r in rows if r["gain"] == g] for g in args.gains}
-    print(f"scene {args.scene}, seeds {seeds.start}-{seeds.stop - 1}")
+    print(f"scene {args.scene}, seeds {seeds.start}-{seeds.stop - 1}, stop at 1-sigma < {args.stop_sigma} m")
     print("| gain | runs | median error (m) | p90 error (m) | 95 % ellipse coverage | median dwells after "
           "exploration | median metres flown (search phase) | median 1-sigma (m) | median drift at end (m) |")
     print("|---|---|---|---|---|---|---|---|---|")
