@@ -290,11 +290,24 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
         "converged": bool(est.get("converged", True)) if est else None,
         "stop_reason": r.decisions[-1].reason,
     }
-    # whatever else the in-flight estimate reports as a number (e.g. a drift-aware bound) rides along
+    # whatever else the in-flight estimate reports rides along: numbers (e.g. a drift-aware bound) and the
+    # numbers of nested records (e.g. an ellipse) as est.<key>[.<sub>]; another position covariance (e.g.
+    # with the pose drift) gets its own coverage, covered_95.<suffix>
     for k, v in (est or {}).items():
-        if k not in _ESTIMATE_SKIP and isinstance(v, int | float) and not isinstance(v, bool):
+        if k in _ESTIMATE_SKIP:
+            continue
+        if _number(v):
             out[f"est.{k}"] = float(v)
+        elif isinstance(v, Mapping):
+            out.update({f"est.{k}.{kk}": float(vv) for kk, vv in v.items() if _number(vv)})
+        elif k.startswith("covariance") and np.ndim(v) == 2:
+            _, cov_k = coverage({**est, "covariance": v}, (src.x, src.y))
+            out[f"covered_95.{k.removeprefix('covariance').strip('_') or k}"] = cov_k
     return out
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
 
 
 # ------------------------------------------------------------------------------------------------ storage
@@ -429,10 +442,14 @@ def _is_loopback(address: str | None) -> bool:
     return host in ("localhost", "::1") or host.startswith("127.")
 
 
-def start_ray(workers: int | None, address: str | None, quiet: bool = True) -> str | None:
+def start_ray(workers: int | None, address: str | None, quiet: bool = True, niceness: int | None = None) -> str | None:
     """Connect to Ray: an embedded local cluster of ``workers`` CPUs (loopback only, no dashboard, its own
-    temporary folder, returned for removal) or the cluster at ``address``."""
+    temporary folder, returned for removal) or the cluster at ``address``. ``niceness``: the embedded
+    workers' nice level (Ray's default 15 yields the CPU to everything else on a shared machine)."""
     import logging
+
+    if niceness is not None and address is None:
+        os.environ["RAY_worker_niceness"] = str(int(niceness))
 
     if _is_loopback(address):
         # Ray's single-node mode (as on macOS/Windows): its node address is 127.0.0.1 and every Ray server
@@ -497,7 +514,8 @@ def open_campaign(sweep: Sweep, out: str | Path, force: bool = False) -> Path:
 
 def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, address: str | None = None,
                  force: bool = False, retry_failed: bool = False, progress: bool = True, quiet_ray: bool = True,
-                 plots: bool = True, on_row: Callable[[dict[str, Any]], None] | None = None) -> CampaignResult:
+                 plots: bool = True, niceness: int | None = None,
+                 on_row: Callable[[dict[str, Any]], None] | None = None) -> CampaignResult:
     """Fly every flight of ``sweep`` not yet recorded in ``out`` (failed ones too with ``retry_failed``)
     as Ray tasks; write rows, summary and plots. Returns every row of the campaign."""
     t0 = time.perf_counter()
@@ -512,7 +530,8 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
     skipped = total - len(todo)
     cpus = 0.0
     if todo:
-        cpus = _run_tasks(todo, out, workers, address, Progress(total, skipped, enabled=progress), quiet_ray, on_row)
+        cpus = _run_tasks(todo, out, workers, address, Progress(total, skipped, enabled=progress), quiet_ray, on_row,
+                          niceness)
     rows = _merge(out)
     keys = {f["key"] for f in sweep.flights()}
     rows_sweep = [r for r in rows if r["key"] in keys]
@@ -521,8 +540,8 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
 
 
 def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, address: str | None,
-               bar: Progress, quiet_ray: bool, on_row: Callable | None) -> float:
-    tmp = start_ray(workers, address, quiet=quiet_ray)
+               bar: Progress, quiet_ray: bool, on_row: Callable | None, niceness: int | None = None) -> float:
+    tmp = start_ray(workers, address, quiet=quiet_ray, niceness=niceness)
     import ray
 
     writer = _PartWriter(out)

@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace another campaign's outputs in --out")
     p.add_argument("--workers", type=int, help="CPUs of the embedded local Ray (default: all)")
     p.add_argument("--address", metavar="HOST:PORT", help="run on an existing Ray cluster instead")
+    p.add_argument("--niceness", type=int, metavar="N",
+                   help="nice level of the embedded workers (default Ray's 15: other work on the machine goes first)")
     p.add_argument("--retry-failed", action="store_true", help="fly the recorded failed flights again")
     p.add_argument("--no-plots", action="store_true", help="summary.md only")
     p.add_argument("--dry-run", action="store_true", help="print the flights to fly and exit")
@@ -98,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         res = run_campaign(sweep, args.out, workers=args.workers, address=args.address, force=args.force,
                            retry_failed=args.retry_failed, progress=not args.quiet, quiet_ray=not args.ray_logs,
-                           plots=not args.no_plots)
+                           plots=not args.no_plots, niceness=args.niceness)
     except OutputDirError as exc:
         print(f"radseek campaign: {exc}", file=sys.stderr)
         return 2
