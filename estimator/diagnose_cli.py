@@ -20,6 +20,9 @@ import numpy as np
 
 from radseek.dataset import EFFECTS, DatasetError, read_dataset, stderr_progress
 
+#: the dataset spec's effects plus the variance effect diagnose also knows (estimator.diagnose.backend.VOCABULARY)
+VOCABULARY = (*EFFECTS, "over_dispersion")
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -28,9 +31,9 @@ def _parser() -> argparse.ArgumentParser:
         "physical effect (forward selection by likelihood ratio) and show what adding it changes.",
     )
     p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json, optional truth.json)")
-    p.add_argument("--model", nargs="+", action="extend", default=[], metavar="EFFECT", choices=list(EFFECTS),
+    p.add_argument("--model", nargs="+", action="extend", default=[], metavar="EFFECT", choices=list(VOCABULARY),
                    help="effects already in the model (default: the baseline, sources + constant background)")
-    p.add_argument("--add", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+    p.add_argument("--add", action="append", default=[], metavar="EFFECT", choices=list(VOCABULARY),
                    help="refit with this effect added and show before/after (repeatable)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON report")
     p.add_argument("--out", type=Path, default=None, help="folder for the PNG plots (default ./diagnose-<name>/)")

@@ -17,7 +17,15 @@ Counts of a frame group g in channel k, given the group's total, are multinomial
 The gain drift is profiled: for each trial ``percent_per_min`` the templates and group amplitudes are refitted
 (EM for the Poisson mixture, warm-started); the likelihood-ratio statistic 2 (nll(0) - nll(g_hat)) is chi-square
 with 1 dof under no drift (scaled by the no-drift fit's deviance per dof when that exceeds 1, a quasi-likelihood
-guard against misfit of the templates themselves). Pearson residuals of the no-drift fit per group and channel
+guard against misfit of the templates themselves).
+
+Template mismatch (issue 14): the source spectrum's shape may change along the flight (scattered photons grow
+with distance outdoors, a crystal unlike any template); when the two-template null misfits by more than 3 sd, a
+third free template with free group amplitudes joins the model, null and drift alike, so the drift is not the
+model's only way to follow a changing shape (before, a 44x over-dispersion scaled a real drift away). Three
+templates are fitted by a few EM steps, then damped Fisher scoring on the log masses and amplitudes.
+
+Pearson residuals of the no-drift fit per group and channel
 are the "spectral channel over time" plot: a drifting gain leaves a dipole around the 662 keV photopeak that
 grows with time.
 """
@@ -64,12 +72,15 @@ def _poisson_nll(mu: np.ndarray, n: np.ndarray) -> float:
 
 
 def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 3000, tol: float = 3e-11,
-        fix_s: bool = False) -> tuple[float, tuple]:
+        fix_s: bool = False, Mc: np.ndarray | None = None) -> tuple[float, tuple]:
     """Poisson NMF by EM (multiplicative updates): mu_gk = A_g (Ms_g s)_k + B_g (Mb_g b)_k, all >= 0.
 
     With free group amplitudes this likelihood equals the multinomial one given the group totals (plus a
-    constant). Returns (nll, (s, b, A, B)); s, b normalised to unit mass over energy bins.
+    constant). Returns (nll, (s, b, A, B)); s, b normalised to unit mass over energy bins. With ``Mc`` a third
+    template c with amplitudes C (x = (s, b, A, B, c, C)) is fitted alongside: the template-mismatch nuisance.
     """
+    if Mc is not None:
+        return _em_multi([Ms, Mb, Mc], n, x, iters, tol, fix_first=fix_s)
     s, b, A, B = (np.array(v, dtype=float) for v in x)
     cs = Ms.sum(1)  # (G, j): detected fraction of energy bin j
     cb = Mb.sum(1)
@@ -97,6 +108,98 @@ def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 30
     return _poisson_nll(mu, n), (s, b, A, B)
 
 
+def _em_multi(Ms: list[np.ndarray], n: np.ndarray, x: tuple, iters: int, tol: float, fix_first: bool = False,
+              em_iters: int = 60) -> tuple[float, tuple]:
+    """``_em`` for three templates; x = (s, b, A, B, c, C): templates 0, 1, their amplitudes, then the extra
+    template and its amplitudes. A few EM steps, then damped Fisher scoring on the log masses and log amplitudes
+    (EM alone crawls on a three-template NMF: the mismatch template trades mass with the others slowly)."""
+    s, b, A, B, c, C = (np.array(v, dtype=float) for v in x)
+    q, a = [s, b, c], [A, B, C]
+    q, a = _em_steps(Ms, n, q, a, min(iters, em_iters), fix_first)
+    return _scoring(Ms, n, q, a, fix_first, tol)
+
+
+def _scoring(Ms: list[np.ndarray], n: np.ndarray, q: list[np.ndarray], a: list[np.ndarray], fix_first: bool,
+             tol: float, iters: int = 200) -> tuple[float, tuple]:
+    """Levenberg-damped Fisher scoring on the log masses and log amplitudes of a T-template Poisson NMF
+    (~250 parameters: the Fisher matrix is small and dense, so each step is one solve)."""
+    T = len(q)
+    G, K = n.shape
+    free = [not (fix_first and i == 0) for i in range(T)]
+    lam = 1e-3
+    y = n.ravel()
+
+    def state(qq: list[np.ndarray], aa: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, float]:
+        u = [M @ qi for M, qi in zip(Ms, qq, strict=True)]
+        mu = np.maximum(sum(ai[:, None] * ui for ai, ui in zip(aa, u, strict=True)), 1e-300)
+        return u, mu, _poisson_nll(mu, n)
+
+    u, mu, nll = state(q, a)
+    for _ in range(iters):
+        cols = []
+        for i in range(T):
+            if free[i]:
+                cols.append((a[i][:, None, None] * Ms[i] * q[i][None, None, :]).reshape(G * K, -1))
+        for i in range(T):
+            blk = np.zeros((G, K, G))
+            blk[np.arange(G), :, np.arange(G)] = u[i] * a[i][:, None]
+            cols.append(blk.reshape(G * K, G))
+        J = np.hstack(cols)  # d mu / d log(parameter)
+        m = mu.ravel()
+        grad = J.T @ (1.0 - y / m)
+        F = (J / m[:, None]).T @ J
+        d = np.diag(F).copy()
+        improved = False
+        for _ in range(12):
+            step = np.linalg.solve(F + lam * np.diag(d + 1e-9 * d.max()), -grad)
+            step = np.clip(step, -3.0, 3.0)
+            qq, aa, k = [v.copy() for v in q], [v.copy() for v in a], 0
+            for i in range(T):
+                if free[i]:
+                    qq[i] = qq[i] * np.exp(step[k:k + K])
+                    k += K
+            for i in range(T):
+                aa[i] = aa[i] * np.exp(step[k:k + G])
+                k += G
+            for i in range(T):
+                if free[i]:
+                    s_ = qq[i].sum()
+                    qq[i], aa[i] = qq[i] / s_, aa[i] * s_
+            u2, mu2, nll2 = state(qq, aa)
+            if nll2 <= nll:
+                improved = True
+                lam = max(lam / 5, 1e-9)
+                break
+            lam *= 8
+        if not improved:
+            break
+        gain = nll - nll2
+        q, a, u, mu, nll = qq, aa, u2, mu2, nll2
+        if gain < max(tol * abs(nll), 1e-7):
+            break
+    return nll, (q[0], q[1], a[0], a[1], *((q[2], a[2]) if T > 2 else ()))
+
+
+def _em_steps(Ms: list[np.ndarray], n: np.ndarray, q: list[np.ndarray], a: list[np.ndarray], iters: int,
+              fix_first: bool) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Plain multiplicative EM updates for any number of templates (a start for ``_lbfgs``)."""
+    cs = [M.sum(1) for M in Ms]
+    q, a = list(q), list(a)
+    for _ in range(iters):
+        u = [M @ qi for M, qi in zip(Ms, q, strict=True)]
+        mu = sum(ai[:, None] * ui for ai, ui in zip(a, u, strict=True))
+        R = n / np.maximum(mu, 1e-300)
+        new_a = [ai * (R * ui).sum(1) / np.maximum(ci @ qi, 1e-300) for ai, ui, ci, qi in zip(a, u, cs, q, strict=True)]
+        for i in range(len(q)):
+            if not (i == 0 and fix_first):
+                q[i] = q[i] * np.einsum("gk,gkj->j", R * a[i][:, None], Ms[i]) / np.maximum(a[i] @ cs[i], 1e-300)
+        a = new_a
+        for i in range(len(q)):
+            m = q[i].sum()
+            q[i], a[i] = q[i] / m, a[i] * m
+    return q, a
+
+
 @dataclass
 class SpectralFit:
     """A fit of the spectral model to frame groups (see the module docstring)."""
@@ -116,6 +219,7 @@ class SpectralFit:
     weights: np.ndarray  # (G,) source fraction (zero drift fit)
     deviance_per_dof_null: float  # spectral deviance per dof at zero drift
     deviance_per_dof: float
+    nuisance: np.ndarray | None = None  # (32,) the template-mismatch template (None when not fitted)
 
     @property
     def dispersion(self) -> float:
@@ -148,9 +252,14 @@ def group_frames(frames: Frames, n_groups: int = 40, min_s: float = 3.0) -> np.n
 class SpectralModel:
     """Source + background spectral templates with a linear gain drift; see the module docstring."""
 
-    def __init__(self, edges: np.ndarray, sub: int = SUB_BINS, source_template: np.ndarray | None = None):
+    def __init__(self, edges: np.ndarray, sub: int = SUB_BINS, source_template: np.ndarray | None = None,
+                 nuisance: bool = True):
         self.edges = np.asarray(edges, dtype=float)
         self.sub = sub
+        #: a third free template with free group amplitudes: the source spectrum's shape may change along the
+        #: flight (scattered photons grow with distance, a crystal unlike the templates), and drift must not be
+        #: the only way the model can follow that (template mismatch as a nuisance)
+        self.nuisance = nuisance
         #: (32,) source masses per energy bin from a calibrated detector file, held fixed in the fit; None = free
         self.source_template = None if source_template is None else np.asarray(source_template, dtype=float)
 
@@ -214,19 +323,18 @@ class SpectralModel:
         S[np.arange(len(owner)), owner] = fine
         return S
 
-    def _responses(self, pct: float, t: np.ndarray, shapes: tuple[np.ndarray, np.ndarray]
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def _responses(self, pct: float, t: np.ndarray, shapes: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
         R = response(self.edges, 1.0 + pct / 100.0 * t / 60.0, self.sub)
-        return R @ shapes[0], R @ shapes[1]
+        return tuple(R @ sh for sh in shapes)
 
     def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple) -> tuple[float, tuple]:
-        Ms, Mb = self._responses(pct, t, shapes)
-        return _em(Ms, Mb, n, x0, fix_s=self.source_template is not None)
+        Ms, Mb, *Mc = self._responses(pct, t, shapes)
+        return _em(Ms, Mb, n, x0, fix_s=self.source_template is not None, Mc=Mc[0] if Mc else None)
 
     def expected(self, x: tuple, pct: float, t: np.ndarray, shapes: tuple) -> np.ndarray:
-        s, b, A, B = x
-        Ms, Mb = self._responses(pct, t, shapes)
-        return A[:, None] * (Ms @ s) + B[:, None] * (Mb @ b)
+        Ms = self._responses(pct, t, shapes)
+        q, a = (x[0], x[1], *x[4:5]), (x[2], x[3], *x[5:6])
+        return sum(ai[:, None] * (M @ qi) for ai, M, qi in zip(a, Ms, q, strict=True))
 
     def fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
             max_shift: float = 0.15) -> SpectralFit:
@@ -237,16 +345,34 @@ class SpectralModel:
         under-converged null cannot fake evidence.
         """
         n, t, lab = self._prepare(frames, labels)
-        flat = (self.shape(None), self.shape(None))
         x_start = self._start(n)
         if self.source_template is not None:
             x_start = (self.source_template, *x_start[1:])
+        sat = _poisson_nll(np.maximum(n, 1e-300), n)
+        g_, k = n.shape
+
+        def dof_of(n_t: int) -> int:  # group totals fixed; (n_t - 1) fractions per group; n_t templates of k - 1
+            return max(n.size - g_ - (n_t - 1) * g_ - n_t * (k - 1), 1)
+
+        flat = (self.shape(None),) * 2
         _, xc = self._fit_at(0.0, n, t, x_start, flat)
         shapes = (self.shape(xc[0]), self.shape(xc[1]))
         nll0, x0 = self._fit_at(0.0, n, t, xc, shapes)
-        sat = _poisson_nll(np.maximum(n, 1e-300), n)
-        g_, k = n.shape
-        dof = max(n.size - g_ - (2 * (k - 1) + g_ - g_), 1)  # group totals fixed; templates 2 (k - 1)
+        n_t = 2
+        disp2 = 2 * (nll0 - sat) / dof_of(2)
+        # template mismatch: the two-template null misfits by more than 3 sd of its deviance/dof -> the
+        # mismatch template joins (decided on the null fit alone, so the drift test stays calibrated); with no
+        # mismatch it stays out, since it can also follow part of a drift and costs power
+        if self.nuisance and g_ >= 4 and disp2 > 1 + 3 * np.sqrt(2.0 / dof_of(2)):
+            lo, hi = energy_bins(self.edges, 1)
+            c0 = np.exp(-(lo + hi) / 2 / 300.0) * (hi - lo)  # a smooth low-energy continuum (scattered photons)
+            x3 = (*xc, c0 / c0.sum(), 0.1 * xc[2] + 1e-3 * n.sum(1))
+            _, xc3 = self._fit_at(0.0, n, t, x3, (*shapes, self.shape(None)))
+            shapes3 = (self.shape(xc3[0]), self.shape(xc3[1]), self.shape(xc3[4]))
+            nll3, x03 = self._fit_at(0.0, n, t, xc3, shapes3)
+            if nll3 < nll0:
+                n_t, nll0, x0, shapes = 3, nll3, x03, shapes3
+        dof = dof_of(n_t)
         res = dict(pct=0.0, err=float("nan"), nll=nll0, x=x0)
         if drift and t.max() > 0:
             gmax = max_shift * 100.0 * 60.0 / max(float(t.max()), 1.0)
@@ -281,7 +407,7 @@ class SpectralModel:
         exp0 = self.expected(x0, 0.0, t, shapes)
         exp1 = self.expected(res["x"], res["pct"], t, shapes)
         lr = max(2 * (nll0 - res["nll"]), 0.0)
-        s0, b0, A0, B0 = x0
+        s0, b0, A0, B0 = x0[:4]
         return SpectralFit(
             percent_per_min=float(res["pct"]), error=float(res["err"]), nll=float(res["nll"]), nll_null=nll0, lr=lr,
             p_value=float(stats.chi2.sf(lr / max(1.0, 2 * (nll0 - sat) / dof), 1)), counts=n, expected=exp1,
@@ -289,4 +415,5 @@ class SpectralModel:
             templates=np.vstack([s0, b0]), weights=A0 / np.maximum(A0 + B0, 1e-300),
             deviance_per_dof_null=2 * (nll0 - sat) / dof,
             deviance_per_dof=2 * (float(res["nll"]) - sat) / max(dof - 1, 1),
+            nuisance=x0[4] if len(x0) > 4 else None,
         )

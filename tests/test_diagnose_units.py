@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from estimator.diagnose.backend import VOCABULARY
 from estimator.diagnose.explain import PHYSICS, feature_of, physics
 from estimator.diagnose.features import compute_features
 from estimator.diagnose.residuals import (
@@ -20,7 +21,7 @@ from estimator.diagnose.residuals import (
     unit_deviance,
 )
 from estimator.diagnose.selection import null_log10_p, second_source_looks
-from radseek.dataset import EFFECTS, Frames, Scenario, Wall
+from radseek.dataset import Frames, Scenario, Wall
 
 
 def _frames(n: int = 50, dwell: np.ndarray | None = None, yaw: float = 0.0) -> Frames:
@@ -115,9 +116,15 @@ def test_davies_effects_are_stricter_than_their_pointwise_null():
 
 
 def test_every_effect_has_physics_and_a_feature():
-    assert set(PHYSICS) == set(EFFECTS)
-    for e in EFFECTS:
+    assert set(PHYSICS) == set(VOCABULARY)
+    for e in VOCABULARY:
         assert len(physics(e)) > 60 and feature_of(e)
+
+
+def test_cli_offers_the_whole_vocabulary():
+    from estimator.diagnose_cli import VOCABULARY as CLI_VOCABULARY
+
+    assert tuple(CLI_VOCABULARY) == VOCABULARY and "over_dispersion" in VOCABULARY
 
 
 def test_tail_p_values_stay_finite_for_ranking():

@@ -4,6 +4,7 @@ One job per module:
 
 - ``features``: per-frame quantities to plot residuals against (rate, distance, bearing, wall path, time, x/y).
 - ``residuals``: Pearson / deviance residuals, per-dwell aggregation, binned residual trends, deviance moments.
+- ``dispersion``: the over-dispersion test on pairs of consecutive frames (robust to a wrong mean).
 - ``selection``: forward selection over the effect vocabulary with likelihood-ratio tests (boundary-aware nulls).
 - ``explain``: one-sentence physics per effect and the residual feature it should remove.
 - ``plots``: matplotlib (Agg) PNGs.

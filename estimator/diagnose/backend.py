@@ -19,16 +19,23 @@ from estimator.model import MeasurementModel
 from radseek.dataset import EFFECTS, Frames, Scenario
 
 SPECTRAL_EFFECTS = ("gain_drift",)
+#: effects on the counts' variance only (``estimator.diagnose.dispersion``); not in the dataset spec's table
+#: (the emulator's scene format mirrors that table), so diagnose's vocabulary extends it here
+VARIANCE_EFFECTS = ("over_dispersion",)
+#: effects that are not part of the count model's mean: each has its own likelihood factor or test
+NON_COUNT_EFFECTS = SPECTRAL_EFFECTS + VARIANCE_EFFECTS
+#: every effect diagnose can name, in report order
+VOCABULARY: tuple[str, ...] = (*EFFECTS, *VARIANCE_EFFECTS)
 
 
 def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """(count-model effects, spectral effects), in vocabulary order, duplicates removed."""
+    """(count-model effects, other effects: spectral and variance), in vocabulary order, duplicates removed."""
     effects = list(dict.fromkeys(effects))
     for e in effects:
-        if e not in EFFECTS:
-            raise ValueError(f"unknown effect {e!r}; known: {', '.join(EFFECTS)}")
-    count = tuple(e for e in EFFECTS if e in effects and e not in SPECTRAL_EFFECTS)
-    spec = tuple(e for e in EFFECTS if e in effects and e in SPECTRAL_EFFECTS)
+        if e not in VOCABULARY:
+            raise ValueError(f"unknown effect {e!r}; known: {', '.join(VOCABULARY)}")
+    count = tuple(e for e in VOCABULARY if e in effects and e not in NON_COUNT_EFFECTS)
+    spec = tuple(e for e in VOCABULARY if e in effects and e in NON_COUNT_EFFECTS)
     return count, spec
 
 

@@ -49,6 +49,13 @@ PHYSICS: dict[str, tuple[str, str]] = {
         "with time.",
         "time",
     ),
+    "over_dispersion": (
+        "Real detectors count with more than Poisson scatter: electronic noise bursts, a vibrating mount or an "
+        "unsteady bias voltage make each frame's rate fluctuate on its own, so consecutive frames differ more "
+        "than counting statistics allow (negative binomial counts, Var = mu + r^2 mu^2); it is not a missing "
+        "source or wall, and the evidence for those is discounted by it.",
+        "frame-to-frame scatter",
+    ),
 }
 
 

@@ -75,11 +75,19 @@ class GoodnessOfFit:
     p_value: float  # one-sided, normal approximation with the exact moments
 
 
-def goodness_of_fit(n: np.ndarray, mu: np.ndarray, n_params: int, penalty: float = 0.0) -> GoodnessOfFit:
+def goodness_of_fit(n: np.ndarray, mu: np.ndarray, n_params: int, penalty: float = 0.0,
+                    rel_var: float = 0.0) -> GoodnessOfFit:
     """Deviance (plus ``penalty``: the pose offsets' sum delta^T Sigma^-1 delta, which makes a fit with
-    Gaussian random offsets comparable to one without: its expectation is still about N - k)."""
+    Gaussian random offsets comparable to one without: its expectation is still about N - k).
+
+    ``rel_var`` = r^2 of an over-dispersed model (Var = mu + r^2 mu^2): the Poisson deviance of a frame then
+    has mean ~ (its Poisson mean) + r^2 mu and its variance grows by (1 + r^2 mu)^2 (to first order)."""
     d = float(unit_deviance(n, mu).sum()) + max(float(penalty), 0.0)
     m, v = deviance_moments(mu)
+    if rel_var > 0:
+        mu_ = np.asarray(mu, dtype=float)
+        m = m + rel_var * mu_
+        v = v * (1 + rel_var * mu_) ** 2
     dof = max(len(np.atleast_1d(n)) - n_params, 1)
     expected = float(m.sum()) - n_params
     sd = float(np.sqrt(v.sum()))

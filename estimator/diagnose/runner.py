@@ -11,7 +11,16 @@ from typing import Any
 
 import numpy as np
 
-from estimator.diagnose.backend import SPECTRAL_EFFECTS, CountFitter, describe, progress, split_effects
+from estimator.diagnose.backend import (
+    NON_COUNT_EFFECTS,
+    SPECTRAL_EFFECTS,
+    VARIANCE_EFFECTS,
+    CountFitter,
+    describe,
+    progress,
+    split_effects,
+)
+from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
 from estimator.diagnose.residuals import (
@@ -25,10 +34,12 @@ from estimator.diagnose.residuals import (
     unit_deviance,
 )
 from estimator.diagnose.selection import Selection, forward_select
+from estimator.diagnose.threads import blas_threads
 from estimator.spectral import SpectralFit, SpectralModel
 from radseek.dataset import Dataset, Truth
 
 SPECTRAL_FEATURE = "spectral channel over time"
+DISPERSION_FEATURE = "frame-to-frame scatter"
 
 
 @dataclass
@@ -78,10 +89,12 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     # the fit's deviance includes the pose offsets' penalty; keep it so that E[deviance] ~ N - k still holds
     penalty = float(getattr(fit, "deviance", 0.0)) - float(unit_deviance(n, mu).sum()) if hasattr(fit, "deviance") \
         else 0.0
-    gof = goodness_of_fit(n, mu, k, penalty=max(penalty, 0.0))
+    disp = fit_dispersion(f, mu) if "over_dispersion" in effects else None
+    rel_var = disp.rel_sd**2 if disp is not None else 0.0
+    gof = goodness_of_fit(n, mu, k, penalty=max(penalty, 0.0), rel_var=rel_var)
     lab = segments(f, transit_s=1.0)
     sn, smu = aggregate(lab, n, mu)
-    gof_seg = goodness_of_fit(sn, smu, k)
+    gof_seg = goodness_of_fit(sn, smu, k)  # per segment: what a smooth mean misfit leaves (no variance term)
     seg_p = pearson(sn, smu)
     src = sources_of(fit)
     feats = compute_features(f, ds.scenario, np.array([src[0]["x"], src[0]["y"], src[0]["z"]]), mu)
@@ -102,6 +115,8 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
               for nm in fit.free_names if "." in nm}
     if "gain_drift" in effects and spectral is not None:
         params["gain_drift.percent_per_min"] = (spectral.percent_per_min, spectral.error)
+    if disp is not None:
+        params["over_dispersion.rel_sd"] = (disp.rel_sd, disp.error)
     return ModelReport(effects, fit, gof, gof_seg, feats, trends, lab, seg_p, float(np.sqrt(np.mean(seg_p**2))),
                        spectral, spec_dev, src, source_error(src, ds.truth), n, params)
 
@@ -110,6 +125,8 @@ def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> s
     """The residual feature whose trend the effect removed most (chi2 drop), with the expected one first."""
     if effect in SPECTRAL_EFFECTS:
         return SPECTRAL_FEATURE
+    if effect in VARIANCE_EFFECTS:
+        return DISPERSION_FEATURE
     drops = {}
     for name, tb in before.trends.items():
         ta = after.trends.get(name)
@@ -132,11 +149,13 @@ def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> s
 def _fill_explains(ds: Dataset, fitter: CountFitter, sel: Selection, spectral: SpectralFit | None) -> None:
     """Which residual feature each candidate explains: compare its trends with the model it extends."""
     for step in sel.steps:
-        ref = analyse(ds, step.effects, fitter.fit(tuple(e for e in step.effects if e not in SPECTRAL_EFFECTS)),
+        ref = analyse(ds, step.effects, fitter.fit(tuple(e for e in step.effects if e not in NON_COUNT_EFFECTS)),
                       spectral)
         for c in step.candidates:
             if c.effect in SPECTRAL_EFFECTS:
                 c.explains = SPECTRAL_FEATURE
+            elif c.effect in VARIANCE_EFFECTS:
+                c.explains = DISPERSION_FEATURE
             else:
                 c.explains = explained_feature(ref, analyse(ds, (*step.effects, c.effect), c.fit, spectral), c.effect)
 
@@ -154,7 +173,14 @@ class Diagnosis:
 
 
 def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = (), alpha: float = 0.01,
-             n_starts: int = 8, seed: int = 0, quiet: bool = False) -> Diagnosis:
+             n_starts: int = 8, seed: int = 0, quiet: bool = False, jobs: int = 1) -> Diagnosis:
+    """The whole loop (see the module docstring); BLAS runs single-threaded inside (``threads``)."""
+    with blas_threads(1):
+        return _diagnose(ds, model, add, alpha, n_starts, seed, quiet, jobs)
+
+
+def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: float, n_starts: int, seed: int,
+              quiet: bool, jobs: int) -> Diagnosis:
     count, spec = split_effects(model)
     add_count, add_spec = split_effects(add)
     fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet)
@@ -169,7 +195,7 @@ def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = ()
         return cache["fit"]
 
     base = fitter.fit(count)
-    spectral = spectral_fit() if spec or add_spec else None
+    spectral = spectral_fit() if "gain_drift" in (*spec, *add_spec) else None
     current = analyse(ds, (*count, *spec), base, spectral)
     sel = forward_select(fitter, spectral_fit, (*count, *spec), alpha=alpha, quiet=quiet)
     spectral = cache.get("fit", spectral)

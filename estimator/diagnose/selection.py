@@ -16,6 +16,10 @@ is turned into a p-value with the null distribution that is right for that effec
   p = min(1, M * 1/2 P(chi2_1 > LR)).
 - ``background_gradient``, ``pose_drift``: two unbounded parameters, chi2_2. ``gain_drift``: chi2_1 (spectral
   likelihood, ``estimator.spectral``), on LR divided by the spectral fit's over-dispersion when it exceeds 1.
+- ``over_dispersion``: frame-to-frame extra-Poisson variance, tested on pairs of consecutive frames so that a
+  wrong mean cannot fake it (``estimator.diagnose.dispersion``); r >= 0 on its boundary: 1/2 chi2_0 + 1/2 chi2_1.
+  Once it is in the model, every count-model LR is divided by its dispersion factor phi (quasi-likelihood), so
+  extra-Poisson variance is not a reason to name a geometry effect.
 
 Several candidates are tested per step, so a candidate is significant when p < alpha / (number of candidates)
 (Bonferroni). Candidates are ranked by this p-value (ties by delta-AIC = AIC_ext - AIC_current, negative
@@ -33,12 +37,20 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from estimator.diagnose.backend import SPECTRAL_EFFECTS, CountFitter, progress
+from estimator.diagnose.backend import (
+    NON_COUNT_EFFECTS,
+    SPECTRAL_EFFECTS,
+    VARIANCE_EFFECTS,
+    VOCABULARY,
+    CountFitter,
+    progress,
+)
+from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.residuals import aggregate, group_mean, pearson, segments
-from radseek.dataset import EFFECTS, Frames, Scenario
+from radseek.dataset import Frames, Scenario
 
 ANISO_LOOKS = 10
-BOUNDARY_ONE = ("dead_time", "wall_attenuation", "air_attenuation")
+BOUNDARY_ONE = ("dead_time", "wall_attenuation", "air_attenuation", "over_dispersion")
 
 
 def second_source_looks(scenario: Scenario, frames: Frames) -> int:
@@ -162,13 +174,15 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
     ``spectral_fit()`` returns the ``estimator.spectral.SpectralFit`` (with drift profiled), computed lazily.
     """
     scenario, frames = fitter.scenario, fitter.frames
-    count = tuple(e for e in start if e not in SPECTRAL_EFFECTS)
-    spec = tuple(e for e in start if e in SPECTRAL_EFFECTS)
+    count = tuple(e for e in start if e not in NON_COUNT_EFFECTS)
+    spec = tuple(e for e in start if e in NON_COUNT_EFFECTS)
     steps: list[Step] = []
     missing: list[str] = []
     for _ in range(max_steps):
         cur = fitter.fit(count)
-        todo = [e for e in EFFECTS if e not in count and e not in spec]
+        todo = [e for e in VOCABULARY if e not in count and e not in spec]
+        # over-dispersion in the model: count-model evidence is scaled by its dispersion factor (quasi-likelihood)
+        phi = fit_dispersion(fitter.fit_frames, cur.expected).phi if "over_dispersion" in spec else 1.0
         if not scenario.walls:
             todo = [e for e in todo if e != "wall_attenuation"]
         if not todo:
@@ -184,6 +198,13 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
                     null += f" on LR / {sf.dispersion:.2f} (spectral over-dispersion)"
                 cands.append(Candidate(e, lr_q, 1, 2 - lr_q, lp, null, {"gain_drift.percent_per_min":
                                        sf.percent_per_min}, {"gain_drift.percent_per_min": sf.error}, fit=sf))
+                continue
+            if e in VARIANCE_EFFECTS:
+                disp = fit_dispersion(fitter.fit_frames, cur.expected)
+                lp, null = null_log10_p(e, disp.lr, 1, scenario, frames)
+                null += f" (pairs of consecutive frames, {disp.n_pairs} pairs)"
+                cands.append(Candidate(e, disp.lr, 1, 2 - disp.lr, lp, null, {"over_dispersion.rel_sd": disp.rel_sd},
+                                       {"over_dispersion.rel_sd": disp.error}, fit=disp))
                 continue
             # start from the current optimum (the effect at its default); a second source also gets starts
             # from the grid cells that best explain what the current model leaves (and one at the largest
@@ -205,9 +226,11 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
                 alt = fitter.fit((*count, e), init=dict(init, **{"anisotropy.half_angle_deg": 60.0}), n_starts=1,
                                  label=f"{e} (wide cone start)", cache=False)
                 ext = min((ext, alt), key=lambda r: r.nll)
-            lr = max(2.0 * (cur.nll - ext.nll), 0.0)
+            lr = max(2.0 * (cur.nll - ext.nll), 0.0) / phi
             params, errors, k = _new_params(ext, cur)
             lp, null = null_log10_p(e, lr, k, scenario, frames)
+            if phi > 1.0:
+                null += f" on LR / {phi:.3g} (over-dispersion)"
             cands.append(Candidate(e, lr, k, 2 * k - lr, lp, null, params, errors, fit=ext))
         thr = alpha / len(cands)
         for c in cands:
@@ -221,8 +244,8 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
         missing.append(chosen)
         progress(f"step {len(steps)}: {chosen} is missing (p = {cands[0].p_value:.2g} < {thr:.2g}); searching on",
                  quiet)
-        if chosen in SPECTRAL_EFFECTS:
-            spec = (*spec, chosen)
+        if chosen in NON_COUNT_EFFECTS:
+            spec = tuple(e for e in VOCABULARY if e in (*spec, chosen))
         else:
-            count = tuple(e for e in EFFECTS if e in (*count, chosen))
+            count = tuple(e for e in VOCABULARY if e in (*count, chosen))
     return Selection(steps, missing, alpha)
