@@ -18,6 +18,11 @@ delta = 1, zeta = 1.85). The printed text has two defects we must resolve:
 ``gain_eq6`` implements that reading (the planner's gain); ``gain_eq6_as_printed`` the literal formula,
 kept so tests can show why it is not used. Distances are Euclidean in position (x, y, z): the source
 configuration xi_s has no meaningful yaw. Gain values lie in [0, 1/e].
+
+``gain_eq6_pose`` is eq. 6 under pose covariance (the design card's "dwell-point gain under pose
+covariance"): eq. 6 times :func:`pose_information_factor`, the share of the dwell's expected information
+(posterior-trace reduction, paper 004 eq. 4.7-4.9 and 5.3-5.6) left once the odometry drift its path adds
+is charged; identical to eq. 6 at zero drift density.
 """
 
 from __future__ import annotations
