@@ -31,6 +31,7 @@ PUBLISHERS: dict[str, str] = {
     topics.RAW_FRAME: "detector",
     topics.DETECTOR_STATUS: "detector",
     topics.MISSION_STATE: "mission",
+    topics.MISSION_LOCKSTEP: "mission (read by the vehicle with `--lockstep`)",
     topics.ESTIMATE: "mission",
     topics.PLAN: "mission",
 }
@@ -39,6 +40,7 @@ RATES: dict[str, str] = {
     topics.HISTOGRAM: "10 Hz",
     topics.RAW_FRAME: "10 Hz",
     topics.DETECTOR_STATUS: "1 Hz",
+    topics.MISSION_LOCKSTEP: "every frame, and 2 Hz wall while busy",
 }
 
 

@@ -52,6 +52,7 @@ HISTOGRAM = "detector/histogram"
 RAW_FRAME = "detector/raw"
 DETECTOR_STATUS = "detector/status"
 MISSION_STATE = "mission/state"
+MISSION_LOCKSTEP = "mission/lockstep"
 ESTIMATE = "estimate"
 PLAN = "plan"
 
@@ -293,6 +294,33 @@ class MissionState(_Payload):
     progress: str = ""
 
 
+@dataclass(frozen=True)
+class MissionLockstep(_Payload):
+    """``mission/lockstep``: the mission's side of lockstep (as PX4 SITL has it with its simulator).
+
+    The mission publishes it after it has handled each histogram frame, *after* any MAVLink command it
+    sent in response (send first, then ack), and repeats its last state about twice a wall second while
+    it computes. A vehicle run with ``--lockstep`` does not step sim time past ``until``: the simulated
+    world waits while the mission computes, so a pause costs what it would cost in the air. ``busy``
+    means the mission is still working on the frame ending at ``t`` (then ``until == t``); otherwise
+    ``until`` is ``t`` plus one frame. ``attached`` false lets the vehicle run free (the mission is done).
+    No message for the vehicle's ``--lockstep-timeout`` wall seconds releases lockstep (mission gone)."""
+
+    TOPIC: ClassVar[str] = MISSION_LOCKSTEP
+    t: float  # s, sim time up to which the mission has taken every frame
+    until: float  # s, sim time the vehicle may step to (t while busy, t + one frame when waiting)
+    busy: bool = False  # the mission is computing on the frame ending at t
+    attached: bool = True  # False: the mission leaves lockstep, the vehicle runs free
+
+    def validate(self) -> None:
+        super().validate()
+        _check_range(self.TOPIC, "until", self.until, self.t, SIM_TIME_MAX_S)
+        for name in ("busy", "attached"):
+            if not isinstance(getattr(self, name), bool):
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must be true or false, got "
+                                   f"{_short(getattr(self, name))}")
+
+
 #: the state of one source in an ``estimate``, in the order of its covariance block
 ESTIMATE_STATE = ("x", "y", "z", "cps_at_1m")
 #: numbers per source in ``Estimate.covariance`` (and ``crlb``): one row-major 4 x 4 block
@@ -375,7 +403,8 @@ class Plan(_Payload):
 
 PAYLOADS: dict[str, type[_Payload]] = {
     cls.TOPIC: cls
-    for cls in (SimClock, TruthPose, Pose, Histogram, DetectorStatus, MissionState, Estimate, Plan)
+    for cls in (SimClock, TruthPose, Pose, Histogram, DetectorStatus, MissionState, MissionLockstep,
+                Estimate, Plan)
 }
 
 
