@@ -66,6 +66,8 @@ class VehicleConfig:
     zenoh_connect: str = "tcp/127.0.0.1:7447"
     vehicle_name: str = "uav0"
     max_wall_hz: float = 20.0  # cap per telemetry message, Hz of wall time
+    lockstep: bool = False  # hold sim time for the mission process (mission/lockstep), vehicle_sim.lockstep
+    lockstep_timeout_s: float = 5.0  # wall s without a mission/lockstep message before lockstep is released
 
     def __post_init__(self) -> None:
         if not 0 < self.speedup <= 1000:
@@ -77,8 +79,9 @@ class VehicleConfig:
 class _ZenohOut:
     """Publishers for sim/clock, sim/truth_pose and pose, opened in the background."""
 
-    def __init__(self, cfg: VehicleConfig):
+    def __init__(self, cfg: VehicleConfig, gate=None):
         self.cfg = cfg
+        self._gate = gate  # vehicle_sim.lockstep.LockstepGate, fed from mission/lockstep
         self.ready = False
         self._session = None
         self._closed = False
@@ -102,6 +105,9 @@ class _ZenohOut:
         self._clock = ClockPublisher(session, name, self.cfg.speedup)
         self._truth = session.declare_publisher(topics.key(topics.SIM_TRUTH_POSE, name))
         self._pose = session.declare_publisher(topics.key(topics.POSE, name))
+        if self._gate is not None:
+            self._lockstep = session.declare_subscriber(topics.key(topics.MISSION_LOCKSTEP, name),
+                                                        self._gate.on_sample)
         self._topics = topics
         self._session = session
         self.ready = True
@@ -112,8 +118,7 @@ class _ZenohOut:
         if not self.ready:
             return
         tp = self._topics
-        try:
-            self._clock.publish(t)
+        try:  # poses first, the clock last: whoever sees the clock at t has every pose up to t
             p, yaw = truth
             self._truth.put(tp.TruthPose(t=t, x=float(p[0]), y=float(p[1]), z=float(max(p[2], 0.0)),
                                          yaw=float(yaw)).to_bytes())
@@ -122,6 +127,7 @@ class _ZenohOut:
                 self._pose.put(tp.Pose(t=t, x=float(p[0]), y=float(p[1]), z=float(p[2]), yaw=float(yaw),
                                        var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]),
                                        var_yaw=float(var[3])).to_bytes())
+            self._clock.publish(t)
         except Exception as exc:  # noqa: BLE001
             log.warning("zenoh publish failed: %s", exc)
 
@@ -162,8 +168,11 @@ class Vehicle:
         self._text_id = 0
         self._stop = threading.Event()
         self._zenoh: _ZenohOut | None = None
-        self._next_pose_t = 0.0
-        self.stats = {"steps": 0, "commands": 0, "ignored": 0}
+        self._last_pose_t = -1.0
+        self._pose_every = max(1, round(0.1 / cfg.dt))  # steps between `pose` messages (10 Hz on the step grid)
+        self._hold_until = math.inf  # lockstep: the sim time the vehicle holds at (a pose is published there)
+        self.lockstep = None  # vehicle_sim.lockstep.LockstepGate while run() runs with cfg.lockstep
+        self.stats = {"steps": 0, "commands": 0, "ignored": 0, "lockstep_pauses": 0, "lockstep_held_wall_s": 0.0}
 
     # -- parameters ------------------------------------------------------------------------------
     def _make_params(self) -> ParamTable:
@@ -449,21 +458,38 @@ class Vehicle:
             for name in due:
                 self.link.send(telemetry.BUILDERS[name](snap))
         if self._zenoh is not None and self._zenoh.ready:
-            with_pose = self.t >= self._next_pose_t
+            # on the step grid (every _pose_every steps, and where lockstep holds), so the same flight
+            # publishes its poses at the same sim times however the steps were paced in wall time
+            with_pose = self.t > self._last_pose_t and (self.stats["steps"] % self._pose_every == 0
+                                                        or self.t >= self._hold_until - 1e-9)
             if with_pose:
-                self._next_pose_t = self.t + 0.1
+                self._last_pose_t = self.t
             self._zenoh.publish(self.t, self.truth(), (self.nav.pos, self.nav.yaw), self.odo.var, with_pose)
 
     def stop(self) -> None:
         self._stop.set()
 
     def run(self, max_sim_time: float | None = None) -> None:
-        """The loop: fixed sim steps paced by a FreeRunningClock at ``speedup``."""
+        """The loop: fixed sim steps paced by a FreeRunningClock at ``speedup``; with ``cfg.lockstep``
+        never past the sim time the mission process allows (``vehicle_sim.lockstep``)."""
+        import select
+
         from radseek.simclock import FreeRunningClock
 
         cfg = self.cfg
+        gate = None
+        if cfg.lockstep:
+            from vehicle_sim.lockstep import LockstepGate
+
+            gate = self.lockstep = LockstepGate(cfg.lockstep_timeout_s)
         if cfg.zenoh:
-            self._zenoh = _ZenohOut(cfg)
+            self._zenoh = _ZenohOut(cfg, gate)
+        # while lockstep holds sim time, telemetry goes on in wall time (as at 1x) so that MAVSDK and a
+        # GCS keep their link (heartbeats) through a long pause; SET_MESSAGE_INTERVAL applies to both
+        hold_sched = telemetry.Scheduler(1.0, cfg.max_wall_hz)
+        hold_sched.rates = self.scheduler.rates
+        held_since: float | None = None
+        last_emit = -math.inf
         clock = FreeRunningClock(cfg.speedup, t0=self.t)
         dt = cfg.dt
         log.info("vehicle up: api %s -> %s, gcs %s -> %s, speedup %g", self.link.endpoints[0].local_address,
@@ -472,6 +498,11 @@ class Vehicle:
         try:
             while not self._stop.is_set():
                 now_wall = time.monotonic()
+                # lockstep: read the limit *before* draining MAVLink: the mission sends its commands first
+                # and acks after, so every command sent before an ack is applied before the steps it allows
+                limit = gate.limit(now_wall) if gate is not None else None
+                if gate is not None:
+                    gate.drain_wake()
                 for ep, msg in self.link.recv(now_wall):
                     self.dispatch(ep, msg, now_wall)
                 for m in self.protocol.poll(now_wall):
@@ -480,20 +511,57 @@ class Vehicle:
                 last = self.link.last_rx_wall
                 link_age = None if last is None else now_wall - last
                 target = clock.now()
+                self._hold_until = math.inf if limit is None else limit
+                if limit is not None:
+                    target = min(target, limit)
                 n = 0
                 end = math.inf if max_sim_time is None else max_sim_time - 1e-9  # --duration: never step past it
                 while self.t + dt <= target + 1e-9 and n < 50 and self.t < end:
                     self.step(dt, link_age)
+                    self.emit()  # every step: poses and clock at the same sim times however steps are paced
                     n += 1
-                if target - self.t > 1.0:  # fell behind: shed the debt rather than run in a burst
+                if n:
+                    last_emit = now_wall
+                elif now_wall - last_emit >= 0.1:  # no step: keep followers fed, 10 Hz of wall time
+                    self.emit()
+                    last_emit = now_wall
+                held = limit is not None and self.t + dt > limit + 1e-9
+                if held or target - self.t > 1.0:  # held, or fell behind: no debt to run off in a burst
                     clock = FreeRunningClock(cfg.speedup, t0=self.t)
-                self.emit()
+                held_since = self._account_hold(held, held_since, now_wall, hold_sched, gate)
                 if self.t >= end:
                     break
+                if held:  # wake at once on a mission/lockstep message or a MAVLink datagram
+                    socks = [e.sock for e in self.link.endpoints] + [gate.wake_socket]
+                    select.select(socks, [], [], 0.05)
+                    continue
                 wait = (self.t + dt - clock.now()) / cfg.speedup
                 if wait > 0:
                     self.link.wait(min(wait, 0.02))
         finally:
+            if gate is not None:
+                gate.close()
             if self._zenoh is not None:
                 self._zenoh.close()
             self.link.close()
+
+    def _account_hold(self, held: bool, held_since: float | None, now_wall: float, hold_sched, gate) -> float | None:
+        """Lockstep bookkeeping: wall-time telemetry during a hold, pauses counted and logged."""
+        if held:
+            if held_since is None:
+                return now_wall
+            if now_wall - held_since > 0.25:
+                due = hold_sched.due(now_wall)
+                if due:
+                    snap = self.snapshot()
+                    for name in due:
+                        self.link.send(telemetry.BUILDERS[name](snap))
+            return held_since
+        if held_since is not None:
+            w = now_wall - held_since
+            self.stats["lockstep_held_wall_s"] += w
+            if w > 1.0:
+                self.stats["lockstep_pauses"] += 1
+                log.info("lockstep: held %.1f s wall at t=%.2f s while the mission computed (no sim time passed)",
+                         w, self.t)
+        return None

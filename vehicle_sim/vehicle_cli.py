@@ -48,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--battery-endurance", type=float, default=1200.0,
                    help="hover endurance on a full battery, sim s (default 1200)")
     s.add_argument("--drift", type=float, default=0.03, help="odometry drift density, m/sqrt(m) (default 0.03)")
+    s.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=False,
+                   help="hold sim time while the mission process computes (it publishes mission/lockstep; "
+                        "`radseek run` turns this on). Off by default: MAVSDK examples or a GCS alone run free")
+    s.add_argument("--lockstep-timeout", type=float, default=5.0,
+                   help="wall s without a mission/lockstep message before lockstep is released and the "
+                        "vehicle runs free (mission gone; default 5; 60 before the first message)")
     f = p.add_argument_group("failsafes")
     f.add_argument("--link-loss-timeout", type=float, default=5.0,
                    help="s without any GCS message before holding (link clock, default 5)")
@@ -99,6 +105,7 @@ def config_from_args(args: argparse.Namespace):
         signing_key=load_signing_key(args.signing_key) if args.signing_key else None,
         drop_rate=args.drop_rate, zenoh=not args.no_zenoh, zenoh_config=args.zenoh_config,
         zenoh_connect=args.connect, vehicle_name=args.vehicle_name,
+        lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
     )
 
 
@@ -145,4 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     s = vehicle.link.stats
     print(f"vehicle stopped at t={vehicle.t:.1f} s: rx {s.rx_packets} tx {s.tx_packets} bad {s.bad_data} "
           f"refused-signature {s.rejected_signature} dropped-rx {s.dropped_rx} dropped-tx {s.dropped_tx}", flush=True)
+    if vehicle.lockstep is not None:
+        g = vehicle.lockstep
+        print(f"lockstep: {g.messages} mission/lockstep messages, held {vehicle.stats['lockstep_held_wall_s']:.1f} s "
+              f"wall ({vehicle.stats['lockstep_pauses']} pauses > 1 s), "
+              f"{'released: ' + g.released if g.released else 'engaged to the end'}", flush=True)
     return 0
