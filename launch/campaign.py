@@ -26,9 +26,11 @@ import json
 import math
 import os
 import shutil
+import signal
 import socket
 import sys
 import tempfile
+import threading
 import time
 import tomllib
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -41,8 +43,8 @@ import numpy as np
 from radseek import __version__
 from radseek.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
 
-__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "Sweep", "fly_one", "load_rows", "parse_effect",
-           "run_campaign", "summarize", "write_reports"]
+__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "Sweep", "fly_one", "load_rows",
+           "parse_effect", "run_campaign", "summarize", "write_reports"]
 
 #: chi-square 95 % quantile with 2 degrees of freedom (= -2 ln 0.05): the 95 % ellipse is d^2 <= this
 CHI2_95_2D = -2.0 * math.log(0.05)
@@ -481,6 +483,10 @@ def _remote_fly():
 # ------------------------------------------------------------------------------------------------ campaign
 
 
+class CampaignStopped(Exception):
+    """The campaign was interrupted (Ctrl-C, SIGTERM); what finished is recorded, a rerun resumes."""
+
+
 @dataclass
 class CampaignResult:
     out: Path
@@ -546,6 +552,13 @@ def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, addre
 
     writer = _PartWriter(out)
     bar.t0 = time.monotonic()  # rate and ETA from the first task on, not from Ray's start-up
+    # Ctrl-C / SIGTERM: stop cleanly (rows so far written, tasks cancelled, Ray shut down); a rerun resumes.
+    # Own handlers, because a KeyboardInterrupt does not reliably get out of Ray's blocking calls.
+    stop: list[int] = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda signum, frame: stop.append(signum))
     try:
         cpus = float(ray.cluster_resources().get("CPU", 1))
         window = max(4, int(2 * cpus))  # tasks in flight: every CPU busy, the queue bounded
@@ -553,11 +566,11 @@ def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, addre
         pending: dict[Any, dict[str, Any]] = {}
         queue = list(reversed(todo))
         bar.draw()
-        while queue or pending:
+        while (queue or pending) and not stop:
             while queue and len(pending) < window:
                 spec = queue.pop()
                 pending[remote.remote(spec)] = spec
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=10.0)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
             for ref in ready:
                 spec = pending.pop(ref)
                 try:
@@ -571,8 +584,15 @@ def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, addre
             if not ready:
                 bar.draw()
         bar.draw(final=True)
+        if stop:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise CampaignStopped(f"stopped by signal {stop[0]}: {bar.done} of {bar.total} flights recorded in "
+                                  f"{out}; run the same command again to resume")
         return cpus
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         writer.flush()
         ray.shutdown()
         if tmp is not None:

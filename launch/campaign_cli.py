@@ -82,7 +82,7 @@ def sweep_from_args(args: argparse.Namespace):
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from launch.campaign import run_campaign
+    from launch.campaign import CampaignStopped, run_campaign
     from radseek.outdir import OutputDirError
 
     try:
@@ -104,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     except OutputDirError as exc:
         print(f"radseek campaign: {exc}", file=sys.stderr)
         return 2
+    except CampaignStopped as exc:
+        print(f"\nradseek campaign: {exc}", file=sys.stderr)
+        return 130
     failed = sum(r["status"] != "ok" for r in res.rows)
     print(f"{res.flown} flights flown, {res.skipped} already recorded, {failed} failed; "
           f"{res.wall_s:.0f} s on {res.workers:g} CPUs -> {res.out}/flights.parquet, summary.md")
