@@ -169,6 +169,9 @@ def main(argv: list[str] | None = None) -> int:
     speed.add_argument("--speedup", type=float, default=20.0, help="sim seconds per wall second (default 20)")
     speed.add_argument("--realtime", action="store_true", help="run at real time (--speedup 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of counts, odometry drift and planner (default 0)")
+    p.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=True,
+                   help="the vehicle holds sim time while the mission computes (PX4 SITL lockstep): a pause "
+                        "costs no flight time and the same seed flies the same flight (default on)")
     p.add_argument("--zenoh-port", type=int, default=7447, help="router port on 127.0.0.1 (default 7447)")
     p.add_argument("--mavlink-port", type=int, default=14540, help="MAVSDK API port (default 14540)")
     p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
@@ -241,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
             stack.start("vehicle", _radseek(
                 "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
                 "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
-                "--gcs-local-port", gcs_local, "--max-speed", "1.0", *args.vehicle_arg))
+                "--gcs-local-port", gcs_local, "--max-speed", "1.0",
+                "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg))
             progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
             clock = ZenohClock(session, topics.DEFAULT_VEHICLE)
             kill_at = args.kill_detector_at

@@ -8,11 +8,21 @@ the dwell point, feed the histograms to the dwell controller until it has counte
 return to launch and land. Every histogram received is recorded with the estimated pose at its mid-time.
 
 Only estimated poses (``pose``) and histograms reach this process; it never subscribes to ``sim/``.
+
+Lockstep (``mission.lockstep``): the flow is driven by the histogram frames, one at a time (``_tick``):
+take a frame, decide on data stamped with sim time (the frame, the estimated pose interpolated at the
+frame's time, never "the latest message"), send the MAVLink commands the decision calls for, then ack
+the frame on ``mission/lockstep``. A vehicle run with ``--lockstep`` does not step past the acked time
+plus one frame, so a fit that takes a minute of wall time costs no sim time, and the same seed flies
+the same flight. A frame the detector never sends (drop-out, corrupted, restarted) is declared lost
+once the vehicle's pose shows its time has passed and ``FRAME_TIMEOUT_WALL_S`` went by; then the
+mission follows the pose until frames come back.
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import math
 import sys
@@ -28,6 +38,7 @@ from mission.client.action import ActionFailed, Actions
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.mission_upload import DwellPoint, MissionControl
 from mission.client.telemetry import TelemetryWatch
+from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Decision, Phase, SearchBrain, SearchConfig
 from radseek import topics
@@ -37,6 +48,11 @@ from radseek.outdir import atomic_write_json
 
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
+FRAME_S = 0.1  # s, the board's frame period until the first histogram says otherwise
+FRAME_TIMEOUT_WALL_S = 1.0  # wall s after the pose passed a frame's end before that frame is declared lost
+POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
+STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
+LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle
 
 
 @dataclass
@@ -68,6 +84,9 @@ class _Stream:
         self.records: list[FrameRecord] = []  # the usable ones, for the estimator
         self.bad_payloads = 0
         self.latest_pose: topics.Pose | None = None
+        # histograms waiting for the pose at their end time (the pose is published before the clock that
+        # makes the frame, but on another path): recorded in order once it is in, or after POSE_WAIT_WALL_S
+        self._pending: list[tuple[topics.Histogram, float]] = []
 
     def _drop(self, exc: topics.PayloadError) -> None:
         """A payload that fails its schema or the board's limits: counted, logged (not every one), dropped."""
@@ -86,6 +105,7 @@ class _Stream:
         with self.lock:
             self.poses.add(pose)
             self.latest_pose = pose
+            self._release(lambda h, _w: h.t <= pose.t + 1e-6)
 
     def on_histogram(self, sample: zenoh.Sample) -> None:
         try:
@@ -93,12 +113,31 @@ class _Stream:
         except topics.PayloadError as exc:
             self._drop(exc)
             return
+        now = time.monotonic()
         with self.lock:
+            self._pending.append((hist, now))
+            latest = self.latest_pose
+            self._release(lambda h, w: (latest is not None and h.t <= latest.t + 1e-6) or now - w > POSE_WAIT_WALL_S)
+
+    def _release(self, ready) -> None:
+        """Record and queue the pending histograms, in order, up to the first that is not ``ready``."""
+        while self._pending and ready(*self._pending[0]):
+            hist, _ = self._pending.pop(0)
             pose = self.poses.at(hist.t - hist.duration / 2)
             record = FrameRecord.from_histogram(hist, pose, self.dwell_index, self.recorder.channel_edges_keV)
             if self.recorder.write(record):
                 self.records.append(record)
-        self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
+            self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
+
+    def flush(self) -> None:
+        """Record whatever still waits for its pose (the subscriptions are closed)."""
+        with self.lock:
+            self._release(lambda _h, _w: True)
+
+    def pose_at(self, t: float) -> topics.Pose | None:
+        """The estimated pose at sim time ``t``, interpolated (None if none near it)."""
+        with self.lock:
+            return self.poses.at(t)
 
     def frames(self) -> Frames:
         with self.lock:
@@ -127,6 +166,11 @@ class MissionRunner:
         self.battery = math.nan
         self.abort_reason: str | None = None  # set when the vehicle leaves the search (failsafe, landed)
         self.airborne = False
+        self.t = 0.0  # sim time of the frame being handled: the mission's "now"
+        self.frame_s = FRAME_S
+        self.frames_lost = 0  # frames declared lost by the lockstep pump (the pose passed their time)
+        self._following_pose = False  # frames are not coming: tick on the pose until one does
+        self.lockstep: LockstepAck | None = None
 
     async def _watch(self, tel: TelemetryWatch, stream: _Stream) -> None:
         """Background: keep the battery level and log every STATUSTEXT (failsafes say why here)."""
@@ -152,8 +196,55 @@ class MissionRunner:
     # ------------------------------------------------------------------------------ publishing
 
     def _now(self, stream: _Stream) -> float:
-        p = stream.pose()
-        return p.t if p is not None else 0.0
+        return self.t
+
+    # ------------------------------------------------------------------------------ lockstep pump
+
+    async def _tick(self, stream: _Stream, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
+        """Ack the frame handled last (its commands are already sent), then take the next one: its
+        histogram, or None when it was lost (the vehicle's pose passed its end and no frame came within
+        FRAME_TIMEOUT_WALL_S). ``self.t`` is then the sim time of that frame's end.
+        ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
+        if self.lockstep is not None:
+            self.lockstep.ack(self.t, self.frame_s)
+        t_next = self.t + self.frame_s
+        loop = asyncio.get_running_loop()
+        start = passed_at = last_pose_at = loop.time()
+        last_pose_t = -1.0
+        while True:
+            try:
+                hist = await asyncio.wait_for(stream.queue.get(), 0.05)
+            except TimeoutError:
+                hist = None
+            if hist is not None:
+                if hist.t > self.t + 1e-6:
+                    self.t, self.frame_s, self._following_pose = hist.t, hist.duration, False
+                if self.lockstep is not None:
+                    self.lockstep.take(self.t)
+                return hist  # (a frame older than self.t arrived after it was declared lost: handled late)
+            now = loop.time()
+            if first_timeout_wall_s is not None:
+                if now - start > first_timeout_wall_s:
+                    raise RuntimeError(f"no detector histograms after {first_timeout_wall_s:g} s on "
+                                       f"{topics.key(topics.HISTOGRAM, self.settings.vehicle)}")
+                continue
+            p = stream.pose()
+            if p is not None and p.t > last_pose_t:
+                last_pose_t, last_pose_at = p.t, now
+            if now - last_pose_at > STALL_WALL_S:
+                raise RuntimeError(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
+            if p is None or p.t < t_next - 1e-6:
+                passed_at = now
+                continue
+            if self._following_pose or now - passed_at > FRAME_TIMEOUT_WALL_S:
+                if not self._following_pose:
+                    self._event(stream, "frames_lost", after=self.t)
+                self.frames_lost += 1
+                self._following_pose = True
+                self.t = t_next
+                if self.lockstep is not None:
+                    self.lockstep.take(self.t)
+                return None
 
     def publish_state(self, stream: _Stream, phase: str, progress: str) -> None:
         msg = topics.MissionState(t=self._now(stream), phase=phase, dwell_index=stream.dwell_index,
@@ -169,39 +260,64 @@ class MissionRunner:
     # ------------------------------------------------------------------------------ flying
 
     async def _arrive(self, stream: _Stream, target: np.ndarray, path_length: float) -> bool:
-        """Wait until the estimated position has stayed within ARRIVE_RADIUS_M of target for
-        ARRIVE_SETTLE_S of sim time; False after 3 x the expected flight time + 30 s of sim time, or
-        when the vehicle left the search (failsafe, landed)."""
-        t0 = self._now(stream)
+        """Frame by frame until the estimated position (at each frame's time) has stayed within
+        ARRIVE_RADIUS_M of target for ARRIVE_SETTLE_S of sim time; False after 3 x the expected flight
+        time + 30 s of sim time, or when the vehicle left the search (failsafe, landed)."""
+        t0 = self.t
         limit = 3.0 * path_length / self.settings.leg_speed_m_s + 30.0
         inside_since: float | None = None
-        while self._now(stream) - t0 < limit and self.abort_reason is None:
-            p = stream.pose()
+        while self.t - t0 < limit and self.abort_reason is None:
+            await self._tick(stream)
+            p = stream.pose_at(self.t)
             if p is not None:
                 if math.dist((p.x, p.y, p.z), target[:3]) < ARRIVE_RADIUS_M:
-                    inside_since = p.t if inside_since is None else inside_since
-                    if p.t - inside_since >= ARRIVE_SETTLE_S:
+                    inside_since = self.t if inside_since is None else inside_since
+                    if self.t - inside_since >= ARRIVE_SETTLE_S:
                         return True
                 else:
                     inside_since = None
-            await asyncio.sleep(0.01)
         return False
 
     async def _dwell(self, stream: _Stream):
-        """Feed histograms that start after arrival to the dwell controller until it is satisfied
-        (None if the vehicle left the search meanwhile)."""
-        while not stream.queue.empty():  # frames integrated while still moving do not count
-            stream.queue.get_nowait()
+        """Feed the frames after arrival (their interval starts there: frames integrated while still
+        moving do not count) to the dwell controller until it is satisfied (None if the vehicle left
+        the search meanwhile)."""
         self.brain.begin_dwell()
         while self.abort_reason is None:
-            try:
-                hist = await asyncio.wait_for(stream.queue.get(), 1.0)
-            except TimeoutError:
+            hist = await self._tick(stream)
+            if hist is None:
                 continue
             status = self.brain.on_frame(hist)
             if status.done:
                 return status
         return None
+
+    async def _climb(self, stream: _Stream, altitude: float, limit_s: float = 120.0) -> None:
+        """Frame by frame until the estimated altitude is within 0.2 m of ``altitude``."""
+        t0 = self.t
+        while True:
+            await self._tick(stream)
+            p = stream.pose_at(self.t)
+            if p is not None and p.z > altitude - 0.2:
+                return
+            if self.t - t0 > limit_s:
+                raise RuntimeError(f"takeoff: {altitude:g} m not reached in {limit_s:g} s of sim time")
+
+    async def _landed(self, stream: _Stream, limit_s: float = 600.0) -> None:
+        """Frame by frame until the estimated pose has stayed on the ground for ARRIVE_SETTLE_S."""
+        t0 = self.t
+        down_since: float | None = None
+        while True:
+            p = stream.pose_at(self.t)
+            if p is not None and p.z <= LANDED_Z_M:
+                down_since = self.t if down_since is None else down_since
+                if self.t - down_since >= ARRIVE_SETTLE_S:
+                    return
+            else:
+                down_since = None
+            if self.t - t0 > limit_s:
+                raise RuntimeError(f"not landed {limit_s:g} s of sim time after the return to launch")
+            await self._tick(stream)
 
     async def run(self) -> dict:
         loop = asyncio.get_running_loop()
@@ -213,6 +329,8 @@ class MissionRunner:
             self.session.declare_subscriber(topics.key(topics.HISTOGRAM, v), stream.on_histogram),
         ]
         wall0 = time.monotonic()
+        # attached from here: a vehicle run with --lockstep holds at t = 0 until the first ack
+        self.lockstep = LockstepAck(self.session, v)
         try:
             self.publish_state(stream, "connect", f"waiting for an autopilot on {self.settings.url}")
             conn = await connect(self.settings.url, self.settings.connect_timeout_s)
@@ -221,17 +339,12 @@ class MissionRunner:
             watcher = asyncio.create_task(self._watch(tel, stream))
             self._event(stream, "connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
             self.publish_state(stream, "connect", "waiting for the detector's histograms")
-            try:
-                await asyncio.wait_for(stream.queue.get(), self.settings.connect_timeout_s)
-            except TimeoutError:
-                raise RuntimeError(f"no detector histograms after {self.settings.connect_timeout_s:g} s "
-                                   f"on {topics.key(topics.HISTOGRAM, v)}") from None
+            await self._tick(stream, first_timeout_wall_s=self.settings.connect_timeout_s)
             self.publish_state(stream, "takeoff", "arming and taking off")
-            await actions.arm()
+            await actions.arm()  # both answered while the vehicle holds at this frame's time
             await actions.takeoff(self.config.altitude_m)
-            await tel.wait_in_air(True, 60.0)
-            await tel.wait_position(lambda p: p[2] > self.config.altitude_m - 0.2, 120.0)
-            self.t_start = self._now(stream)
+            await self._climb(stream, self.config.altitude_m)
+            self.t_start = self.t
             current = self._current(stream)
             decision = self.brain.start(current)
             while decision.plan is not None and self.abort_reason is None:
@@ -254,7 +367,7 @@ class MissionRunner:
                 status = await self._dwell(stream)
                 if status is None:
                     break
-                p = stream.pose()
+                p = stream.pose_at(self.t)
                 position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
                 self._event(stream, "dwell", index=stream.dwell_index, position=position.tolist(),
                             **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
@@ -278,13 +391,15 @@ class MissionRunner:
                 if await _in_air(tel):
                     raise
                 self._event(stream, "rtl_refused_on_ground", result=exc.result)
-            await tel.wait_in_air(False, 300.0)
-            t_landed = self._now(stream)
-            watcher.cancel()
-            await conn.close()
+            await self._landed(stream)
+            t_landed = self.t
             for sub in subs:  # stop recording before counting, so the summary matches the files
                 sub.undeclare()
             subs = []
+            stream.flush()
+            self.lockstep.detach()  # the vehicle runs free from here (it disarms on its own)
+            watcher.cancel()
+            await conn.close()
             recorder.close()
             summary = {
                 "reason": reason,
@@ -299,16 +414,18 @@ class MissionRunner:
                 "frames_recorded": recorder.recorded,
                 "frames_flagged": recorder.flagged,
                 "bad_payloads": stream.bad_payloads,
+                "frames_lost": self.frames_lost,
             }
             self.publish_state(stream, "done", summary["reason"])
             return summary
         finally:
             for s in subs:
                 s.undeclare()
+            self.lockstep.detach()
             recorder.close()
 
     def _current(self, stream: _Stream) -> np.ndarray:
-        p = stream.pose()
+        p = stream.pose_at(self.t)
         if p is None:
             return np.array([0.0, 0.0, self.config.altitude_m, 0.0])
         return np.array([p.x, p.y, p.z, p.yaw])
@@ -323,9 +440,25 @@ class MissionRunner:
             self._est_pub.put(loc.to_estimate(self._now(stream)).to_bytes())
 
 
+def reproducible(config: SearchConfig) -> SearchConfig:
+    """The search settings with every planning tree bounded by its node count (N_max) instead of a wall
+    time budget: a tree grown "for 0.2 s" depends on the machine's load, so the same seed would plan
+    differently. With lockstep the wall time costs no flight time; a 30 s hard limit stays as a guard."""
+    def tree(t):
+        return dataclasses.replace(t, time_budget=math.inf, time_limit=max(t.time_limit, 30.0))
+
+    return dataclasses.replace(
+        config, frontier=dataclasses.replace(config.frontier, tree=tree(config.frontier.tree)),
+        next_best=dataclasses.replace(config.next_best, tree=tree(config.next_best.tree)))
+
+
 def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,
                 settings: MissionSettings | None = None) -> dict:
-    runner = MissionRunner(session, scenario, out, config or SearchConfig(), settings or MissionSettings())
+    from planner.dwell_tree import seed_ompl
+
+    settings = settings or MissionSettings()
+    seed_ompl(settings.seed + 1)  # OMPL's random trees follow the mission's seed (OMPL refuses seed 0)
+    runner = MissionRunner(session, scenario, out, reproducible(config or SearchConfig()), settings)
     summary = asyncio.run(runner.run())
     atomic_write_json(Path(out) / "mission_summary.json", summary)  # whole or not at all
     return summary
