@@ -15,7 +15,8 @@ Examples::
 With no arguments it plans an exploration of the default scene (``next-best`` needs a belief,
 ``--source``). ``--export-plan`` writes the plan as a QGroundControl .plan file: takeoff, the
 collision-free path as pass-through waypoints, each dwell point as a waypoint holding
-``--export-dwell`` s facing its detector yaw, landing; the map's x-y bounds as an inclusion geofence.
+``--export-dwell`` s facing its detector yaw, landing; the map's x-y bounds as an inclusion geofence and
+each mapped wall (grown by ``--radius``) as an exclusion fence.
 """
 
 from __future__ import annotations
@@ -100,7 +101,12 @@ def export_plan(path: Path, plan: DwellPlan, occ: OccupancyMap, home_text: str, 
     lo, hi = occ.bounds_min, occ.bounds_max
     corners = [enu_to_geodetic(home, (x, y, 0.0))[:2] for x, y in ((lo[0], lo[1]), (hi[0], lo[1]),
                                                                     (hi[0], hi[1]), (lo[0], hi[1]))]
-    return write_plan(path, items, home, polygons=[(True, corners)])
+    polygons = [(True, corners)]
+    from vehicle_sim.geofence import wall_zones  # the mapped walls as exclusion fences (QGC draws them)
+
+    for z in wall_zones(occ.walls, occ.radius):
+        polygons.append((False, [enu_to_geodetic(home, (x, y, 0.0))[:2] for x, y in z.vertices]))
+    return write_plan(path, items, home, polygons=polygons)
 
 
 def _load_map(args: argparse.Namespace) -> tuple[OccupancyMap, float]:

@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -29,6 +30,13 @@ def test_export_plan_from_the_planner(tmp_path):
     mission, fence, rally = read_plan(out)
     assert [m.command for m in mission] == cmds and len(fence) == 4 and all(f.param1 == 4 for f in fence)
     assert rally == []
+    walled = tmp_path / "walls.plan"
+    scene = Path(__file__).resolve().parents[1] / "detector_fw_sim" / "scenes" / "lattice-wall.toml"
+    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "plan", "--scene", str(scene), "--method",
+                           "lawnmower", "--export-plan", str(walled)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    polygons = json.loads(walled.read_text())["geoFence"]["polygons"]
+    assert [p["inclusion"] for p in polygons] == [True, False, False]  # the bounds, then each mapped wall
 
 
 @pytest.mark.slow

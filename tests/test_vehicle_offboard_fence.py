@@ -155,3 +155,19 @@ def test_orbit_circles_the_centre(setup):
         assert math.hypot(p.y - 10, p.x) == pytest.approx(5.0, abs=0.05) and p.z == pytest.approx(-4, abs=0.05)
         angles.append(math.atan2(p.x, p.y - 10))
     assert sum(math.remainder(b - a, 2 * math.pi) for a, b in zip(angles, angles[1:], strict=False)) > 0  # CCW
+
+
+def test_mapped_walls_become_exclusion_fences():
+    from detector_fw_sim.scene import load_scene
+    from vehicle_sim import vehicle_cli
+    from vehicle_sim.geofence import wall_zones
+
+    walls = load_scene("lattice-wall").walls  # (5.6, 3.4)-(5.6, 4.5) and (4.5, 3.4)-(5.505, 3.4), 0.19 m thick
+    zones = wall_zones(walls, margin=0.3)
+    assert len(zones) == 2 and not any(z.inclusion for z in zones)
+    fence = Geofence(0, 0, 0, 10, 8, 5).with_zones(zones)
+    assert not fence.contains((5.6, 4.0, 1.0)) and not fence.contains((5.6 + 0.39, 4.0, 1.0))  # wall + margin
+    assert fence.contains((5.6 + 0.45, 4.0, 1.0)) and fence.contains((2.0, 2.0, 1.0))
+    args = vehicle_cli.build_parser().parse_args(["--scene", "lattice-wall", "--wall-fence", "--no-zenoh"])
+    assert len(vehicle_cli.config_from_args(args).fence.zones) == 2
+    assert vehicle_cli.main(["--wall-fence", "--no-zenoh"]) == 2  # walls need a scene

@@ -124,3 +124,23 @@ def zones_from_items(items: list, to_enu) -> tuple[Zone, ...]:
                 zones.append(Zone(circ[it.command], center=to_enu(it.x / 1e7, it.y / 1e7), radius=float(it.param1)))
             k += 1  # a fence return point is kept in the list but is no zone
     return tuple(zones)
+
+
+def wall_zones(walls, margin: float = 0.0) -> tuple[Zone, ...]:
+    """Mapped walls as exclusion zones: each wall's footprint (a rectangle ``thickness`` wide about its
+    start-end segment) grown by ``margin`` m on every side (the vehicle's radius). 2-D like PX4's fences:
+    a wall excludes its footprint at every altitude."""
+    zones = []
+    for w in walls:
+        (ax, ay), (bx, by) = (float(v) for v in w.start), (float(v) for v in w.end)
+        length = math.hypot(bx - ax, by - ay)
+        if length <= 0:
+            continue
+        ux, uy = (bx - ax) / length, (by - ay) / length  # along the wall
+        nx, ny = -uy, ux  # across it
+        h = float(w.thickness) / 2 + margin
+        a = (ax - ux * margin, ay - uy * margin)
+        b = (bx + ux * margin, by + uy * margin)
+        zones.append(Zone(False, ((a[0] + nx * h, a[1] + ny * h), (b[0] + nx * h, b[1] + ny * h),
+                                  (b[0] - nx * h, b[1] - ny * h), (a[0] - nx * h, a[1] - ny * h))))
+    return tuple(zones)

@@ -43,6 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
                                     "wide enough for MAVSDK's examples)")
     s.add_argument("--scene", help="scene (bundled name or TOML/JSON file): its x-y bounds plus a 1 m margin "
                                    "become the geofence, 0-10 m above its top")
+    s.add_argument("--wall-fence", action="store_true",
+                   help="with --scene: its mapped walls become exclusion fences (footprint + --wall-margin), so "
+                        "a mission item, go-to, orbit or offboard setpoint inside a wall is refused")
+    s.add_argument("--wall-margin", type=float, default=0.3,
+                   help="clearance around each wall for --wall-fence, m (default 0.3, the vehicle radius)")
     s.add_argument("--max-speed", type=float, default=3.0, help="horizontal speed limit, m/s (default 3)")
     s.add_argument("--max-accel", type=float, default=2.0, help="acceleration limit, m/s^2 (default 2)")
     s.add_argument("--battery-endurance", type=float, default=1200.0,
@@ -93,6 +98,15 @@ def config_from_args(args: argparse.Namespace):
         fence = scene_fence(args.scene)
     else:
         fence = Geofence()
+    if args.wall_fence:
+        if not args.scene:
+            raise ValueError("--wall-fence needs --scene (the walls come from the scene)")
+        if not 0 <= args.wall_margin <= 10:
+            raise ValueError(f"--wall-margin {args.wall_margin} must be in [0, 10] m")
+        from detector_fw_sim.scene import load_scene
+        from vehicle_sim.geofence import wall_zones
+
+        fence = fence.with_zones(wall_zones(load_scene(args.scene).walls, args.wall_margin))
     return VehicleConfig(
         bind_host=args.bind, remote_host=args.remote_host, api_port=args.api_port, gcs_port=args.gcs_port,
         api_local_port=args.api_local_port, gcs_local_port=args.gcs_local_port, sysid=args.sysid,
