@@ -14,6 +14,8 @@ asserts are on events and the vehicle's state, not on wall-clock durations. Exam
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import math
 import os
 import subprocess
@@ -82,16 +84,17 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
 
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
-                timeout: float = WAIT_S) -> tuple[str, Watch, int | None]:
+                timeout: float = WAIT_S, runner: list[str] | None = None) -> tuple[str, Watch, int | None]:
     """Run ``script`` unchanged (cwd = the examples folder) against a fresh vehicle. Returns its output,
-    the vehicle's watch and the exit code (None when stopped by us after ``until(output, watch)``)."""
-    py = grpc_python()
+    the vehicle's watch and the exit code (None when stopped by us after ``until(output, watch)``).
+    ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in radseek's own venv)."""
+    runner = runner or [str(grpc_python()), "-u"]
     gcs_port = free_udp_port()
     watch, stop = Watch(), threading.Event()
     with VehicleProcess(14540, gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
         listener = threading.Thread(target=_listen, args=(gcs, watch, stop), daemon=True)
         listener.start()
-        proc = subprocess.Popen([str(py), "-u", str(EXAMPLES / script)], cwd=EXAMPLES, stdout=subprocess.PIPE,
+        proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=EXAMPLES, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
@@ -127,8 +130,8 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
     return out, watch, code
 
 
-def completes(script: str, args: list[str], expect: list[str]) -> tuple[str, Watch]:
-    out, watch, code = run_example(script, args, expect=expect)
+def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None) -> tuple[str, Watch]:
+    out, watch, code = run_example(script, args, expect=expect, runner=runner)
     assert code == 0, f"{script} did not complete (exit {code})"
     assert "Traceback" not in out, out
     return out, watch
@@ -198,3 +201,14 @@ def test_do_orbit():
     assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
     assert (3 << 16 | 1 << 24) in w.modes  # PX4 POSCTL.ORBIT
     assert any("Orbit: circling" in t for t in w.texts)
+
+
+def test_grpc_api_beside_the_native_4x_in_radseek_venv():
+    """The other supported combination: `mavsdk-grpc` (import name `mavsdk_grpc`) installed in radseek's
+    own venv next to the native `mavsdk` 4.x; the unchanged example runs with `mavsdk` resolved to
+    `mavsdk_grpc` (tests/support/run_as_mavsdk_grpc.py), as an integrator's `import mavsdk_grpc as mavsdk`."""
+    native = importlib.import_module("mavsdk.asyncio")  # `mavsdk` here is still the native binding radseek uses
+    assert hasattr(native, "Mavsdk") and importlib.util.find_spec("mavsdk_grpc") is not None
+    shim = Path(__file__).parent / "support" / "run_as_mavsdk_grpc.py"
+    out, w = completes("mission_raw.py", [], ["-- Uploading mission", "-- Done"],
+                       runner=[sys.executable, "-u", str(shim)])
