@@ -33,6 +33,7 @@ from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.geometry import semi_major_axis
 
 
 class Phase(StrEnum):
@@ -180,15 +181,15 @@ class SearchBrain:
         return Decision(Phase.EXPLORE, plan, reason)
 
     def _stable(self) -> bool:
-        """The last two estimates are trustworthy and agree within 2 combined sigmas: a small ellipse around
-        an estimate that is still jumping between likelihood modes (few dwells, all on one side) is not a
-        found source."""
+        """The last two estimates agree within 2 combined x-y ellipse sizes: a small ellipse around an
+        estimate that is still jumping between likelihood modes (few dwells, all on one side) is not a found
+        source. The sizes are the ellipses' geometric semi-major axes, trusted or not (the stop rule already
+        asks the last estimate's ``sigma_m`` to be trustworthy)."""
         if len(self.estimates) < 2:
             return False
         a, b = self.estimates[-2], self.estimates[-1]
-        if not (math.isfinite(a["sigma_m"]) and math.isfinite(b["sigma_m"])):
-            return False
-        return math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 2 * math.hypot(a["sigma_m"], b["sigma_m"])
+        sa, sb = (semi_major_axis(np.asarray(e["covariance"])[:2, :2]) for e in (a, b))
+        return math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 2 * math.hypot(sa, sb)
 
     def _pattern_points(self) -> np.ndarray:
         lo, hi = self.occ.free_min, self.occ.free_max
