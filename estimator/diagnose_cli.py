@@ -1,7 +1,7 @@
 """``radseek diagnose DATASET``: compare the measurement model with a flight, see where it fails, learn which
 physical effect is missing, add it and watch the error fall.
 
-    radseek diagnose DATASET [--model EFFECT ...] [--add EFFECT ...] [--json] [--out DIR] [--alpha 0.01]
+    radseek diagnose DATASET [--model EFFECT ...] [--add EFFECT ...] [--json] [--out DIR] [--alpha 0.01] [--jobs N]
 
 Progress goes to stderr; the report (text, or JSON with --json) to stdout; PNG plots to --out
 (default ./diagnose-<dataset name>/). Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
@@ -41,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=float, default=0.01, help="significance level for naming an effect (0.01)")
     p.add_argument("--starts", type=int, default=8, help="multi-start count of the model fit (8)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--jobs", type=int, default=1, help="processes for the candidate fits of each step (1); the "
+                   "spectral fit runs alongside them")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     return p
 
@@ -62,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if not 0 < args.alpha < 1:
         print("radseek diagnose: --alpha must be in (0, 1)", file=sys.stderr)
+        return 2
+    if args.jobs < 1:
+        print(f"radseek diagnose: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
         return 2
     if args.starts < 1:
         print(f"radseek diagnose: --starts must be >= 1, got {args.starts}", file=sys.stderr)
@@ -92,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
     try:
         d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts,
-                     seed=args.seed, quiet=args.quiet)
+                     seed=args.seed, quiet=args.quiet, jobs=args.jobs)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         print(f"radseek diagnose: the analysis failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1

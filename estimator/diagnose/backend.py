@@ -79,6 +79,47 @@ def progress(msg: str, quiet: bool = False) -> None:
         print(f"[diagnose {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
+def progress_bar(label: str, done: int, total: int, t0: float, quiet: bool = False, width: int = 20) -> None:
+    """One line per completed task: ``label [#####-----] 5/10 (12 s)``."""
+    if not quiet:
+        k = int(round(width * done / max(total, 1)))
+        progress(f"{label} [{'#' * k}{'-' * (width - k)}] {done}/{total} ({time.perf_counter() - t0:.0f} s)")
+
+
+@dataclass
+class FitTask:
+    """One count-model fit for ``CountFitter.fit_many``."""
+
+    effects: tuple[str, ...]
+    init: dict[str, float] | None = None
+    n_starts: int | None = None
+    label: str = ""
+    cache: bool = True
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(fitter: CountFitter, extra: dict[str, Any]) -> None:
+    _WORKER["fitter"] = fitter
+    _WORKER.update(extra)
+
+
+def _worker_fit(task: FitTask) -> Any:
+    from estimator.diagnose.threads import blas_threads
+
+    with blas_threads(1):
+        return _WORKER["fitter"].fit(task.effects, init=task.init, n_starts=task.n_starts, label=task.label,
+                                     cache=False)
+
+
+def _worker_call(name: str) -> Any:
+    from estimator.diagnose.threads import blas_threads
+
+    with blas_threads(1):
+        return _WORKER[name]()
+
+
 @dataclass
 class CountFitter:
     """Fits count models by effect set (cached), with pose uncertainty, reporting progress on stderr."""
@@ -88,6 +129,7 @@ class CountFitter:
     n_starts: int = 8
     seed: int = 0
     quiet: bool = False
+    jobs: int = 1  # processes for fit_many (candidate fits); 1 = in this process
 
     def __post_init__(self) -> None:
         self.fit_frames = split_transit_legs(self.frames)
@@ -113,6 +155,59 @@ class CountFitter:
         if key not in self._cache or res.nll < self._cache[key].nll:
             self._cache[key] = res
         return res
+
+
+    def fit_many(self, tasks: list[FitTask], side: dict[str, Any] | None = None, label: str = "fits"
+                 ) -> tuple[list[Any], dict[str, Any]]:
+        """Fit every task (in ``jobs`` forked processes when > 1), with a progress bar; ``side`` maps names to
+        zero-argument callables run alongside (the spectral fit). Returns (fit results in task order, side
+        results). Results are cached like ``fit`` (tasks with ``cache=False`` are not)."""
+        side = side or {}
+        t0 = time.perf_counter()
+        total = len(tasks) + len(side)
+        done = 0
+        out: list[Any] = [None] * len(tasks)
+        side_out: dict[str, Any] = {}
+        todo = []
+        for i, task in enumerate(tasks):
+            key = tuple(e for e in EFFECTS if e in task.effects)
+            if task.cache and key in self._cache:
+                out[i] = self._cache[key]
+                done += 1
+            else:
+                todo.append(i)
+        if self.jobs > 1 and len(todo) + len(side) > 1:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            ctx = mp.get_context("fork")
+            with ProcessPoolExecutor(min(self.jobs, len(todo) + len(side)), mp_context=ctx, initializer=_worker_init,
+                                     initargs=(replace(self, quiet=True, jobs=1), side)) as ex:
+                futs = {ex.submit(_worker_call, name): ("side", name) for name in side}
+                futs.update({ex.submit(_worker_fit, tasks[i]): ("fit", i) for i in todo})
+                for fut in as_completed(futs):
+                    kind, ref = futs[fut]
+                    if kind == "side":
+                        side_out[ref] = fut.result()
+                    else:
+                        out[ref] = fut.result()
+                    done += 1
+                    progress_bar(label, done, total, t0, self.quiet)
+        else:
+            for name, fn in side.items():
+                side_out[name] = fn()
+                done += 1
+                progress_bar(label, done, total, t0, self.quiet)
+            for i in todo:
+                t = tasks[i]
+                out[i] = self.fit(t.effects, init=t.init, n_starts=t.n_starts, label=t.label, cache=False)
+                done += 1
+                progress_bar(label, done, total, t0, self.quiet)
+        for i in todo:
+            key = tuple(e for e in EFFECTS if e in tasks[i].effects)
+            if tasks[i].cache and (key not in self._cache or out[i].nll < self._cache[key].nll):
+                self._cache[key] = out[i]
+        return out, side_out
 
 
 def describe(effects: Iterable[str]) -> str:

@@ -160,6 +160,24 @@ def _fill_explains(ds: Dataset, fitter: CountFitter, sel: Selection, spectral: S
                 c.explains = explained_feature(ref, analyse(ds, (*step.effects, c.effect), c.fit, spectral), c.effect)
 
 
+class LazySpectral:
+    """The spectral fit (gain drift profiled), computed once on first use; ``compute`` may also run in a worker
+    process, whose result is then stored in ``value``."""
+
+    def __init__(self, model: SpectralModel, frames: Any, quiet: bool = False):
+        self.model, self.frames, self.quiet = model, frames, quiet
+        self.value: SpectralFit | None = None
+
+    def compute(self) -> SpectralFit:
+        return self.model.fit(self.frames)
+
+    def __call__(self) -> SpectralFit:
+        if self.value is None:
+            progress("testing gain_drift (spectral model, 32 channels)", self.quiet)
+            self.value = self.compute()
+        return self.value
+
+
 @dataclass
 class Diagnosis:
     dataset: Dataset
@@ -183,22 +201,17 @@ def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: 
               quiet: bool, jobs: int) -> Diagnosis:
     count, spec = split_effects(model)
     add_count, add_spec = split_effects(add)
-    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet)
+    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet, jobs=jobs)
     progress(f"{ds.name}: {len(ds.frames)} frames; fitting {describe((*count, *spec))}",
              quiet)
     sm = SpectralModel(ds.scenario.channel_edges_keV)
-    cache: dict[str, SpectralFit] = {}
-
-    def spectral_fit() -> SpectralFit:
-        if "fit" not in cache:
-            cache["fit"] = sm.fit(ds.frames)
-        return cache["fit"]
+    spectral_fit = LazySpectral(sm, ds.frames, quiet)
 
     base = fitter.fit(count)
     spectral = spectral_fit() if "gain_drift" in (*spec, *add_spec) else None
     current = analyse(ds, (*count, *spec), base, spectral)
     sel = forward_select(fitter, spectral_fit, (*count, *spec), alpha=alpha, quiet=quiet)
-    spectral = cache.get("fit", spectral)
+    spectral = spectral_fit.value or spectral
     if spectral is not None:
         current = analyse(ds, (*count, *spec), base, spectral)
     _fill_explains(ds, fitter, sel, spectral)
@@ -213,5 +226,5 @@ def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: 
         after = analyse(ds, (*tc, *ts), after_fit, spectral)
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
-            _fill_explains(ds, fitter, after_sel, cache.get("fit", spectral))
+            _fill_explains(ds, fitter, after_sel, spectral_fit.value or spectral)
     return Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)

@@ -43,6 +43,7 @@ from estimator.diagnose.backend import (
     VARIANCE_EFFECTS,
     VOCABULARY,
     CountFitter,
+    FitTask,
     progress,
 )
 from estimator.diagnose.dispersion import fit_dispersion
@@ -188,9 +189,44 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
         if not todo:
             break
         cands: list[Candidate] = []
+        # every count-model fit of this step (and the spectral fit, when still to do) as one batch: run in
+        # parallel with --jobs, with a progress bar
+        tasks: list[FitTask] = []
+        owner: list[str] = []
+        for e in todo:
+            if e in NON_COUNT_EFFECTS:
+                continue
+            # start from the current optimum (the effect at its default); a second source also gets a start at
+            # the largest residual excess (the grid start is estimator.mle.second_source_starts), since its
+            # location is not identified by the current fit; the anisotropy also starts from a wide cone
+            init = dict(cur.values)
+            label = f"{'+'.join(count) or 'baseline'} + {e}"
+            if e == "second_source":
+                seed = dict(init, **excess_seed(frames, cur.expected, scenario,
+                                                np.array([cur.values["x"], cur.values["y"]])))
+                tasks.append(FitTask((*count, e), seed, 1, f"{label} (start at the excess)"))
+                tasks.append(FitTask((*count, e), {k: v for k, v in init.items() if not k.startswith("second")}, 1,
+                                     f"{label} (grid start)", cache=False))
+                owner += [e, e]
+            else:
+                tasks.append(FitTask((*count, e), init, 1, label))
+                owner.append(e)
+            if e == "anisotropy":
+                tasks.append(FitTask((*count, e), dict(init, **{"anisotropy.half_angle_deg": 60.0}), 1,
+                                     f"{e} (wide cone start)", cache=False))
+                owner.append(e)
+        side = {}
+        if "gain_drift" in todo and getattr(spectral_fit, "value", None) is None and hasattr(spectral_fit, "compute"):
+            side["spectral"] = spectral_fit.compute
+        fits, side_out = fitter.fit_many(tasks, side, label=f"step {len(steps) + 1}: candidate fits")
+        if "spectral" in side_out:
+            spectral_fit.value = side_out["spectral"]
+        best: dict[str, Any] = {}
+        for e, r in zip(owner, fits, strict=True):
+            if e not in best or r.nll < best[e].nll:
+                best[e] = r
         for e in todo:
             if e in SPECTRAL_EFFECTS:
-                progress("testing gain_drift (spectral model, 32 channels)", quiet)
                 sf = spectral_fit()
                 lr_q = sf.lr_scaled  # quasi-likelihood: scaled by the no-drift fit's over-dispersion
                 lp, null = null_log10_p(e, lr_q, 1, scenario, frames)
@@ -206,26 +242,7 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
                 cands.append(Candidate(e, disp.lr, 1, 2 - disp.lr, lp, null, {"over_dispersion.rel_sd": disp.rel_sd},
                                        {"over_dispersion.rel_sd": disp.error}, fit=disp))
                 continue
-            # start from the current optimum (the effect at its default); a second source also gets starts
-            # from the grid cells that best explain what the current model leaves (and one at the largest
-            # residual excess), since its location is not identified by the current fit
-            init = dict(cur.values)
-            label = f"{'+'.join(count) or 'baseline'} + {e}"
-            if e == "second_source":
-                # two starts: at the largest residual excess, and at the grid cell that best explains what the
-                # current model leaves (estimator.mle.second_source_starts)
-                seed = dict(init, **excess_seed(frames, cur.expected, scenario,
-                                                np.array([cur.values["x"], cur.values["y"]])))
-                ext = fitter.fit((*count, e), init=seed, n_starts=1, label=f"{label} (start at the excess)")
-                grid = fitter.fit((*count, e), init={k: v for k, v in init.items() if not k.startswith("second")},
-                                  n_starts=1, label=f"{label} (grid start)", cache=False)
-                ext = min((ext, grid), key=lambda r: r.nll)
-            else:
-                ext = fitter.fit((*count, e), init=init, n_starts=1, label=label)
-            if e == "anisotropy":
-                alt = fitter.fit((*count, e), init=dict(init, **{"anisotropy.half_angle_deg": 60.0}), n_starts=1,
-                                 label=f"{e} (wide cone start)", cache=False)
-                ext = min((ext, alt), key=lambda r: r.nll)
+            ext = best[e]
             lr = max(2.0 * (cur.nll - ext.nll), 0.0) / phi
             params, errors, k = _new_params(ext, cur)
             lp, null = null_log10_p(e, lr, k, scenario, frames)
