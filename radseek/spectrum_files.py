@@ -520,10 +520,8 @@ def write_chn(path: str | Path, sp: Spectrum) -> Path:
 # ------------------------------------------------------------------------------------------------ CSV
 
 
-def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
-    """A CSV spectrum (see the module docstring)."""
-    data = Path(path).read_bytes() if data is None else data
-    text = data.decode("utf-8", errors="replace")
+def read_commented_csv(text: str) -> tuple[dict[str, str], list[list[str]]]:
+    """``# key: value`` comment lines (keys lower-cased) and the CSV rows of a text; blank lines skipped."""
     meta: dict[str, str] = {}
     rows: list[list[str]] = []
     for ln in text.splitlines():
@@ -536,6 +534,13 @@ def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
                 meta[k.strip().lower()] = v.strip()
             continue
         rows.append(next(csv.reader(io.StringIO(s))))
+    return meta, rows
+
+
+def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """A CSV spectrum (see the module docstring)."""
+    data = Path(path).read_bytes() if data is None else data
+    meta, rows = read_commented_csv(data.decode("utf-8", errors="replace"))
     if not rows:
         raise _err(path, "rows", "no data rows")
     header = None

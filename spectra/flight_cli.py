@@ -19,7 +19,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime as dt
 import sys
 from pathlib import Path
@@ -27,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from radseek.dataset import Frames, Scenario, read_dataset, write_dataset
-from radseek.spectrum_files import Spectrum, SpectrumFileError, write_n42
+from radseek.spectrum_files import Spectrum, SpectrumFileError, read_commented_csv, write_n42
 
 EPOCH = dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
 
@@ -62,23 +61,8 @@ def export_n42(dataset: str | Path, out: str | Path, transit: bool = False) -> P
 
 
 def _read_table(path: Path) -> tuple[dict[str, str], list[str], np.ndarray]:
-    meta: dict[str, str] = {}
-    rows: list[list[str]] = []
-    header: list[str] | None = None
-    for ln in path.read_text().splitlines():
-        s = ln.strip()
-        if not s:
-            continue
-        if s.startswith("#"):
-            if ":" in s:
-                k, v = s[1:].split(":", 1)
-                meta[k.strip().lower()] = v.strip()
-            continue
-        r = next(csv.reader([s]))
-        if header is None:
-            header = [c.strip().lower() for c in r]
-            continue
-        rows.append(r)
+    meta, rows = read_commented_csv(path.read_text())
+    header = [c.strip().lower() for c in rows.pop(0)] if rows else None
     if header is None or not rows:
         raise SpectrumFileError(f"{path}: needs a header row and at least one data row")
     try:
