@@ -229,8 +229,9 @@ def test_aborted_run_leaves_its_frames_and_no_previous_summary(tmp_path):
 @pytest.mark.timeout(WAIT_S + 300)
 def test_failed_search_exits_non_zero(tmp_path):
     out = tmp_path / "run"
-    # a battery that lasts 2 minutes: the low-battery failsafe takes the vehicle home mid-search
-    cmd, _ = _run_cmd(out, "--vehicle-arg=--battery-endurance=120")
+    # a battery that lasts 50 s: the low-battery failsafe takes the vehicle home mid-search (with lockstep
+    # the fits cost no flight time: seed 0 finds the source 82 s into the flight, so 120 s was enough)
+    cmd, _ = _run_cmd(out, "--vehicle-arg=--battery-endurance=50")
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=WAIT_S + 120)
     assert proc.returncode == EXIT_SEARCH_FAILED, proc.stderr[-3000:]
     assert "search failed: search aborted" in proc.stderr
