@@ -1,137 +1,326 @@
-"""The closing table of ``radseek diagnose``: datasets x (named effect, delta-AIC, deviance/dof before -> after,
-source error before -> after), over the shared reference datasets, emulated flights with each effect, and
-null flights (no effect: how many false alarms).
+"""How well ``radseek diagnose`` names the missing effect on data it was not built from (issue 14).
 
-    python benchmarks/diagnose_evaluate.py [--shared DIR] [--only shared|effects|null] [--jsonl FILE]
+    python -m benchmarks.diagnose_evaluate [--only shared|power|null|pairs ...] [--seeds 2] [--nulls 50]
+                                          [--starts 4] [--jobs 2] [--jsonl FILE] [--plot PNG] [--markdown MD]
+
+Flights come from ``benchmarks.forward2``, a second forward model with its own code path (measured CsI(Tl)
+spectra, event-by-event dead time, its own geometry, pose noise and gain drift; it imports neither the emulator
+nor the estimator). Nothing in diagnose was tuned on them. Sections:
+
+- ``shared``: the shared reference datasets (a regression set: each must still be diagnosed right);
+- ``power``: every effect at four strengths (the shared datasets' strength among them), on two or more
+  geometries and ``--seeds`` seeds: detection rate against strength and its 50 % point;
+- ``null``: ``--nulls`` flights with no effect (every geometry, three crystals, both pose-error models,
+  scattered-photon buildup): the false-alarm rate (target <= 2 % at alpha = 0.01);
+- ``pairs``: two missing effects at once.
+
+For every flight with a named effect: does adding it bring deviance/dof to its expectation (within 3 sd), and
+does it lower the source error (truth read for these columns only). Time per diagnose call is wall time on
+whatever machine runs this (state the load).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import statistics
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
-from radseek.dataset import Dataset, read_dataset
+import numpy as np
 
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
+SHARED_DIR = Path(__file__).resolve().parents[2] / "shared" / "datasets"
+
+#: effect -> (geometries, strengths, the strength of the shared dataset / issue example, params(strength, rng))
+POWER: dict[str, tuple[tuple[str, ...], tuple[float, ...], float | None, Callable[[float, Any], dict]]] = {
+    "dead_time": (("closepass",), (1e-6, 3e-6, 6e-6, 1.2e-5), 1.2e-5, lambda v, r: {"tau_s": v}),
+    "wall_attenuation": (("wall", "lshape"), (0.5, 1.0, 2.0, 3.0), 3.0, lambda v, r: {"mu_per_m": v}),
+    "anisotropy": (("spin",), (0.1, 0.2, 0.35, 0.5), 0.5,
+                   lambda v, r: {"fraction": v, "half_angle_deg": float(r.uniform(25, 45)), "edge_deg": 4.0}),
+    "air_attenuation": (("outdoor",), (0.002, 0.005, 0.0093, 0.015), 0.0093, lambda v, r: {"mu_per_m": v}),
+    "second_source": (("lattice", "lawnmower"), (150.0, 300.0, 650.0, 1300.0), 1300.0, None),
+    "background_gradient": (("lawnmower", "lattice"), (0.5, 1.0, 2.0, 4.0), None, None),
+    "gain_drift": (("lattice", "outdoor"), (0.15, 0.3, 0.6, 0.9), 0.9, lambda v, r: {"percent_per_min": v}),
+    "pose_drift": (("lattice", "lawnmower"), (0.0005, 0.001, 0.002, 0.004), None, None),
+    "over_dispersion": (("lattice", "spin"), (0.02, 0.05, 0.1, 0.2), None, lambda v, r: {"rel_sd": v}),
+}
+#: one outdoor survey (3000 frames, the slowest) in ten
+NULL_GEOMETRIES = ("lattice", "spin", "lawnmower", "closepass", "wall", "lshape", "lattice", "spin", "lawnmower",
+                   "outdoor")
+CRYSTALS = ("real", "fill", "wide")
+#: two missing effects at once
+PAIRS = [
+    ("wall", {"wall_attenuation": {"mu_per_m": 2.0}, "pose_drift": {"vx": 0.003, "vy": -0.002}}),
+    ("spin", {"anisotropy": {"fraction": 0.5, "half_angle_deg": 30.0, "edge_deg": 4.0},
+              "background_gradient": {"gx": 3.0, "gy": -2.0}}),
+    ("closepass", {"dead_time": {"tau_s": 1.2e-5}, "gain_drift": {"percent_per_min": 0.9}}),
+    ("outdoor", {"air_attenuation": {"mu_per_m": 0.0093}, "over_dispersion": {"rel_sd": 0.1}}),
+    ("lattice", {"second_source": {"x": 8.5, "y": 1.5, "z": 0.0, "cps_at_1m": 1300.0},
+                 "background_gradient": {"gx": -2.0, "gy": 3.0}}),
+]
 
 
-def emulated(which: str, null_seeds: tuple[int, ...] = (11, 12, 13), names: list[str] | None = None
-             ) -> Iterator[tuple[str, Callable[[], Dataset]]]:
-    for name, make in _emulated(which, null_seeds):
-        if not names or name in names:
-            yield name, make
+def _params(effect: str, v: float, rng: np.random.Generator, geometry: str) -> dict[str, float]:
+    make = POWER[effect][3]
+    if make is not None:
+        return make(v, rng)
+    ang = float(rng.uniform(0, 2 * np.pi))
+    if effect == "background_gradient":
+        return {"gx": v * math.cos(ang), "gy": v * math.sin(ang)}
+    if effect == "pose_drift":
+        return {"vx": v * math.cos(ang), "vy": v * math.sin(ang)}
+    if effect == "second_source":  # a corner of the 10 m x 8 m area, >= 3 m from the primary (near the centre)
+        corners = [(1.5, 1.5), (8.5, 1.5), (1.5, 6.5), (8.5, 6.5)]
+        x, y = corners[int(rng.integers(4))]
+        return {"x": x, "y": y, "z": 0.0, "cps_at_1m": v}
+    raise KeyError(effect)
 
 
-def _emulated(which: str, null_seeds: tuple[int, ...]) -> Iterator[tuple[str, Callable[[], Dataset]]]:
-    from detector_fw_sim.scene import load_scene
-    from detector_fw_sim.simulate import simulate_flight
+def jobs(which: list[str], seeds: int, nulls: int) -> list[dict[str, Any]]:
+    """The flights to run, as plain dicts (picklable for the process pool)."""
+    out: list[dict[str, Any]] = []
+    if "power" in which:
+        for e, (geoms, strengths, _, _) in POWER.items():
+            for i, v in enumerate(strengths):
+                for s in range(seeds):
+                    seed = 1000 * (list(POWER).index(e) + 1) + 10 * i + s
+                    rng = np.random.default_rng(seed)
+                    g = geoms[(i + s) % len(geoms)]
+                    fx = {e: _params(e, v, rng, g)}
+                    spec = {"geometry": g, "effects": fx, "crystal": CRYSTALS[(i + s) % 3],
+                            "pose_error": "random_walk" if (i + s) % 3 == 2 else "independent", "scatter": 0.02}
+                    if e == "gain_drift" and g == "lattice":
+                        spec["cps_at_1m"] = 3000.0  # the issue's case: a strong source, 12 s dwells
+                        spec["dwell_s"] = 12.0
+                    out.append({"kind": "power", "name": f"{e}-{v:g}-{g}-s{s}", "effect": e, "strength": v,
+                                "spec": spec, "seed": seed})
+    if "null" in which:
+        for k in range(nulls):
+            g = NULL_GEOMETRIES[k % len(NULL_GEOMETRIES)]
+            spec = {"geometry": g, "effects": {}, "crystal": CRYSTALS[(k // 2) % 3],
+                    "pose_error": "random_walk" if k % 4 == 3 else "independent", "scatter": 0.02 * (k % 3),
+                    "dwell_s": 6.0}
+            out.append({"kind": "null", "name": f"null-{g}-{k}", "spec": spec, "seed": 50_000 + k})
+    if "pairs" in which:
+        for k, (g, fx) in enumerate(PAIRS):
+            out.append({"kind": "pairs", "name": "+".join(fx) + f"-{g}", "spec": {"geometry": g, "effects": fx,
+                        "crystal": CRYSTALS[k % 3], "scatter": 0.02}, "seed": 70_000 + k})
+    if "shared" in which:
+        out += [{"kind": "shared", "name": n} for n in SHARED if (SHARED_DIR / n).is_dir()]
+    return out
 
-    d = load_scene().without_effects()
-    if which == "null":
-        for path in ("lattice", "lawnmower", "spin", "close-pass"):
-            for seed in null_seeds:
-                yield f"null-{path}-{seed}", lambda p=path, s=seed: simulate_flight(d, path=p, seed=s)
-        return
-    yield "emu-dead_time", lambda: simulate_flight(load_scene("close-pass-deadtime"), path="close-pass", seed=5)
-    yield "emu-wall", lambda: simulate_flight(load_scene("lattice-wall"), path="lattice", seed=5)
-    yield "emu-anisotropy", lambda: simulate_flight(load_scene("spin-anisotropy"), path="spin", seed=5)
-    yield "emu-air", lambda: simulate_flight(load_scene("outdoor"), path="lawnmower", seed=5)
-    yield "emu-second_source", lambda: simulate_flight(load_scene("two-source"), path="lattice", seed=5)
-    yield "emu-bg_gradient", lambda: simulate_flight(d.with_effect("background_gradient", gx=3.0, gy=-2.0),
-                                                     path="lawnmower", seed=5)
-    yield "emu-gain_drift", lambda: simulate_flight(d.with_effect("gain_drift", percent_per_min=1.0), path="lattice",
-                                                    seed=5)
-    yield "emu-pose_drift", lambda: simulate_flight(d.with_effect("pose_drift", vx=0.003, vy=-0.002), path="lattice",
-                                                    seed=5)
-    yield "emu-anisotropy+bg_gradient", lambda: simulate_flight(
-        d.with_effect("anisotropy", fraction=0.5, half_angle_deg=30.0).with_effect("background_gradient", gx=3.0,
-                                                                                  gy=-2.0), path="lawnmower", seed=5)
-    yield "emu-second_source+bg_gradient", lambda: simulate_flight(
-        load_scene("two-source").with_effect("background_gradient", gx=3.0, gy=-2.0), path="lawnmower", seed=5)
-    yield "emu-dead_time+bg_gradient", lambda: simulate_flight(
-        load_scene("close-pass-deadtime").with_effect("background_gradient", gx=4.0, gy=-2.0), path="close-pass",
-        seed=5)
 
-
-def row(name: str, ds: Dataset, n_starts: int = 8) -> dict:
+def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
     from estimator.diagnose.runner import diagnose
+    from radseek.dataset import read_dataset
 
-    t0 = time.perf_counter()
+    if job["kind"] == "shared":
+        ds = read_dataset(SHARED_DIR / job["name"])
+    else:
+        from benchmarks.forward2 import FlightSpec, simulate
+
+        ds = simulate(FlightSpec(**job["spec"]), seed=job["seed"])
+    t0, c0 = time.perf_counter(), time.process_time()
     d = diagnose(ds, quiet=True, n_starts=n_starts)
+    secs, cpu = time.perf_counter() - t0, time.process_time() - c0
     first = d.selection.first
-    named = d.selection.missing
     chosen = [st.candidates[0] for st in d.selection.steps if st.chosen]
     after = d.after
-    spec_b = d.current.spectral_dev_per_dof
+    truth = sorted(ds.truth.effects) if ds.truth else []
+    ref = after or d.current
     return {
-        "dataset": name,
-        "truth": sorted(ds.truth.effects) if ds.truth else None,
-        "named": named,
-        "delta_aic": [round(c.delta_aic, 1) for c in chosen],
+        **{k: job[k] for k in ("kind", "name", "effect", "strength") if k in job},
+        "frames": len(ds.frames),
+        "truth": truth,
+        "named": list(d.selection.missing),
+        "p_values": [float(c.p_value) for c in chosen],
         "top": first[0].effect if first else None,
-        "top_delta_aic": round(first[0].delta_aic, 1) if first else None,
-        "dev_before": round(d.current.gof.deviance_per_dof, 3),
-        "dev_after": round(after.gof.deviance_per_dof, 3) if after else None,
-        "dev_expected": round((after or d.current).gof.expected_per_dof, 3),
-        "dev_sd": round((after or d.current).gof.sd_per_dof, 3),
-        "spec_before": round(spec_b, 3),
-        "spec_after": round(after.spectral_dev_per_dof, 3) if after else None,
+        "top_log10_p": round(first[0].log10_p, 2) if first else None,
+        "dev_before": round(d.current.gof.deviance_per_dof, 4),
+        "dev_after": round(after.gof.deviance_per_dof, 4) if after else None,
+        "dev_expected": round(ref.gof.expected_per_dof, 4),
+        "dev_sd": round(ref.gof.sd_per_dof, 4),
+        "dev_expected_before": round(d.current.gof.expected_per_dof, 4),
+        "dev_sd_before": round(d.current.gof.sd_per_dof, 4),
         "err_before": None if d.current.source_error_m is None else round(d.current.source_error_m, 3),
         "err_after": None if not after or after.source_error_m is None else round(after.source_error_m, 3),
-        "explains": [c.explains for c in chosen],
-        "seconds": round(time.perf_counter() - t0, 1),
+        "params": {k: [round(v, 6), round(e, 6) if math.isfinite(e) else None]
+                   for c in chosen for k, (v, e) in ((k, (c.params[k], c.errors.get(k, math.nan))) for k in c.params)},
+        "truth_params": ds.truth.effects if ds.truth else {},
+        "seconds": round(secs, 1),
+        "cpu_seconds": round(cpu, 1),
     }
 
 
-def markdown(rows: list[dict]) -> str:
-    lines = ["| dataset | truth | named (delta-AIC) | deviance/dof before -> after (expected +- sd) | "
-             "source error before -> after [m] | explains | s |", "|---|---|---|---|---|---|---|"]
+# ------------------------------------------------------------------------------------------- summaries
+
+
+def fifty_percent_point(strengths: list[float], rates: list[float]) -> float | None:
+    """Strength where the detection rate crosses 50 % (log-linear interpolation), None if never crossed."""
+    pts = sorted(zip(strengths, rates, strict=True))
+    for (s0, r0), (s1, r1) in zip(pts[:-1], pts[1:], strict=True):
+        if r0 < 0.5 <= r1:
+            f = (0.5 - r0) / (r1 - r0)
+            return float(math.exp(math.log(s0) + f * (math.log(s1) - math.log(s0))))
+    if pts and pts[0][1] >= 0.5:
+        return float(pts[0][0])  # already found at the weakest strength: an upper bound
+    return None
+
+
+def power_table(rows: list[dict]) -> tuple[str, dict]:
+    curves: dict[str, dict[float, list[dict]]] = {}
     for r in rows:
-        named = ", ".join(f"{e} ({a})" for e, a in zip(r["named"], r["delta_aic"], strict=True)) or \
-            f"adequate (best: {r['top']}, {r['top_delta_aic']})"
+        if r["kind"] == "power":
+            curves.setdefault(r["effect"], {}).setdefault(r["strength"], []).append(r)
+    lines = ["| effect | detection rate per strength (n flights) | 50 % point | at the shared strength | "
+             "others named | dev/dof after within 3 sd | source error lowered |",
+             "|---|---|---|---|---|---|---|"]
+    summary: dict[str, Any] = {}
+    for e, by in curves.items():
+        ss = sorted(by)
+        rates = [sum(e in r["named"] for r in by[s]) / len(by[s]) for s in ss]
+        p50 = fifty_percent_point(ss, rates)
+        shared = POWER[e][2]
+        at = f"{rates[ss.index(shared)]:.0%}" if shared in ss else "-"
+        wrong = sum(len([n for n in r["named"] if n not in r["truth"]]) > 0 for s in ss for r in by[s])
+        found = [r for s in ss for r in by[s] if e in r["named"] and r["dev_after"] is not None]
+        ok = sum(abs(r["dev_after"] - r["dev_expected"]) <= 3 * r["dev_sd"] for r in found)
+        lowered = [r for r in found if r["err_before"] is not None and r["err_after"] is not None]
+        low = sum(r["err_after"] <= r["err_before"] + 0.005 for r in lowered)
+        n_all = sum(len(by[s]) for s in ss)
+        cells = ", ".join(f"{s:g}: {rt:.0%} ({len(by[s])})" for s, rt in zip(ss, rates, strict=True))
+        lines.append(f"| {e} | {cells} | {'-' if p50 is None else f'{p50:.3g}'} | {at} | {wrong}/{n_all} | "
+                     f"{ok}/{len(found)} | {low}/{len(lowered)} |")
+        summary[e] = {"strengths": ss, "rates": rates, "p50": p50}
+    return "\n".join(lines), summary
+
+
+def rows_table(rows: list[dict]) -> str:
+    lines = ["| flight | truth | named | deviance/dof before -> after (expected +- sd) | source error before -> "
+             "after [m] | s |", "|---|---|---|---|---|---|"]
+    for r in rows:
         dev = f"{r['dev_before']} -> {r['dev_after'] if r['dev_after'] is not None else '-'} " \
               f"({r['dev_expected']} +- {r['dev_sd']})"
-        if "gain_drift" in r["named"]:
-            dev += f"; spectral {r['spec_before']} -> {r['spec_after']}"
         err = f"{r['err_before']} -> {r['err_after'] if r['err_after'] is not None else '-'}"
-        lines.append(f"| {r['dataset']} | {', '.join(r['truth'] or []) or 'none'} | {named} | {dev} | {err} | "
-                     f"{', '.join(r['explains'])} | {r['seconds']} |")
+        lines.append(f"| {r['name']} | {', '.join(r['truth']) or 'none'} | {', '.join(r['named']) or 'adequate'} | "
+                     f"{dev} | {err} | {r['seconds']} |")
     return "\n".join(lines)
+
+
+def plot_power(summary: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(summary)
+    cols = 3
+    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(11, 3.0 * ((n + cols - 1) // cols)))
+    for ax, (e, s) in zip(np.ravel(axes), summary.items(), strict=False):
+        ax.semilogx(s["strengths"], s["rates"], "o-")
+        ax.axhline(0.5, color="grey", lw=0.5)
+        if POWER[e][2] is not None:
+            ax.axvline(POWER[e][2], color="C3", lw=0.8, ls="--", label="shared dataset")
+            ax.legend(fontsize=7, loc="lower right")
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(e, fontsize=9)
+        ax.set_xlabel({"dead_time": "tau [s]", "wall_attenuation": "mu [1/m]", "anisotropy": "fraction",
+                       "air_attenuation": "mu [1/m]", "second_source": "cps at 1 m",
+                       "background_gradient": "|g| [cps/m]", "gain_drift": "%/min", "pose_drift": "|v| [m/s]",
+                       "over_dispersion": "relative sd per frame"}.get(e, "strength"), fontsize=8)
+        ax.set_ylabel("detection rate", fontsize=8)
+    for ax in np.ravel(axes)[n:]:
+        ax.axis("off")
+    fig.suptitle("radseek diagnose on an independent forward model: detection rate against strength", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def report(rows: list[dict]) -> tuple[str, dict]:
+    out = []
+    kinds = {k: [r for r in rows if r["kind"] == k] for k in ("shared", "power", "null", "pairs")}
+    if kinds["shared"]:
+        out += ["### Shared datasets (regression set)", "", rows_table(kinds["shared"]), ""]
+    summary: dict[str, Any] = {}
+    if kinds["power"]:
+        tab, summary = power_table(rows)
+        out += ["### Power: detection rate against strength (independent forward model)", "", tab, ""]
+    nulls = kinds["null"]
+    if nulls:
+        fa = [r for r in nulls if r["named"]]
+        z = [(r["dev_before"] - r["dev_expected_before"]) / max(r["dev_sd_before"], 1e-9) for r in nulls]
+        named = sorted({n for r in fa for n in r["named"]})
+        out += ["### Null flights", "",
+                f"- {len(fa)} false alarm(s) in {len(nulls)} null flights ({len(fa) / len(nulls):.1%}; target <= 2 %)"
+                + (f": named {', '.join(named)} ({', '.join(r['name'] for r in fa)})" if fa else ""),
+                f"- baseline deviance/dof sits {statistics.mean(z):+.2f} +- {statistics.pstdev(z):.2f} sd from its "
+                "expected value", ""]
+        summary["null"] = {"false_alarms": len(fa), "n": len(nulls)}
+    if kinds["pairs"]:
+        out += ["### Two missing effects", "", rows_table(kinds["pairs"]), ""]
+    secs = [r["seconds"] for r in rows]
+    if secs:
+        cpu = [r.get("cpu_seconds", math.nan) for r in rows]
+        out.append(f"Time per diagnose call: wall median {statistics.median(secs):.1f} s, max {max(secs):.1f} s; "
+                   f"CPU median {statistics.median(cpu):.1f} s, max {max(cpu):.1f} s over {len(secs)} calls "
+                   f"(slowest: {max(rows, key=lambda r: r['seconds'])['name']}).")
+        summary["seconds"] = {"median": statistics.median(secs), "max": max(secs), "cpu_median": statistics.median(cpu),
+                              "cpu_max": max(cpu)}
+    return "\n".join(out) + "\n", summary
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--shared", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "datasets")
-    p.add_argument("--only", choices=["shared", "effects", "null"], action="append")
-    p.add_argument("--jsonl", type=Path, default=None, help="also append one JSON row per dataset here")
-    p.add_argument("--starts", type=int, default=8)
-    p.add_argument("--null-seeds", type=int, nargs="+", default=[11, 12, 13])
-    p.add_argument("--names", nargs="+", default=None, help="only these emulated datasets")
+    p.add_argument("--only", choices=["shared", "power", "null", "pairs"], action="append")
+    p.add_argument("--seeds", type=int, default=2, help="seeds per effect and strength (2)")
+    p.add_argument("--nulls", type=int, default=60, help="null flights (60)")
+    p.add_argument("--starts", type=int, default=4, help="multi-starts of the baseline fit (4)")
+    p.add_argument("--jobs", type=int, default=1, help="flights diagnosed in parallel (processes)")
+    p.add_argument("--jsonl", type=Path, default=None, help="append one JSON row per flight here; rows already "
+                   "there are not rerun (resume)")
+    p.add_argument("--plot", type=Path, default=None, help="write the power curves here (PNG)")
+    p.add_argument("--markdown", type=Path, default=None, help="also write the report here")
+    p.add_argument("--limit", type=int, default=None, help="run at most this many flights (a smoke test)")
     args = p.parse_args(argv)
-    which = args.only or ["shared", "effects", "null"]
-    jobs: list[tuple[str, Callable[[], Dataset]]] = []
-    if "shared" in which:
-        jobs += [(n, lambda n=n: read_dataset(args.shared / n)) for n in SHARED if (args.shared / n).is_dir()]
-    if "effects" in which:
-        jobs += list(emulated("effects", names=args.names))
-    if "null" in which:
-        jobs += list(emulated("null", tuple(args.null_seeds), names=args.names))
-    rows = []
-    for name, make in jobs:
-        r = row(name, make(), args.starts)
+    todo = jobs(args.only or ["shared", "power", "null", "pairs"], args.seeds, args.nulls)
+    if args.limit:
+        todo = todo[: args.limit]
+    rows: list[dict] = []
+    if args.jsonl and args.jsonl.exists():
+        done = {json.loads(line)["name"]: json.loads(line) for line in args.jsonl.read_text().splitlines() if line}
+        rows = [done[j["name"]] for j in todo if j["name"] in done]
+        todo = [j for j in todo if j["name"] not in done]
+
+    def keep(r: dict) -> None:
         rows.append(r)
-        print(f"{name}: {r}", file=sys.stderr, flush=True)
+        print(f"[{len(rows)}] {r['name']}: truth {r['truth']} named {r['named']} ({r['seconds']} s)", file=sys.stderr,
+              flush=True)
         if args.jsonl:
             with args.jsonl.open("a") as fh:
                 fh.write(json.dumps(r) + "\n")
-    print(markdown(rows))
-    nulls = [r for r in rows if r["dataset"].startswith("null-")]
-    if nulls:
-        print(f"\nnull flights: {sum(bool(r['named']) for r in nulls)} false alarm(s) in {len(nulls)}")
+
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as ex:
+            for r in ex.map(run_one, todo, [args.starts] * len(todo)):
+                keep(r)
+    else:
+        for j in todo:
+            keep(run_one(j, args.starts))
+    text, summary = report(rows)
+    print(text)
+    if args.plot and any(r["kind"] == "power" for r in rows):
+        plot_power(power_table(rows)[1], args.plot)
+    if args.markdown:
+        args.markdown.write_text(text)
     return 0
 
 
