@@ -11,9 +11,17 @@ warm-starts from. The policy, in order:
    warm-started from the previous estimate;
 4. wall shadow test: if the scenario maps walls (and the settings do not choose the effects), a wall matters
    only where a recorded line of sight to the source crosses it; then refit with ``wall_attenuation``
-   (warm-started from the last walled estimate) and keep the wall-free fit if that refit fails;
+   (warm-started from the last walled estimate) and keep the wall-free fit if that refit fails. Once the
+   last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted,
+   from that estimate (``WARM_WALLED_STARTS`` starts): each refit stays well under a second;
 5. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues);
-6. :func:`sigma_m`: the one definition of the estimate's 1-sigma.
+6. :func:`sigma_m`: the one definition of the estimate's 1-sigma; the record also carries the fit's
+   goodness-of-fit ``p_value`` (below :data:`GOOD_FIT_P` the model misses something: :func:`gof_warning`).
+
+At the end of the flight :meth:`InflightEstimator.finalize` adds to the final record, once, the
+drift-aware bound ``bound_m`` (``estimator.localizers.mle.pose_aware_crlb`` for the flown frames and the
+model the estimate used) and the 95 % ellipse ``ellipse_95`` (:func:`ellipse`). ``radseek run``'s
+``summary.json`` and report, ``radseek replay`` and the benchmarks all read this one estimate.
 
 ``mission.search.SearchBrain`` calls it and only decides; ``estimator.replay_cli`` calls it dwell by dwell
 on a recorded flight and so reproduces the flown estimates.
@@ -32,8 +40,8 @@ from estimator.mle import pooled
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, semi_major_axis
 
-__all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "MIN_SIGMA_M", "InflightEstimator", "repair_covariance",
-           "sigma_m"]
+__all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "GOOD_FIT_P", "MIN_SIGMA_M", "InflightEstimator", "bound_m",
+           "ellipse", "gof_warning", "repair_covariance", "sigma_m"]
 
 DEFAULT_LOCALIZER = "mle"
 #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
@@ -41,9 +49,16 @@ DEFAULT_LOCALIZER = "mle"
 DEFAULT_SETTINGS: Mapping[str, Any] = {"n_starts": 3, "compute_crlb": False}
 MIN_FRAMES = 10  # frames recorded before the first fit is tried
 POOL_FRAMES = 10  # frames pooled per chunk of a dwell (1 s at 10 Hz)
+#: starts of a walled refit warm-started from a walled estimate: that estimate and the best grid cells (fewer
+#: miss the optimum when it moves by decimetres between dwells)
+WARM_WALLED_STARTS = 5
 #: m: a smaller 1-sigma is a numerical artefact, not certainty (per-dwell pose offsets are centimetres)
 MIN_SIGMA_M = 5e-3
 _INIT_KEYS = ("x", "y", "cps_at_1m", "background_cps")
+#: a fit whose goodness-of-fit p-value is below this misses a physical effect: ``localize``, ``run`` and
+#: ``replay`` say so (:func:`gof_warning`)
+GOOD_FIT_P = 1e-3
+_BASE_PARAMS = ("x", "y", "z", "cps_at_1m", "background_cps")
 _FIT_ERRORS = (ValueError, np.linalg.LinAlgError, RuntimeError)
 
 
@@ -57,6 +72,40 @@ def sigma_m(covariance: Any, converged: bool = True) -> float:
         return math.inf
     sigma = semi_major_axis(cov[:2, :2])
     return sigma if math.isfinite(sigma) and sigma > MIN_SIGMA_M else math.inf
+
+
+def gof_warning(p_value: Any, dataset: Any = None) -> str | None:
+    """The warning for a fit whose goodness of fit fails (p < :data:`GOOD_FIT_P`), else None."""
+    try:
+        p = float(p_value)
+    except (TypeError, ValueError):
+        return None
+    if not p < GOOD_FIT_P:  # nan (no p-value) says nothing
+        return None
+    where = f" {dataset}" if dataset else ""
+    return (f"goodness of fit p = {p:.2g} < {GOOD_FIT_P:g}: the model misses something here: "
+            f"run `radseek diagnose{where}`")
+
+
+def ellipse(covariance: Any, level: float = 0.95) -> dict[str, float]:
+    """The ``level`` confidence ellipse of the x-y block of ``covariance``: semi-axes ``a_m`` >= ``b_m`` (m)
+    and ``angle_deg`` of the major axis from +x (east), counter-clockwise. For a 2-D Gaussian the ellipse
+    holding ``level`` of the probability is d^2 <= -2 ln(1 - level) (5.99 for 95 %)."""
+    cov = np.asarray(covariance, dtype=float)[:2, :2]
+    if not np.isfinite(cov).all():
+        return {"a_m": math.inf, "b_m": math.inf, "angle_deg": 0.0}
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    k = -2.0 * math.log(1.0 - level)
+    a, b = (math.sqrt(k * max(float(x), 0.0)) for x in (w[1], w[0]))
+    angle = math.degrees(math.atan2(v[1, 1], v[0, 1]))
+    return {"a_m": a, "b_m": b, "angle_deg": (angle + 90.0) % 180.0 - 90.0}
+
+
+def bound_m(crlb_xy: Any) -> float:
+    """The bound as a distance: the rms horizontal error an unbiased estimate can reach, sqrt(trace) of the
+    x-y block of a Cramér-Rao bound (as ``radseek localize`` reports it)."""
+    c = np.asarray(crlb_xy, dtype=float)[:2, :2]
+    return float(math.sqrt(max(float(np.trace(c)), 0.0))) if np.isfinite(c).all() else math.inf
 
 
 def repair_covariance(covariance: Any) -> np.ndarray:
@@ -76,7 +125,9 @@ class InflightEstimator:
     (for publishing the full ``estimate`` message). A record has ``dwell`` (the caller's dwell count),
     ``x``, ``y``, ``z`` (m), ``cps_at_1m``, ``background_cps`` (cps), ``covariance`` ((3, 3) position
     covariance in m^2, repaired, as nested lists), ``sigma_m`` (:func:`sigma_m`), ``effects`` (the fitted
-    model's) and ``converged``.
+    model's), ``params`` (the fitted effects' parameters, e.g. ``wall_attenuation.mu_per_m``), ``converged``
+    and ``p_value`` (goodness of fit, nan if the localizer reports none). :meth:`finalize` adds ``bound_m``
+    and ``ellipse_95`` to the last record.
     """
 
     def __init__(self, scenario: Scenario, localizer: str = DEFAULT_LOCALIZER,
@@ -86,6 +137,7 @@ class InflightEstimator:
         self.settings = dict(DEFAULT_SETTINGS if settings is None else settings)
         self.estimates: list[dict[str, Any]] = []
         self.localizer: Localizer | None = None
+        self._frames: Frames | None = None  # the (pooled) frames of the last record
 
     @property
     def estimate(self) -> dict[str, Any] | None:
@@ -100,28 +152,53 @@ class InflightEstimator:
         settings = dict(self.settings)
         if self.estimates:
             settings["init"] = {k: self.estimates[-1][k] for k in _INIT_KEYS}
-        loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
+        walls = bool(self.scenario.walls) and "effects" not in self.settings
+        last = self.estimates[-1] if self.estimates else None
+        loc = None
+        if walls and last is not None and "wall_attenuation" in last["effects"] and \
+                self._shadowed(frames, [last[k] for k in ("x", "y", "z")]):
+            # the walls mattered at the last estimate and still do: refit the walled model straight from it
+            # (warm start plus the best grid cells), without the wall-free fit and the full start set that
+            # finding the walls took: the refit's cost is its model evaluations
+            loc = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "n_starts": WARM_WALLED_STARTS})
         if loc is None:
-            return None
-        if self.scenario.walls and "effects" not in self.settings and self._shadowed(frames, loc):
-            # fit the wall's attenuation too (mu is unidentifiable unless a line of sight crosses a wall);
-            # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
-            # local optimum of the walled model (mu = 0), so starting only there never leaves it
-            prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
-            init = ({k: prev[k] for k in _INIT_KEYS} if prev else
-                    {**loc.sources_[0], "background_cps": loc.background_})
-            walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
-                                        "n_starts": max(settings.get("n_starts", 3), 5)})
-            if walled is not None:  # even unconverged: sigma_m() then refuses to call it confident
-                loc = walled
+            loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
+            if loc is None:
+                return None
+            if walls and self._shadowed(frames, [loc.sources_[0][k] for k in ("x", "y", "z")]):
+                # fit the wall's attenuation too (mu is unidentifiable unless a line of sight crosses a wall);
+                # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
+                # local optimum of the walled model (mu = 0), so starting only there never leaves it
+                prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
+                init = ({k: prev[k] for k in _INIT_KEYS} if prev else
+                        {**loc.sources_[0], "background_cps": loc.background_})
+                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
+                                            "n_starts": max(settings.get("n_starts", 3), 5)})
+                if walled is not None:  # even unconverged: sigma_m() then refuses to call it confident
+                    loc = walled
         self.localizer = loc
-        converged = bool(getattr(loc, "info_", {}).get("converged", True))
+        self._frames = frames
+        info = getattr(loc, "info_", {})
+        converged = bool(info.get("converged", True))
         cov = repair_covariance(loc.covariance_)
+        values = info.get("values", {})
         record = {"dwell": int(dwell), **loc.sources_[0], "background_cps": float(loc.background_),
                   "covariance": cov.tolist(), "sigma_m": sigma_m(cov, converged),
-                  "effects": list(getattr(loc, "effects", ())), "converged": converged}
+                  "effects": list(getattr(loc, "effects", ())),
+                  "params": {k: float(v) for k, v in values.items() if k not in _BASE_PARAMS},
+                  "converged": converged, "p_value": float(info.get("p_value", math.nan))}
         self.estimates.append(record)
         return record
+
+    def finalize(self) -> dict[str, Any] | None:
+        """The flight ended: add ``bound_m`` and ``ellipse_95`` to the final record (once) and return it."""
+        est = self.estimate
+        if est is None or "bound_m" in est:
+            return est
+        est["ellipse_95"] = ellipse(est["covariance"])
+        est["bound_m"] = flown_bound(self.scenario, self._frames, est, self.method, self.settings) \
+            if self._frames is not None else math.nan
+        return est
 
     def _fit(self, frames: Frames, settings: dict[str, Any]) -> Localizer | None:
         loc = make_localizer(self.method)
@@ -132,9 +209,36 @@ class InflightEstimator:
             return None
         return loc
 
-    def _shadowed(self, frames: Frames, loc: Localizer) -> bool:
+    def _shadowed(self, frames: Frames, source: Any) -> bool:
         """Does a recorded line of sight cross a mapped wall? Asked of every point within 1 m of the
-        wall-free estimate, which a wall itself may have biased."""
-        src = np.array([loc.sources_[0][k] for k in ("x", "y", "z")])
+        estimate ``source`` (x, y, z), which a wall itself may have biased."""
+        src = np.asarray(source, dtype=float)
         around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
         return bool(path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0)
+
+
+def flown_bound(scenario: Scenario, frames: Frames, record: Mapping[str, Any], localizer: str = DEFAULT_LOCALIZER,
+                settings: Mapping[str, Any] | None = None) -> float:
+    """:func:`bound_m` of the drift-aware bound (``pose_aware_crlb``: random-walk prior on the pose
+    offsets, as the fit) at the estimate ``record`` for ``frames`` (pooled as in flight: pass
+    ``pooled(frames, POOL_FRAMES, dwells_only=True)`` for recorded frames), with the model the
+    estimate used (its ``effects`` and fitted ``params``); nan if it cannot be computed (another localizer)."""
+    from estimator.localizers.mle import MaximumLikelihood, pose_aware_crlb
+
+    if localizer != "mle":
+        return math.nan
+    loc = MaximumLikelihood(effects=tuple(record.get("effects", ())))
+    loc.set_params(**{k: v for k, v in (settings or {}).items()
+                      if k in loc.get_params() and k not in ("effects", "init", "n_starts", "compute_crlb")})
+    model = loc.model_for(scenario)
+    theta = {k: float(record[k]) for k in ("x", "y", "z", "cps_at_1m", "background_cps")}
+    theta.update({k: float(v) for k, v in record.get("params", {}).items() if k in model.param_names})
+    theta = {k: v for k, v in theta.items() if k in model.param_names}
+    try:
+        c = pose_aware_crlb(model, theta, frames)
+    except _FIT_ERRORS:
+        return math.nan
+    names = model.free_names
+    ix, iy = names.index("x"), names.index("y")
+    return bound_m(c[np.ix_([ix, iy], [ix, iy])])
+

@@ -123,10 +123,13 @@ class WallAttenuation(Effect):
     name = "wall_attenuation"
     #: path-length cache margin (m): see ``_lengths``
     NEAR_M = 0.5
+    #: fewer frames than this skip the near-wall mask: on an in-flight fit's few hundred (pooled) frames the
+    #: mask's own evaluation costs more than the lengths it saves
+    NEAR_MIN_FRAMES = 2000
 
     def __init__(self) -> None:
         self._near: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
-        self._frame: tuple[bytes, _SlabFrame] | None = None
+        self._frame: tuple[bytes, tuple[_SlabFrame, _SlabFrame]] | None = None
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [Param("wall_attenuation.mu_per_m", 1.0, 0.0, 100.0, unit="1/m", step=0.5)]
@@ -137,7 +140,8 @@ class WallAttenuation(Effect):
         return np.exp(-th["wall_attenuation.mu_per_m"] * self._lengths(ctx.pos, src, ctx.walls))
 
     def _lengths(self, pos: np.ndarray, src: np.ndarray, walls: np.ndarray) -> np.ndarray:
-        """Path lengths (..., N), exact, computed only where they can be non-zero.
+        """Path lengths (..., N), exact, computed only where they can be non-zero (on ``NEAR_MIN_FRAMES`` or
+        more frames; fewer all go through the walls' frames set up once, :class:`_SlabFrame`).
 
         A fit evaluates one source position at poses that differ by pose offsets and Jacobian steps (a few cm):
         the frames whose line of sight misses every wall grown by ``NEAR_M`` (ends, thickness, top) are found
@@ -149,10 +153,27 @@ class WallAttenuation(Effect):
         if s.size != 3 or pos.ndim != 2:
             return path_lengths(pos, src, walls)
         s = s.reshape(3)
+        if len(pos) < self.NEAR_MIN_FRAMES:
+            return self._slabs(walls)[0].lengths(pos, s)
         key = s.tobytes()
         ref = self._near.get(key)
         if ref is None or ref[0].shape != pos.shape or float(np.max(np.linalg.norm(pos - ref[0], axis=1))) > \
                 self.NEAR_M / 2:
+            if len(self._near) >= 16:
+                self._near.clear()
+            ref = self._near[key] = (pos.copy(), self._slabs(walls)[1].lengths(pos, s) > 0)
+        if ref[1].all():
+            return self._slabs(walls)[0].lengths(pos, s)
+        out = np.zeros(len(pos))
+        if ref[1].any():
+            out[ref[1]] = self._slabs(walls)[0].lengths(pos[ref[1]], s)
+        return out
+
+    def _slabs(self, walls: np.ndarray) -> tuple[_SlabFrame, _SlabFrame]:
+        """The walls' frames and those of the walls grown by ``NEAR_M`` (ends, thickness, top), set up once
+        per wall set (the walls of a model never change)."""
+        key = walls.tobytes()
+        if self._frame is None or self._frame[0] != key:
             m = self.NEAR_M
             grown = walls.copy()
             d = grown[:, 2:4] - grown[:, 0:2]
@@ -161,19 +182,7 @@ class WallAttenuation(Effect):
             grown[:, 2:4] += m * u
             grown[:, 4] += 2 * m
             grown[:, 5] += m
-            if len(self._near) >= 16:
-                self._near.clear()
-            ref = self._near[key] = (pos.copy(), _SlabFrame(grown).lengths(pos, s) > 0)
-        out = np.zeros(len(pos))
-        if ref[1].any():
-            out[ref[1]] = self._slabs(walls).lengths(pos[ref[1]], s)
-        return out
-
-    def _slabs(self, walls: np.ndarray) -> _SlabFrame:
-        """The walls' frames, set up once per wall set (the walls of a model never change)."""
-        key = walls.tobytes()
-        if self._frame is None or self._frame[0] != key:
-            self._frame = (key, _SlabFrame(walls))
+            self._frame = (key, (_SlabFrame(walls), _SlabFrame(grown)))
         return self._frame[1]
 
 
@@ -207,8 +216,9 @@ class _SlabFrame:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             # a direction with no component along an axis: a huge inverse step keeps it in (or out of) that
             # slab as the explicit parallel case of path_lengths does
-            for a_k, d_k, lo, hi in ((a[:, :w], d[:, :w], 0.0, self.length), (a[:, w:], d[:, w:], -self.half, self.half),
-                                     (az, dz, 0.0, self.height)):
+            axes = ((a[:, :w], d[:, :w], 0.0, self.length), (a[:, w:], d[:, w:], -self.half, self.half),
+                    (az, dz, 0.0, self.height))
+            for a_k, d_k, lo, hi in axes:
                 inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
                 t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
                 enter = np.maximum(enter, np.minimum(t1, t2))
