@@ -226,6 +226,7 @@ class SearchBrain:
 
     def _done(self, reason: str) -> Decision:
         self.phase = Phase.DONE
+        self.estimator.finalize()  # the final estimate gets its drift-aware bound and 95 % ellipse, once
         return Decision(Phase.DONE, None, reason)
 
     def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
