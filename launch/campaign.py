@@ -712,6 +712,7 @@ def _plot_error_vs_dwells(rows: list[dict[str, Any]], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     ok = [r for r in rows if r["status"] == "ok" and math.isfinite(r["error_m"])]
     scenes = sorted({r["scene"] for r in rows})
@@ -735,6 +736,7 @@ def _plot_error_vs_dwells(rows: list[dict[str, Any]], path: Path) -> None:
             ax.scatter(a[:, 0] + np.random.default_rng(0).uniform(-0.15, 0.15, len(a)), a[:, 1], s=4,
                        color=line.get_color(), alpha=0.25)
         ax.set_yscale("log")
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         ax.set_xlabel("dwell points flown")
         ax.set_ylabel("position error (m)")
         ax.set_title(f"{scene}: median error, 95 % CI of the median")
