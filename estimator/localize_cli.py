@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.inflight import GOOD_FIT_P  # one goodness-of-fit threshold for localize, run and replay
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
 from radseek.dataset import DatasetError, DatasetWarning, Truth, read_dataset, stderr_progress
@@ -36,8 +37,6 @@ __all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_wit
 #: a flight longer than this is fitted on pooled frames (consecutive frames of one dwell or transit run
 #: summed): a 1.4 M-frame flight would otherwise need several GB in the localizers' start-point grids
 MAX_FRAMES = 100_000
-#: a fit whose goodness of fit is worse than this misses a physical effect: say so
-GOOD_FIT_P = 1e-3
 
 #: print "still fitting" to stderr this often while a fit runs (a 1.4 M-frame flight takes minutes)
 HEARTBEAT_S = 10.0

@@ -33,7 +33,8 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
     on, as the mission did; any other name fits that localizer with ``settings`` afresh after every dwell.
     Rows: ``dwells`` (count), ``dwell`` (index),
     ``t``, ``x``, ``y``, ``cps_at_1m``, ``background_cps``, ``sigma_m`` (``estimator.inflight.sigma_m``),
-    ``error_m`` with truth; ``error`` instead when there is no estimate.
+    ``p_value`` (goodness of fit, nan if the localizer has none), ``error_m`` with truth; ``error`` instead
+    when there is no estimate.
     """
     from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator, sigma_m
     from estimator.localizers.base import make_localizer
@@ -56,7 +57,7 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
                 continue
             s = est
             row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "effects",
-                                                  "converged")})
+                                                  "converged", "p_value")})
         else:
             loc = make_localizer(method, **(settings or {}))
             try:
@@ -67,7 +68,8 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
             s = loc.sources_[0]
             converged = bool(getattr(loc, "info_", {}).get("converged", True))
             row.update({"x": s["x"], "y": s["y"], "cps_at_1m": s["cps_at_1m"], "background_cps": float(loc.background_),
-                        "sigma_m": sigma_m(loc.covariance_, converged)})
+                        "sigma_m": sigma_m(loc.covariance_, converged),
+                        "p_value": float(getattr(loc, "info_", {}).get("p_value", math.nan))})
         if dataset.truth is not None:
             tr = dataset.truth.sources[0]
             row["error_m"] = math.hypot(s["x"] - tr.x, s["y"] - tr.y)
@@ -110,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = p.parse_args(argv)
 
+    from estimator.inflight import gof_warning
     from radseek.dataset import DatasetError, read_dataset
 
     try:
@@ -136,15 +139,25 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     if args.json:
         print(json.dumps(rows, indent=2))
+        last = next((r for r in reversed(rows) if "error" not in r), None)
+        warning = gof_warning(last.get("p_value"), args.dataset) if last else None
+        if warning:
+            print(f"radseek replay: warning: {warning}", file=sys.stderr)
     else:
-        print(f"{'dwells':>6} {'t (s)':>8} {'x (m)':>7} {'y (m)':>7} {'cps@1m':>8} {'sigma (m)':>9} {'error (m)':>9}")
+        print(f"{'dwells':>6} {'t (s)':>8} {'x (m)':>7} {'y (m)':>7} {'cps@1m':>8} {'sigma (m)':>9} {'error (m)':>9} "
+              f"{'p (fit)':>8}")
         for r in rows:
             if "error" in r:
                 print(f"{r['dwells']:>6} {r['t']:>8.1f}  fit failed: {r['error']}")
                 continue
             err = f"{r['error_m']:9.3f}" if "error_m" in r else f"{'-':>9}"
             print(f"{r['dwells']:>6} {r['t']:>8.1f} {r['x']:7.2f} {r['y']:7.2f} {r['cps_at_1m']:8.0f} "
-                  f"{r['sigma_m']:9.3f} {err}")
+                  f"{r['sigma_m']:9.3f} {err} {r.get('p_value', math.nan):8.2g}")
+        # the last estimate is the one the flight ended with: say so when its model does not fit the data
+        last = next((r for r in reversed(rows) if "error" not in r), None)
+        warning = gof_warning(last.get("p_value"), args.dataset) if last else None
+        if warning:
+            print(f"THE MODEL MISSES SOMETHING HERE: {warning}")
     if args.plot:
         import matplotlib
 

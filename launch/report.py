@@ -1,8 +1,23 @@
 """The run report: what a person looks at after a mission (``report.png``) and ``summary.json``.
 
-Panels: the map (walls, flown path, dwell points scaled by rate, the final estimate with its 1- and
-2-sigma ellipses against the truth); error, 1-sigma and Gaussian entropy (paper 000 eq. 15) against
-dwell number; the recorded spectrum per dwell; the count rate over time.
+One estimate everywhere: the report and the summary show the estimate the mission flew with (the last
+record of ``estimator.inflight``, walls included when it used them, as in ``mission_summary.json``), not
+a post-flight refit; only a flight that never had an in-flight estimate gets one, from the same policy on
+the whole recording (``estimate_source`` says which). The final record carries the drift-aware bound
+``bound_m`` and the 95 % ellipse (``InflightEstimator.finalize``; computed here for a flight that ended
+before the mission could add them).
+
+Panels: the map (walls, flown path, dwell points scaled by rate, the estimate against the truth, and an
+inset zoomed on the estimate with its 1-sigma and 95 % ellipses); error, 1-sigma and Gaussian entropy
+(paper 000 eq. 15) against dwell number, with the stop rule (1-sigma < ``stop_sigma_m``) as the target and
+the final bound; the recorded spectrum per dwell (channels with no counts left as gaps); the count rate
+over time.
+
+``summary.json`` keys: ``error_m`` (the estimate's horizontal distance from the truth), ``sigma_m``
+(1-sigma semi-major axis, m; inf if not trustworthy), ``ellipse_95`` (``a_m``, ``b_m`` semi-axes, m, and
+``angle_deg`` of the major axis from east), ``bound_m`` (drift-aware Cramér-Rao bound, rms horizontal, m),
+``p_value`` (goodness of fit), ``warnings``, ``estimate`` (the whole record), ``estimate_source``
+(``in-flight`` or ``post-flight``), ``stop_sigma_m``, the mission's counts and times, ``truth``.
 """
 
 from __future__ import annotations
@@ -18,6 +33,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from radseek.dataset import Dataset, read_dataset  # noqa: E402
 from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
@@ -41,6 +57,10 @@ def _ellipse(ax, mean, cov, n_sigma, **kw) -> None:
                          fill=False, **kw))
 
 
+#: the 95 % ellipse of a 2-D Gaussian in sigmas: sqrt(-2 ln 0.05)
+N_SIGMA_95 = math.sqrt(-2 * math.log(0.05))
+
+
 def _wall_polygon(w) -> np.ndarray:
     s, e = np.array(w.start), np.array(w.end)
     u = (e - s) / max(np.linalg.norm(e - s), 1e-9)
@@ -48,24 +68,76 @@ def _wall_polygon(w) -> np.ndarray:
     return np.array([s + n, e + n, e - n, s - n])
 
 
-def final_fit(ds: Dataset):
-    """The MLE of the whole recorded flight (baseline model, pose uncertainty), for the report."""
-    from estimator.localizers.base import make_localizer
+def flown_estimate(ds: Dataset, mission: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    """The estimate the mission flew with (its last in-flight record) with ``bound_m`` and ``ellipse_95``,
+    and where it came from: ``in-flight``, or ``post-flight`` (the in-flight policy on the whole recording)
+    when the mission never had one. ValueError if no estimate can be made."""
+    from estimator.inflight import InflightEstimator, ellipse, flown_bound
+    from estimator.mle import pooled
 
-    return make_localizer("mle").fit(ds.frames, ds.scenario)
+    est = mission.get("estimate")
+    source = "in-flight"
+    if not est:
+        inflight = InflightEstimator(ds.scenario)
+        est = inflight.update(ds.frames, dwell=int(mission.get("dwell_points", 0)))
+        if est is None:
+            raise ValueError("no in-flight estimate and too few frames for one")
+        inflight.finalize()
+        return inflight.estimate, "post-flight"
+    est = dict(est)
+    if "ellipse_95" not in est:
+        est["ellipse_95"] = ellipse(est["covariance"])
+    if "bound_m" not in est:  # the flight ended before the mission added it: the frames up to that estimate
+        f = ds.frames
+        flown = [d for d in dict.fromkeys(f.dwell[f.dwell >= 0].tolist())][: int(est.get("dwell", 0)) or None]
+        end = max((int(np.flatnonzero(f.dwell == d).max()) for d in flown), default=len(f) - 1)
+        upto = pooled(f.select(np.arange(len(f)) <= end), 10, dwells_only=True)
+        est["bound_m"] = flown_bound(ds.scenario, upto, est)
+    return est, source
+
+
+def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: dict[str, Any], truth) -> None:
+    """An inset zoomed on the estimate: its 1-sigma and 95 % ellipses (centimetres, invisible at map
+    scale under the marker) and the truth if it is near."""
+    w = np.clip(np.linalg.eigvalsh(cov), 0, None) if np.isfinite(cov).all() else np.array([0.0, 0.0])
+    a95 = N_SIGMA_95 * math.sqrt(w[-1])
+    half = max(1.6 * a95, 0.05)
+    if truth:
+        d = math.hypot(truth.sources[0].x - src["x"], truth.sources[0].y - src["y"])
+        if d < 5 * half:  # show the truth too unless it is far outside the ellipses
+            half = max(half, 1.3 * d)
+    ins = ax.inset_axes([0.02, 0.02, 0.36, 0.36])
+    for wl in ds.scenario.walls:
+        ins.add_patch(Polygon(_wall_polygon(wl), color="0.45", alpha=0.5))
+    if a95 > 0:
+        _ellipse(ins, (src["x"], src["y"]), cov, 1, color="b", lw=1.5, label="1-sigma")
+        _ellipse(ins, (src["x"], src["y"]), cov, N_SIGMA_95, color="b", lw=1.0, ls="--", label="95 %")
+    ins.plot(src["x"], src["y"], "b+", ms=8, mew=1.5)
+    if truth:
+        ins.plot(truth.sources[0].x, truth.sources[0].y, "r*", ms=10)
+    ins.set_xlim(src["x"] - half, src["x"] + half)
+    ins.set_ylim(src["y"] - half, src["y"] + half)
+    ins.set_aspect("equal")
+    ins.tick_params(labelsize=6)
+    ins.set_facecolor("white")
+    sig = est.get("sigma_m", math.inf)
+    ins.set_title(f"zoom: 1-sigma {sig:.3f} m, 95 % (dashed)", fontsize=7)
+    ax.indicate_inset_zoom(ins, edgecolor="0.3")
 
 
 def write_report(out: str | Path, wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
-    from estimator.inflight import sigma_m
+    from estimator.inflight import gof_warning
+    from mission.search import SearchConfig
 
     out = Path(out)
     ds = read_dataset(out / "dataset")
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
-    loc = final_fit(ds)
-    src = loc.sources_[0]
-    cov = np.asarray(loc.covariance_, dtype=float)[:2, :2]
+    est, est_source = flown_estimate(ds, mission)
+    src = {k: float(est[k]) for k in ("x", "y", "z", "cps_at_1m")}
+    cov = np.asarray(est["covariance"], dtype=float)[:2, :2]
     truth = ds.truth
     err = math.hypot(src["x"] - truth.sources[0].x, src["y"] - truth.sources[0].y) if truth else math.nan
+    stop_sigma = float(mission.get("stop_sigma_m", SearchConfig().stop_sigma_m))
     f = ds.frames
 
     fig, axes = plt.subplots(2, 2, figsize=(13, 10))
@@ -81,9 +153,9 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         ax.scatter(f.x[m].mean(), f.y[m].mean(), s=20 + 200 * math.sqrt(rates[-1] / max(1.0, max(rates))),
                    color="tab:orange", edgecolor="k", zorder=3)
         ax.annotate(str(k), (f.x[m].mean(), f.y[m].mean()), xytext=(4, 4), textcoords="offset points", fontsize=8)
-    ax.plot(src["x"], src["y"], "b+", ms=14, mew=2, label=f"estimate ({src['x']:.2f}, {src['y']:.2f})")
-    _ellipse(ax, (src["x"], src["y"]), cov, 1, color="b", lw=1.2)
-    _ellipse(ax, (src["x"], src["y"]), cov, 2, color="b", lw=0.8, ls="--")
+    walled = " with walls" if "wall_attenuation" in est.get("effects", ()) else ""
+    ax.plot(src["x"], src["y"], "b+", ms=14, mew=2,
+            label=f"{est_source} estimate{walled} ({src['x']:.2f}, {src['y']:.2f})")
     if truth:
         for s in truth.all_sources():
             ax.plot(s.x, s.y, "r*", ms=14, label="truth" if s is truth.sources[0] else None)
@@ -95,16 +167,21 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     ax.set_ylabel("y north (m)")
     ax.set_title(f"map: {len(dwells)} dwell points (size ~ rate), error {err:.3f} m")
     ax.legend(fontsize=8, loc="upper right")
+    _zoom_inset(ax, ds, src, cov, est, truth)
 
     ax = axes[0, 1]
-    est = mission.get("estimates", [])
-    if est and truth:
-        k = [e["dwell"] for e in est]
-        e_err = [math.hypot(e["x"] - truth.sources[0].x, e["y"] - truth.sources[0].y) for e in est]
-        sig = [e["sigma_m"] for e in est]
+    history = mission.get("estimates", [])
+    if history and truth:
+        k = [e["dwell"] for e in history]
+        e_err = [math.hypot(e["x"] - truth.sources[0].x, e["y"] - truth.sources[0].y) for e in history]
+        sig = [e["sigma_m"] for e in history]
         ax.semilogy(k, e_err, "o-", label="position error (m)")
         ax.semilogy(k, sig, "s--", label="1-sigma semi-major axis (m)")
-        ax.axhline(0.15, color="0.5", lw=0.8, ls=":", label="0.15 m target")
+        ax.axhline(stop_sigma, color="0.5", lw=0.8, ls=":", label=f"stop rule: 1-sigma < {stop_sigma:g} m")
+        bound = est.get("bound_m", math.nan)
+        if bound is not None and math.isfinite(bound) and bound > 0:
+            ax.plot([k[-1]], [bound], "D", color="tab:purple", label=f"drift-aware bound {bound:.3f} m")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("dwell points flown")
         ax.set_ylabel("m")
         ax2 = ax.twinx()
@@ -121,7 +198,8 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     for k in dwells:
         m = f.dwell == k
         spec = f.counts[m].sum(0) / f.duration[m].sum() / np.diff(edges)
-        ax.semilogy(centres, np.maximum(spec, 1e-4), drawstyle="steps-mid", lw=0.8, label=f"dwell {k}")
+        # a channel with no counts has no rate density to draw on a log axis: leave a gap, not a floor
+        ax.semilogy(centres, np.where(spec > 0, spec, np.nan), drawstyle="steps-mid", lw=0.8, label=f"dwell {k}")
     ax.set_xlabel("energy (keV, comparator channel centres)")
     ax.set_ylabel("rate density (cps/keV)")
     ax.set_title("spectra per dwell point")
@@ -143,16 +221,22 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
+    p_value = est.get("p_value", math.nan)
+    warning = gof_warning(p_value, out / "dataset")
     summary = {
         "error_m": err,
+        "sigma_m": float(est["sigma_m"]),
+        "ellipse_95": est["ellipse_95"],
+        "bound_m": float(est["bound_m"]),
+        "p_value": float(p_value),
+        "warnings": [warning] if warning else [],
+        "estimate_source": est_source,
+        "estimate": {**est, "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
+        "stop_sigma_m": stop_sigma,
         "dwell_points": int(mission["dwell_points"]),
         "search_dwell_points": int(mission.get("search_dwell_points", 0)),
         "mission_time_s": float(mission["mission_time_s"]),
         "flight_time_s": float(mission.get("flight_time_s", math.nan)),
-        "estimate": {**src, "background_cps": float(loc.background_),
-                     "sigma_m": sigma_m(loc.covariance_, bool(loc.info_.get("converged", True))),
-                     "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
-        "in_flight_estimate": mission.get("estimate"),
         "truth": truth.to_dict() if truth else None,
         "stop_reason": mission.get("reason"),
         "frames_received": mission.get("frames_received"),

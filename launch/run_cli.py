@@ -299,7 +299,10 @@ def main(argv: list[str] | None = None) -> int:
         if failure is None:
             return EXIT_STACK
     else:
-        print(json.dumps({k: summary[k] for k in ("error_m", "dwell_points", "mission_time_s")}, default=float))
+        print(json.dumps({k: summary[k] for k in ("error_m", "sigma_m", "bound_m", "dwell_points", "mission_time_s")},
+                         default=float))
+        for warning in summary.get("warnings", []):  # e.g. a failed goodness of fit: run `radseek diagnose`
+            print(f"radseek run: warning: {warning}", file=sys.stderr)
         print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=sys.stderr)
     if failure is not None:
         print(f"radseek run: search failed: {failure}", file=sys.stderr)
