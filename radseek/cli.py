@@ -19,7 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "topics": ("radseek.inspect_cli", "list live radseek zenoh keys with their rates"),
     "echo": ("radseek.echo_cli", "print messages on a zenoh key readably"),
     "record": ("radseek.mcap_log", "write an MCAP log of the zenoh topics and MAVLink (Foxglove, mcap reader)"),
-    "view": ("radseek.live_view", "live view of a flight in Foxglove (map, path, estimate, spectra; opt-in)"),
+    "view": ("launch.live_view", "live view of a flight in Foxglove (map, path, estimate, spectra; opt-in)"),
     "simulate-dataset": ("detector_fw_sim.simulate_cli", "write a simulated flight in the dataset format"),
     "localize": ("estimator.localize_cli", "estimate source position and strength from a dataset"),
     "compare": ("estimator.compare_cli", "compare two flights' particle-filter runs (paper 000 metrics)"),

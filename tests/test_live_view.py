@@ -8,14 +8,13 @@ import struct
 import time
 
 import pytest
+import websockets
 
+from launch.live_view import LiveView, MapState
 from radseek import topics
 from radseek.dataset import Wall
-from radseek.live_view import LiveView, MapState
 from radseek.zenoh_session import open_session
 
-websockets = pytest.importorskip("websockets")
-pytest.importorskip("foxglove")
 WAIT_S = 60.0  # bounds waiting only
 
 
