@@ -61,6 +61,17 @@ def search_failure(mission_summary: dict) -> str | None:
     return f"no source found: {reason}"
 
 
+def print_summary(summary: dict, out: Path, stdout=None, stderr=None) -> None:
+    """The run's verdict line (JSON on stdout) and its warnings (e.g. a failed goodness of fit: the model
+    misses something, run ``radseek diagnose``) and where the report is (stderr)."""
+    stdout, stderr = stdout or sys.stdout, stderr or sys.stderr
+    print(json.dumps({k: summary.get(k) for k in ("error_m", "sigma_m", "bound_m", "dwell_points", "mission_time_s")},
+                     default=float), file=stdout)
+    for warning in summary.get("warnings", []):
+        print(f"radseek run: warning: {warning}", file=stderr)
+    print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=stderr)
+
+
 def _radseek(*args: str) -> list[str]:
     return [PY, "-m", "radseek.cli", *args]
 
@@ -299,11 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         if failure is None:
             return EXIT_STACK
     else:
-        print(json.dumps({k: summary[k] for k in ("error_m", "sigma_m", "bound_m", "dwell_points", "mission_time_s")},
-                         default=float))
-        for warning in summary.get("warnings", []):  # e.g. a failed goodness of fit: run `radseek diagnose`
-            print(f"radseek run: warning: {warning}", file=sys.stderr)
-        print(f"report: {out / 'report.png'}  summary: {out / 'summary.json'}", file=sys.stderr)
+        print_summary(summary, out)
     if failure is not None:
         print(f"radseek run: search failed: {failure}", file=sys.stderr)
         return EXIT_SEARCH_FAILED

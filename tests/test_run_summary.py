@@ -1,0 +1,98 @@
+"""summary.json and report.png of `radseek run` show the estimate the mission flew, with its bound and 95 %
+ellipse; a fit that fails its goodness of fit says so in run and replay output.
+
+In-process: the flight of ``launch.offline.fly_offline`` (the same brain and in-flight estimator as the
+mission process) written as `radseek run` leaves it (dataset + mission_summary.json), then the report writer.
+"""
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from detector_fw_sim.scene import load_scene
+from estimator.inflight import GOOD_FIT_P, ellipse, gof_warning
+from launch.offline import fly_offline
+from launch.report import write_report
+from launch.run_cli import print_summary
+from mission.search import SearchConfig
+from radseek.dataset import write_dataset
+
+SUMMARY_KEYS = {"error_m", "sigma_m", "ellipse_95", "bound_m", "p_value", "warnings", "estimate", "estimate_source",
+                "stop_sigma_m", "dwell_points", "search_dwell_points", "mission_time_s", "stop_reason", "truth"}
+
+
+def _as_run_output(r, out):
+    """What `radseek run` leaves before the report: the recorded dataset with truth and the mission summary."""
+    write_dataset(out / "dataset", r.dataset.frames, r.dataset.scenario, r.dataset.truth)
+    mission = {"reason": r.decisions[-1].reason, "dwell_points": len(r.dwell_rates),
+               "search_dwell_points": r.brain.search_dwells, "mission_time_s": r.mission_time_s,
+               "estimate": r.estimate, "estimates": r.brain.estimates}
+    (out / "dataset" / "mission_summary.json").write_text(json.dumps(mission, default=float))
+
+
+def test_summary_is_the_flown_estimate_with_bound_and_ellipse(tmp_path):
+    r = fly_offline(load_scene(), SearchConfig(), seed=3)
+    flown = r.estimate
+    assert flown is not None and {"bound_m", "ellipse_95"} <= set(flown), "the brain finalizes its last estimate"
+    _as_run_output(r, tmp_path)
+    summary = write_report(tmp_path, wall_time_s=1.0, speedup=20.0)
+    assert SUMMARY_KEYS <= set(summary)
+    assert json.loads((tmp_path / "summary.json").read_text())["bound_m"] == pytest.approx(summary["bound_m"])
+    assert summary["estimate_source"] == "in-flight"
+    for key in ("x", "y", "sigma_m", "bound_m"):  # the same numbers the mission flew with, not a refit
+        assert summary["estimate"][key] == pytest.approx(flown[key], rel=1e-12)
+    assert summary["error_m"] == pytest.approx(r.error_m, rel=1e-12)
+    assert summary["sigma_m"] == pytest.approx(flown["sigma_m"])
+    assert summary["ellipse_95"] == pytest.approx(flown["ellipse_95"])
+    # the 95 % ellipse is 2.45 sigma along the major axis; the bound is a positive distance of the same order
+    assert summary["ellipse_95"]["a_m"] == pytest.approx(math.sqrt(-2 * math.log(0.05)) * summary["sigma_m"])
+    assert summary["ellipse_95"]["b_m"] <= summary["ellipse_95"]["a_m"]
+    assert 0 < summary["bound_m"] < 1.0
+    assert summary["stop_sigma_m"] == SearchConfig().stop_sigma_m
+    assert summary["p_value"] >= GOOD_FIT_P and summary["warnings"] == []
+    png = (tmp_path / "report.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+
+
+def test_ellipse_axes_and_angle():
+    e = ellipse(np.diag([0.04, 0.01]))
+    assert e["a_m"] == pytest.approx(math.sqrt(5.991464547) * 0.2, rel=1e-6)
+    assert e["b_m"] == pytest.approx(math.sqrt(5.991464547) * 0.1, rel=1e-6)
+    assert abs(e["angle_deg"]) == pytest.approx(0.0, abs=1e-9)
+    assert ellipse(np.diag([0.01, 0.04]))["angle_deg"] == pytest.approx(90.0, abs=1e-9) or \
+        ellipse(np.diag([0.01, 0.04]))["angle_deg"] == pytest.approx(-90.0, abs=1e-9)
+    assert gof_warning(0.5) is None and gof_warning(float("nan")) is None and gof_warning(None) is None
+    assert "radseek diagnose" in gof_warning(1e-6, "flight")
+
+
+def test_failed_goodness_of_fit_is_said_by_run(shared_datasets, tmp_path, capsys):
+    """Two sources, one-source model: summary.json and `radseek run`'s output say the model misses something."""
+    shutil.copytree(shared_datasets / "two-sources", tmp_path / "dataset")
+    (tmp_path / "dataset" / "mission_summary.json").write_text(json.dumps(
+        {"reason": "lattice pattern flown", "dwell_points": 14, "mission_time_s": 200.0, "estimate": None}))
+    summary = write_report(tmp_path)
+    assert summary["estimate_source"] == "post-flight"  # no in-flight estimate: the same policy, after the flight
+    assert summary["p_value"] < GOOD_FIT_P
+    assert any("the model misses something here" in w and "radseek diagnose" in w for w in summary["warnings"])
+    print_summary(summary, tmp_path)
+    err = capsys.readouterr().err
+    assert "radseek run: warning: goodness of fit" in err and "radseek diagnose" in err
+
+
+def test_failed_goodness_of_fit_is_said_by_replay(shared_datasets):
+    ds = shared_datasets / "two-sources"
+    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "13"],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert "the model misses something here" in out.stdout and "radseek diagnose" in out.stdout
+    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "14", "--json"],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)  # the JSON stays clean: the warning goes to stderr
+    assert rows[-1]["p_value"] < GOOD_FIT_P
+    assert "the model misses something here" in out.stderr
