@@ -243,7 +243,7 @@ def coverage(estimate: Mapping[str, Any] | None, truth_xy: Sequence[float]) -> t
     return d2, bool(d2 <= CHI2_95_2D)
 
 
-_ESTIMATE_SKIP = {"x", "y", "z", "covariance", "sigma_m", "effects", "dwell", "converged"}
+_ESTIMATE_SKIP = {"x", "y", "z", "covariance", "sigma_m", "effects", "dwell", "converged", "bound_m"}
 
 
 def fly_one(spec: Mapping[str, Any]) -> dict[str, Any]:
@@ -290,6 +290,8 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
         "est_x": float(est["x"]) if est else math.nan, "est_y": float(est["y"]) if est else math.nan,
         "true_x": float(src.x), "true_y": float(src.y),
         "converged": bool(est.get("converged", True)) if est else None,
+        # the drift-aware bound (rms horizontal error reachable with the pose drift), when the estimate has it
+        "bound_m": float(est.get("bound_m", math.nan)) if est else math.nan,
         "stop_reason": r.decisions[-1].reason,
     }
     # whatever else the in-flight estimate reports rides along: numbers (e.g. a drift-aware bound) and the
@@ -648,12 +650,14 @@ def summarize(rows: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
         err = np.array([r["error_m"] for r in ok], dtype=float)
         cov = [r["covered_95"] for r in ok if r.get("covered_95") is not None]
         finite = err[np.isfinite(err)]
+        bounds = np.array([r.get("bound_m", math.nan) for r in ok], dtype=float)
         rec = {"scene": case[0], "strategy": case[1], "effect": case[2], "params": json.loads(case[3]),
                "flights": len(rs), "failed": len(rs) - len(ok), "estimated": int(len(finite)),
                "median_error_m": _median_ci(finite)[0] if len(finite) else math.nan,
                "median_error_ci": _median_ci(finite)[1:] if len(finite) else (math.nan, math.nan),
                "p90_error_m": float(np.percentile(finite, 90)) if len(finite) else math.nan,
                "median_sigma_m": float(np.median([r["sigma_m"] for r in ok])) if ok else math.nan,
+               "median_bound_m": float(np.nanmedian(bounds)) if np.isfinite(bounds).any() else math.nan,
                "coverage_95": (sum(cov) / len(cov)) if cov else math.nan, "coverage_n": len(cov),
                "coverage_ci": wilson(sum(cov), len(cov)),
                "median_dwells": float(np.median([r["dwell_points"] for r in ok])) if ok else math.nan,
@@ -671,9 +675,10 @@ def summary_markdown(summary: list[dict[str, Any]], meta: Mapping[str, Any] | No
         lines += [f"radseek {meta.get('radseek_version')}, sweep fingerprint {meta.get('fingerprint')}, "
                   f"{meta.get('flights')} flights in the output", ""]
     lines += ["| scene | strategy | effect | parameters | flights | failed | median error (m) [95 % CI] "
-              "| p90 error (m) | median sigma (m) | 95 % ellipse coverage [95 % CI] | median dwells (search) "
+              "| p90 error (m) | median sigma (m) | median drift-aware bound (m) "
+              "| 95 % ellipse coverage [95 % CI] | median dwells (search) "
               "| median mission (s) | wall / flight (s) | CPU / flight (s) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summary:
         params = ", ".join(f"{k[2:]}={v}" for k, v in s["params"].items()) or "-"
         lo, hi = s["median_error_ci"]
@@ -683,6 +688,7 @@ def summary_markdown(summary: list[dict[str, Any]], meta: Mapping[str, Any] | No
         lines.append(
             f"| {s['scene']} | {s['strategy']} | {s['effect']} | {params} | {s['flights']} | {s['failed']} "
             f"| {s['median_error_m']:.3f} [{lo:.3f}, {hi:.3f}] | {s['p90_error_m']:.3f} | {s['median_sigma_m']:.3f} "
+            f"| {s['median_bound_m']:.3f} "
             f"| {cov} | {s['median_dwells']:.0f} ({s['median_search_dwells']:.0f}) | {s['median_mission_s']:.0f} "
             f"| {s['mean_wall_s']:.1f} | {s['mean_cpu_s']:.1f} |")
     return "\n".join(lines) + "\n"

@@ -90,6 +90,8 @@ def test_one_flight_row_has_the_figures():
     assert math.isfinite(row["error_m"]) and row["error_m"] == pytest.approx(
         math.hypot(row["est_x"] - row["true_x"], row["est_y"] - row["true_y"]))
     assert isinstance(row["covered_95"], bool)
+    if "est.ellipse_95.a_m" in row:  # the estimator's own 95 % ellipse is the one covered_95 tests
+        assert row["est.ellipse_95.a_m"] == pytest.approx(row["sigma_m"] * math.sqrt(CHI2_95_2D), rel=1e-6)
     assert summarize([row])[0]["estimated"] == 1
 
 
