@@ -195,7 +195,8 @@ class InflightEstimator:
         est = self.estimate
         if est is None or "bound_m" in est:
             return est
-        est["ellipse_95"] = ellipse(est["covariance"])
+        # an estimate that is not trustworthy (sigma_m inf) has no finite ellipse either
+        est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
         est["bound_m"] = flown_bound(self.scenario, self._frames, est, self.method, self.settings) \
             if self._frames is not None else math.nan
         return est

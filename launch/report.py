@@ -85,8 +85,8 @@ def flown_estimate(ds: Dataset, mission: dict[str, Any]) -> tuple[dict[str, Any]
         inflight.finalize()
         return inflight.estimate, "post-flight"
     est = dict(est)
-    if "ellipse_95" not in est:
-        est["ellipse_95"] = ellipse(est["covariance"])
+    if "ellipse_95" not in est:  # as InflightEstimator.finalize: none for an estimate that is not trustworthy
+        est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
     if "bound_m" not in est:  # the flight ended before the mission added it: the frames up to that estimate
         f = ds.frames
         flown = [d for d in dict.fromkeys(f.dwell[f.dwell >= 0].tolist())][: int(est.get("dwell", 0)) or None]
