@@ -211,12 +211,14 @@ def _replace_dotted(obj: Any, dotted: Mapping[str, Any]) -> Any:
 _SCENES: dict[tuple[str, str], Any] = {}  # per worker process: (scene, effect) -> Scene
 
 
-def _scene(name: str, effect: str):
-    from detector_fw_sim.scene import load_scene
+def _scene(name: str, effect: str, data: Mapping[str, Any] | None = None):
+    """The scene ``name`` (from the driver's ``data`` if given: a cluster node may not have the file)
+    with ``effect`` switched on, cached per worker process."""
+    from detector_fw_sim.scene import load_scene, validate_scene
 
     key = (name, effect)
     if key not in _SCENES:
-        scene = load_scene(name)
+        scene = validate_scene(dict(data), name) if data is not None else load_scene(name)
         parsed = parse_effect(effect)
         if parsed is not None:
             scene = scene.with_effect(parsed[0], **parsed[1])
@@ -276,7 +278,7 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
     search = {k: v for k, v in params.items() if not k.startswith(("flight.", "odometry."))}
     config = _replace_dotted(SearchConfig(strategy=spec["strategy"]), search)
     odometry = _replace_dotted(OdometryParams(), odo) if odo else None
-    scene = _scene(spec["scene"], spec["effect"])
+    scene = _scene(spec["scene"], spec["effect"], spec.get("scene_data"))
     r = fly_offline(scene, config, seed=int(spec["seed"]), odometry=odometry, **flight)
     est = r.estimate
     src = r.dataset.truth.sources[0]
@@ -489,6 +491,14 @@ class CampaignStopped(Exception):
     """The campaign was interrupted (Ctrl-C, SIGTERM); what finished is recorded, a rerun resumes."""
 
 
+def scene_data(names: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """Each scene as the driver reads it (JSON-able), shipped with its flights so that cluster nodes fly
+    the same scene without its file; an unreadable scene stops the campaign before anything flies."""
+    from detector_fw_sim.scene import load_scene
+
+    return {name: load_scene(name).model_dump(mode="json") for name in names}
+
+
 @dataclass
 class CampaignResult:
     out: Path
@@ -527,6 +537,7 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
     """Fly every flight of ``sweep`` not yet recorded in ``out`` (failed ones too with ``retry_failed``)
     as Ray tasks; write rows, summary and plots. Returns every row of the campaign."""
     t0 = time.perf_counter()
+    scenes = scene_data(sweep.scenes)
     out = open_campaign(sweep, out, force=force)
     atomic_write_json(out / "campaign.json", {
         "fingerprint": sweep.fingerprint(), "sweep": sweep.to_dict(), "radseek_version": __version__,
@@ -534,6 +545,7 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
     done = {r["key"]: r for r in load_rows(out)}
     todo = [f for f in sweep.flights()
             if f["key"] not in done or (retry_failed and done[f["key"]]["status"] != "ok")]
+    todo = [{**f, "scene_data": scenes[f["scene"]]} for f in todo]
     total = len(sweep.flights())
     skipped = total - len(todo)
     cpus = 0.0

@@ -82,6 +82,7 @@ def sweep_from_args(args: argparse.Namespace):
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from detector_fw_sim.scene import SceneError
     from launch.campaign import CampaignStopped, run_campaign
     from radseek.outdir import OutputDirError
 
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         res = run_campaign(sweep, args.out, workers=args.workers, address=args.address, force=args.force,
                            retry_failed=args.retry_failed, progress=not args.quiet, quiet_ray=not args.ray_logs,
                            plots=not args.no_plots, niceness=args.niceness)
-    except OutputDirError as exc:
+    except (OutputDirError, SceneError, OSError) as exc:
         print(f"radseek campaign: {exc}", file=sys.stderr)
         return 2
     except CampaignStopped as exc:
