@@ -36,6 +36,7 @@ from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from radseek.dataset import Dataset, read_dataset  # noqa: E402
+from radseek.geometry import semi_major_axis  # noqa: E402
 from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
 
 
@@ -119,6 +120,8 @@ def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: di
     ins.set_ylim(src["y"] - half, src["y"] + half)
     ins.set_aspect("equal")
     ins.tick_params(labelsize=6)
+    ins.xaxis.set_major_locator(MaxNLocator(3))
+    ins.yaxis.set_major_locator(MaxNLocator(3))
     ins.set_facecolor("white")
     sig = est.get("sigma_m", math.inf)
     ins.set_title(f"zoom: 1-sigma {sig:.3f} m, 95 % (dashed)", fontsize=7)
@@ -177,6 +180,12 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         sig = [e["sigma_m"] for e in history]
         ax.semilogy(k, e_err, "o-", label="position error (m)")
         ax.semilogy(k, sig, "s--", label="1-sigma semi-major axis (m)")
+        # an estimate not trustworthy yet (sigma inf: unconverged or collapsed) shows its ellipse's size hollow
+        untrusted = [(kk, semi_major_axis(np.asarray(e["covariance"])[:2, :2]))
+                     for kk, e, s_ in zip(k, history, sig, strict=True) if not math.isfinite(s_)]
+        if untrusted:
+            ax.semilogy(*zip(*untrusted, strict=True), "s", mfc="none", color="tab:orange",
+                        label="its size, not trustworthy yet")
         ax.axhline(stop_sigma, color="0.5", lw=0.8, ls=":", label=f"stop rule: 1-sigma < {stop_sigma:g} m")
         bound = est.get("bound_m", math.nan)
         if bound is not None and math.isfinite(bound) and bound > 0:
