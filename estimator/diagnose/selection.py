@@ -215,6 +215,12 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
                 tasks.append(FitTask((*count, e), dict(init, **{"anisotropy.half_angle_deg": 60.0}), 1,
                                      f"{e} (wide cone start)", cache=False))
                 owner.append(e)
+            if e == "wall_attenuation":
+                # a wall the model lacks pushes the fitted source away from it, and from there a wall cannot
+                # help (mu -> 0, LR 0: seen on an independent L-shaped wall): also start from the source grid
+                tasks.append(FitTask((*count, e), {k: v for k, v in init.items() if k not in ("x", "y", "cps_at_1m")},
+                                     3, f"{label} (grid starts)", cache=False))
+                owner.append(e)
         side = {}
         if "gain_drift" in todo and getattr(spectral_fit, "value", None) is None and hasattr(spectral_fit, "compute"):
             side["spectral"] = spectral_fit.compute
