@@ -85,6 +85,13 @@ def _params(effect: str, v: float, rng: np.random.Generator, geometry: str) -> d
 def jobs(which: list[str], seeds: int, nulls: int) -> list[dict[str, Any]]:
     """The flights to run, as plain dicts (picklable for the process pool)."""
     out: list[dict[str, Any]] = []
+    if "null" in which:
+        for k in range(nulls):
+            g = NULL_GEOMETRIES[k % len(NULL_GEOMETRIES)]
+            spec = {"geometry": g, "effects": {}, "crystal": CRYSTALS[(k // 2) % 3],
+                    "pose_error": "random_walk" if k % 4 == 3 else "independent", "scatter": 0.02 * (k % 3),
+                    "dwell_s": 6.0}
+            out.append({"kind": "null", "name": f"null-{g}-{k}", "spec": spec, "seed": 50_000 + k})
     if "power" in which:
         for e, (geoms, strengths, _, _) in POWER.items():
             for i, v in enumerate(strengths):
@@ -100,13 +107,6 @@ def jobs(which: list[str], seeds: int, nulls: int) -> list[dict[str, Any]]:
                         spec["dwell_s"] = 12.0
                     out.append({"kind": "power", "name": f"{e}-{v:g}-{g}-s{s}", "effect": e, "strength": v,
                                 "spec": spec, "seed": seed})
-    if "null" in which:
-        for k in range(nulls):
-            g = NULL_GEOMETRIES[k % len(NULL_GEOMETRIES)]
-            spec = {"geometry": g, "effects": {}, "crystal": CRYSTALS[(k // 2) % 3],
-                    "pose_error": "random_walk" if k % 4 == 3 else "independent", "scatter": 0.02 * (k % 3),
-                    "dwell_s": 6.0}
-            out.append({"kind": "null", "name": f"null-{g}-{k}", "spec": spec, "seed": 50_000 + k})
     if "pairs" in which:
         for k, (g, fx) in enumerate(PAIRS):
             out.append({"kind": "pairs", "name": "+".join(fx) + f"-{g}", "spec": {"geometry": g, "effects": fx,
@@ -150,7 +150,7 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
         "dev_sd_before": round(d.current.gof.sd_per_dof, 4),
         "err_before": None if d.current.source_error_m is None else round(d.current.source_error_m, 3),
         "err_after": None if not after or after.source_error_m is None else round(after.source_error_m, 3),
-        "params": {k: [round(v, 6), round(e, 6) if math.isfinite(e) else None]
+        "params": {k: [float(f"{v:.4g}"), float(f"{e:.3g}") if math.isfinite(e) else None]
                    for c in chosen for k, (v, e) in ((k, (c.params[k], c.errors.get(k, math.nan))) for k in c.params)},
         "truth_params": ds.truth.effects if ds.truth else {},
         "seconds": round(secs, 1),
@@ -290,8 +290,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plot", type=Path, default=None, help="write the power curves here (PNG)")
     p.add_argument("--markdown", type=Path, default=None, help="also write the report here")
     p.add_argument("--limit", type=int, default=None, help="run at most this many flights (a smoke test)")
+    p.add_argument("--names", nargs="+", default=None, help="only flights whose name starts with one of these")
     args = p.parse_args(argv)
     todo = jobs(args.only or ["shared", "power", "null", "pairs"], args.seeds, args.nulls)
+    if args.names:
+        todo = [j for j in todo if any(j["name"].startswith(n) for n in args.names)]
     if args.limit:
         todo = todo[: args.limit]
     rows: list[dict] = []
