@@ -57,6 +57,15 @@ def test_summary_is_the_flown_estimate_with_bound_and_ellipse(tmp_path):
     assert summary["p_value"] >= GOOD_FIT_P and summary["warnings"] == []
     png = (tmp_path / "report.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+    # a flight that ended before the mission could add the bound (an abort): the report computes the same one
+    # from the recorded frames up to that estimate
+    path = tmp_path / "dataset" / "mission_summary.json"
+    mission = json.loads(path.read_text())
+    del mission["estimate"]["bound_m"], mission["estimate"]["ellipse_95"]
+    path.write_text(json.dumps(mission))
+    again = write_report(tmp_path)
+    assert again["bound_m"] == pytest.approx(flown["bound_m"], rel=1e-3)
+    assert again["ellipse_95"] == pytest.approx(flown["ellipse_95"])
 
 
 def test_ellipse_axes_and_angle():
