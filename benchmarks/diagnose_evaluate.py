@@ -195,7 +195,8 @@ def power_table(rows: list[dict]) -> tuple[str, dict]:
         low = sum(r["err_after"] <= r["err_before"] + 0.005 for r in lowered)
         n_all = sum(len(by[s]) for s in ss)
         cells = ", ".join(f"{s:g}: {rt:.0%} ({len(by[s])})" for s, rt in zip(ss, rates, strict=True))
-        lines.append(f"| {e} | {cells} | {'-' if p50 is None else f'{p50:.3g}'} | {at} | {wrong}/{n_all} | "
+        p50_txt = "-" if p50 is None else (f"<= {p50:.3g}" if rates[0] >= 0.5 else f"{p50:.3g}")
+        lines.append(f"| {e} | {cells} | {p50_txt} | {at} | {wrong}/{n_all} | "
                      f"{ok}/{len(found)} | {low}/{len(lowered)} |")
         summary[e] = {"strengths": ss, "rates": rates, "p50": p50}
     return "\n".join(lines), summary
