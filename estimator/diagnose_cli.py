@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from radseek.dataset import EFFECTS, DatasetError, read_dataset, stderr_progress
+from radseek.dataset import EFFECTS
 
 #: the dataset spec's effects plus the variance effect diagnose also knows (estimator.diagnose.backend.VOCABULARY)
 VOCABULARY = (*EFFECTS, "over_dispersion")
@@ -71,14 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.starts < 1:
         print(f"radseek diagnose: --starts must be >= 1, got {args.starts}", file=sys.stderr)
         return 2
-    from estimator.localize_cli import read_with_warnings
+    from estimator.localize_cli import read_for_cli
 
-    try:
-        with read_with_warnings("radseek diagnose"):
-            progress_cb = None if args.quiet else stderr_progress("radseek diagnose: reading frames.csv")
-            ds = read_dataset(args.dataset, progress=progress_cb)
-    except DatasetError as exc:
-        print(f"radseek diagnose: {exc}", file=sys.stderr)
+    ds = read_for_cli("radseek diagnose", args.dataset, args.quiet)
+    if ds is None:
         return 2
     if not np.any(ds.frames.total_counts > 0):
         print(f"radseek diagnose: {ds.path}/frames.csv: all {len(ds.frames)} frames have zero counts in every "

@@ -100,6 +100,18 @@ def read_with_warnings(prog: str) -> Iterator[None]:
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
+def read_for_cli(prog: str, path: str, quiet: bool = False):
+    """The dataset at ``path`` for command ``prog`` (progress and reader warnings on stderr), or None after
+    printing the reader's error (which names file, row and column)."""
+    try:
+        with read_with_warnings(prog):
+            progress = None if quiet else stderr_progress(f"{prog}: reading frames.csv")
+            return read_dataset(path, progress=progress)
+    except DatasetError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+
+
 @contextmanager
 def heartbeat(message: str, every_s: float = HEARTBEAT_S, quiet: bool = False) -> Iterator[None]:
     """While the block runs, print ``message (N s)`` to stderr every ``every_s``: long fits show progress."""
@@ -182,12 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError) as exc:
         print(f"radseek localize: {exc}", file=sys.stderr)
         return 2
-    try:
-        with read_with_warnings("radseek localize"):
-            progress = None if args.quiet else stderr_progress("radseek localize: reading frames.csv")
-            ds = read_dataset(args.dataset, progress=progress)
-    except DatasetError as exc:
-        print(f"radseek localize: {exc}", file=sys.stderr)
+    ds = read_for_cli("radseek localize", args.dataset, args.quiet)
+    if ds is None:
         return 2
     effects = list(getattr(loc, "effects", None) or ())
     if "wall_attenuation" in effects and not ds.scenario.walls:

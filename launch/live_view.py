@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -25,6 +24,7 @@ from typing import Any
 
 from radseek import topics
 from radseek.mcap_log import json_schema
+from radseek.serve import serve_until_stopped
 
 MAP_HZ = 5.0  # wall Hz at most for /map updates
 
@@ -230,13 +230,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek view: cannot serve on {args.host}:{args.port} ({exc}): choose another with --port",
               file=sys.stderr)
         return 1
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"radseek view: Foxglove WebSocket on ws://{args.host}:{view.port} (open it in Foxglove)", flush=True)
-    try:
-        stop.wait(args.duration)
-    except KeyboardInterrupt:
-        pass
+    serve_until_stopped(args.duration)
     view.close()
     session.close()
     return 0

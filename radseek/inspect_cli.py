@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass, fields
 
 from radseek import topics
+from radseek.serve import serve_until_stopped
 from radseek.zenoh_session import add_arguments, session_from_args
 
 ROUTER_WAIT_S = 3.0  # s: an inspection tool says at once that no router answers, instead of waiting silently
@@ -199,10 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                 pass
 
     sub = session.declare_subscriber(args.key, on_sample)
-    try:
-        time.sleep(args.duration)
-    except KeyboardInterrupt:
-        pass
+    serve_until_stopped(args.duration)
     sub.undeclare()
     session.close()
     with lock:

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from radseek import topics
+from radseek.serve import serve_until_stopped
 
 log = logging.getLogger(__name__)
 RAW_ENCODING = "radseek.board_frame"
@@ -215,7 +216,6 @@ def read(path: str | Path) -> Iterator[tuple[str, int, int, Any]]:
 def main(argv: list[str] | None = None) -> int:
     """``radseek record``: write an MCAP log of the live zenoh topics and the vehicle's MAVLink."""
     import argparse
-    import signal
     import sys
 
     from radseek.zenoh_session import add_arguments, session_from_args
@@ -243,13 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek record: UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another "
               "with --mavlink-port", file=sys.stderr)
         return 1
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"recording {topics.all_keys()} to {args.out}", flush=True)
-    try:
-        stop.wait(args.duration)
-    except KeyboardInterrupt:
-        pass
+    serve_until_stopped(args.duration)
     path = rec.stop()
     session.close()
     print(f"wrote {path}: {rec.log.count} messages", flush=True)
