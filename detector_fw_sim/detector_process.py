@@ -3,14 +3,17 @@
 Every 100 ms of sim time (frame ``k`` = interval ``[k T, (k+1) T)``, ``detector_fw_sim.board``):
 
 1. wait until the sim clock reaches the end of the interval;
-2. take the vehicle's latest true pose from ``sim/truth_pose`` (or the fixed ``--pose``); if none
-   arrived within ``stale_after_s`` sim seconds the frame is flagged ``STALE_POSE`` and carries zero
-   counts: the emulator does not know where the vehicle is, so it invents nothing;
+2. wait until the true pose at the interval's end is in (``sim/truth_pose`` may arrive after the clock;
+   given up after ``truth_wait_wall_s`` wall seconds without any pose), then take the true pose
+   interpolated at the interval's mid-time (or the fixed ``--pose``); if none arrived within
+   ``stale_after_s`` sim seconds the frame is flagged ``STALE_POSE`` and carries zero counts: the
+   emulator does not know where the vehicle is, so it invents nothing;
 3. draw the interval's counts from the emulator, build and encode the board frame;
 4. publish the bytes on ``detector/raw`` (after any injected fault), decode them with the driver like
    any consumer, and publish the decoded ``detector/histogram`` JSON (a frame the driver rejects is
    counted and dropped; the next good one carries ``FLAG_GAP``);
-5. every 1 s of sim time publish ``detector/status``.
+5. every 1 s of sim time publish ``detector/status`` (also at once after a frame not sent, and every
+   0.25 s of wall time while the clock stands still: ``DetectorProcess.publish_status``).
 
 Fault switches for the mission tests (``FaultConfig``): corrupt or truncate raw frames at a given
 rate (the driver must reject them by CRC or length), and drop-outs during which no frame is sent.
@@ -121,6 +124,7 @@ class DetectorConfig:
     max_catch_up_s: float = 10.0  # sim s: further behind than this (a clock jump), skip frames instead of bursting
     max_clock_back_s: float = 1.0  # sim s: the clock went back further than this (owner restart): resynchronise
     max_pose_lead_s: float = 5.0  # sim s: a true pose further ahead of the clock than this is dropped
+    truth_wait_wall_s: float = 0.5  # wall s: a frame waits for the true pose at its end while poses flow
 
 
 @dataclass
@@ -144,11 +148,15 @@ class TruthPoseFollower:
 
     def __init__(self, session: zenoh.Session, vehicle: str, counters: Counters, clock: Clock | None = None,
                  max_lead_s: float = 5.0):
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()  # notified at every pose added
         self._history: PoseHistory[topics.TruthPose] = PoseHistory(keep_s=30.0)
+        self._last_rx_wall: float | None = None
         self._counters = counters
         self._clock = clock
         self._max_lead_s = max_lead_s
+        self._last_t: float | None = None
+        self._step = 0.2  # the smallest spacing seen (the vehicle publishes a true pose every step, dt <= 0.2 s)
+        self.holes = 0  # consecutive true poses further apart than 1.5 steps (lost messages: a diagnostic)
         self._sub = session.declare_subscriber(topics.key(topics.SIM_TRUTH_POSE, vehicle), self._on_pose)
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
@@ -165,11 +173,41 @@ class TruthPoseFollower:
             if n <= 3 or n % 100 == 0:
                 print(f"radseek detector: dropped true-pose message #{n}: {exc}", file=sys.stderr, flush=True)
             return
-        self._history.add(msg)
+        with self._lock:
+            prev, self._last_t = self._last_t, msg.t
+            gap = None if prev is None else msg.t - prev
+            if gap is not None and gap > 1e-9:
+                self._step = min(self._step, gap)
+            hole = gap is not None and gap > 1.5 * self._step
+            if hole:
+                self.holes += 1
+                n = self.holes
+        if hole and (n <= 3 or n % 100 == 0):
+            print(f"radseek detector: true-pose stream has a hole #{n}: {prev:.3f} -> {msg.t:.3f} s "
+                  "(messages lost?)", file=sys.stderr, flush=True)
+        with self._lock:
+            self._history.add(msg)
+            self._last_rx_wall = time.monotonic()
+            self._lock.notify_all()
+
+    def wait_until(self, t: float, stall_wall_s: float) -> bool:
+        """Block until a true pose at or after sim time ``t`` is in, so a frame's pose does not depend on
+        which messages won the race against ``sim/clock`` (the clock and the poses arrive on separate
+        subscriptions, and the clock may be seen first on a loaded host). Gives up (False) as soon as no
+        pose has arrived for ``stall_wall_s`` wall seconds: the stream stopped, the frame goes stale."""
+        with self._lock:
+            while True:
+                last = self._history.latest()
+                if last is not None and last.t >= t - 1e-6:
+                    return True
+                if self._last_rx_wall is None or time.monotonic() - self._last_rx_wall > stall_wall_s:
+                    return False
+                self._lock.wait(0.05)
 
     def reset(self) -> None:
         """Forget every pose (the clock went back: they belong to the old timeline)."""
         with self._lock:
+            self._last_t, self._step = None, 0.2
             self._history = PoseHistory(keep_s=30.0)
 
     def latest(self) -> topics.TruthPose | None:
@@ -222,6 +260,8 @@ class DetectorProcess:
             self.counters.dropout_frames += 1
             self.state = "dropout"
             return
+        if self._poses is not None:  # the pose at t1 is published before the clock, but may arrive after it
+            self._poses.wait_until(t1, self.config.truth_wait_wall_s)
         pose = self._pose_for(t0, t1)
         live: float | None = None
         if pose is None:
@@ -261,6 +301,11 @@ class DetectorProcess:
         self.counters.published += 1
 
     def publish_status(self, t: float) -> None:
+        """``detector/status`` at ``t``: every frame ending at or before ``t`` has been handled (its
+        histogram, if any, is already published). Sent every ``status_period_s`` of sim time, at once
+        after a frame that was not sent (drop-out, rejected by the driver), and every 0.25 s of wall time
+        while the clock does not move (a lockstep hold): the mission (``mission_process._tick``) tells a
+        lost frame from a late one by it, on sim time, and a silent detector from a slow one."""
         c = self.counters
         msg = topics.DetectorStatus(t=float(t), frames=c.frames, stale_frames=c.stale_frames,
                                     crc_errors=c.rejected, state=self.state)
@@ -299,16 +344,20 @@ class DetectorProcess:
             if self.config.until is not None and t_end > self.config.until + 1e-9:
                 break
             if not self.clock.sleep_until(t_end, timeout_wall_s=0.25):
-                continue  # clock stalled (owner paused or gone) or went back: wait, never run ahead of it
+                # clock stalled (owner paused, or held by lockstep) or went back: wait, never run ahead of
+                # it; meanwhile say we are alive and done with every frame before k (see publish_status)
+                self.publish_status(self.board.interval(k)[0])
+                continue
             skip_to = self.follow_clock(k)
             if skip_to != k:  # clock jumped ahead: skip, consumers see a gap
                 k = skip_to
                 continue
+            published = self.counters.published
             self.produce(k)
-            if (k + 1) % status_every == 0:
-                self.publish_status(t_end)
+            if (k + 1) % status_every == 0 or self.counters.published == published:
+                self.publish_status(t_end)  # at once for a frame not sent: the mission knows it is lost
             k += 1
-        self.publish_status(self.clock.now())
+        self.publish_status(self.board.interval(k)[0])  # frames before k are handled
         return self.counters
 
     def close(self) -> None:

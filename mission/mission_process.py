@@ -14,9 +14,13 @@ take a frame, decide on data stamped with sim time (the frame, the estimated pos
 frame's time, never "the latest message"), send the MAVLink commands the decision calls for, then ack
 the frame on ``mission/lockstep``. A vehicle run with ``--lockstep`` does not step past the acked time
 plus one frame, so a fit that takes a minute of wall time costs no sim time, and the same seed flies
-the same flight. A frame the detector never sends (drop-out, corrupted, restarted) is declared lost
-once the vehicle's pose shows its time has passed and ``FRAME_TIMEOUT_WALL_S`` went by; then the
-mission follows the pose until frames come back.
+the same flight. A frame the detector never sends (drop-out, rejected by the driver, restarted past
+it) is declared lost when ``detector/status`` says the detector is done with the frame's time and its
+histogram did not come: a decision on sim time, so a slow detector on a loaded host (alive, its status
+heartbeats coming, just behind) is waited for and the recorded flight does not change. Only a *silent*
+detector (killed, hung: no histogram and no status for ``FRAME_TIMEOUT_WALL_S`` wall seconds) is judged
+on wall time: its frames are declared lost once the vehicle's pose has passed them, and the mission
+follows the pose until the detector speaks again. That flight differs from run to run, as it must.
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ from radseek.outdir import atomic_write_json
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
 FRAME_S = 0.1  # s, the board's frame period until the first histogram says otherwise
-FRAME_TIMEOUT_WALL_S = 1.0  # wall s after the pose passed a frame's end before that frame is declared lost
+FRAME_TIMEOUT_WALL_S = 10.0  # wall s of detector silence (no histogram, no status) before frames are lost
 POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
 LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle
@@ -87,6 +91,11 @@ class _Stream:
         # histograms waiting for the pose at their end time (the pose is published before the clock that
         # makes the frame, but on another path): recorded in order once it is in, or after POSE_WAIT_WALL_S
         self._pending: list[tuple[topics.Histogram, float]] = []
+        # the lost-frame rule (MissionRunner._tick): the latest histogram time received, the latest
+        # detector/status time (every frame ending by then is handled), the wall time it last spoke
+        self.hist_t = -1.0
+        self.detector_t = -1.0
+        self.detector_wall: float | None = None
 
     def _drop(self, exc: topics.PayloadError) -> None:
         """A payload that fails its schema or the board's limits: counted, logged (not every one), dropped."""
@@ -115,9 +124,28 @@ class _Stream:
             return
         now = time.monotonic()
         with self.lock:
+            self.hist_t = max(self.hist_t, hist.t)
+            self.detector_wall = now
             self._pending.append((hist, now))
             latest = self.latest_pose
             self._release(lambda h, w: (latest is not None and h.t <= latest.t + 1e-6) or now - w > POSE_WAIT_WALL_S)
+
+    def on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = topics.DetectorStatus.from_bytes(sample.payload.to_bytes())
+        except topics.PayloadError as exc:
+            self._drop(exc)
+            return
+        with self.lock:
+            self.detector_t = max(self.detector_t, status.t)
+            self.detector_wall = time.monotonic()
+
+    def frame_fate(self, t_end: float) -> tuple[bool, float | None]:
+        """(the detector is done with the frame ending at ``t_end`` and sent no histogram for it, the
+        wall time the detector last spoke)."""
+        with self.lock:
+            lost = self.detector_t >= t_end - 1e-6 and self.hist_t < t_end - 1e-6
+            return lost, self.detector_wall
 
     def _release(self, ready) -> None:
         """Record and queue the pending histograms, in order, up to the first that is not ``ready``."""
@@ -169,7 +197,8 @@ class MissionRunner:
         self.t = 0.0  # sim time of the frame being handled: the mission's "now"
         self.frame_s = FRAME_S
         self.frames_lost = 0  # frames declared lost by the lockstep pump (the pose passed their time)
-        self._following_pose = False  # frames are not coming: tick on the pose until one does
+        self._following_pose = False  # the detector is silent: tick on the pose until it speaks
+        self._losing = False  # in a run of lost frames (logged once)
         self.lockstep: LockstepAck | None = None
 
     async def _watch(self, tel: TelemetryWatch, stream: _Stream) -> None:
@@ -202,14 +231,20 @@ class MissionRunner:
 
     async def _tick(self, stream: _Stream, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
         """Ack the frame handled last (its commands are already sent), then take the next one: its
-        histogram, or None when it was lost (the vehicle's pose passed its end and no frame came within
-        FRAME_TIMEOUT_WALL_S). ``self.t`` is then the sim time of that frame's end.
+        histogram, or None when it was lost. ``self.t`` is then the sim time of that frame's end.
+
+        Lost, decided on sim time: ``detector/status`` says the detector is done with the frame's end and
+        its histogram was not received (statuses follow the histograms they cover on the same session,
+        so a histogram that was sent has arrived by then). Lost, decided on wall time (the flight then
+        differs from run to run): the detector has been silent for FRAME_TIMEOUT_WALL_S (killed, hung)
+        and the vehicle's pose has passed the frame's end; while it stays silent the mission follows
+        the pose frame by frame. A detector that is alive but slow is always waited for.
         ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
         if self.lockstep is not None:
             self.lockstep.ack(self.t, self.frame_s)
         t_next = self.t + self.frame_s
         loop = asyncio.get_running_loop()
-        start = passed_at = last_pose_at = loop.time()
+        start = last_pose_at = loop.time()
         last_pose_t = -1.0
         while True:
             try:
@@ -218,7 +253,7 @@ class MissionRunner:
                 hist = None
             if hist is not None:
                 if hist.t > self.t + 1e-6:
-                    self.t, self.frame_s, self._following_pose = hist.t, hist.duration, False
+                    self.t, self.frame_s, self._following_pose, self._losing = hist.t, hist.duration, False, False
                 if self.lockstep is not None:
                     self.lockstep.take(self.t)
                 return hist  # (a frame older than self.t arrived after it was declared lost: handled late)
@@ -233,14 +268,20 @@ class MissionRunner:
                 last_pose_t, last_pose_at = p.t, now
             if now - last_pose_at > STALL_WALL_S:
                 raise RuntimeError(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
-            if p is None or p.t < t_next - 1e-6:
-                passed_at = now
-                continue
-            if self._following_pose or now - passed_at > FRAME_TIMEOUT_WALL_S:
-                if not self._following_pose:
-                    self._event(stream, "frames_lost", after=self.t)
+            lost, spoke_wall = stream.frame_fate(t_next)
+            why = "not sent (detector/status)"
+            if not lost:
+                # (loop.time() is time.monotonic() on the default loop, as the stream's wall stamps)
+                silent = now - (start if spoke_wall is None else spoke_wall)
+                passed = p is not None and p.t >= t_next - 1e-6
+                lost = passed and (silent > FRAME_TIMEOUT_WALL_S or (self._following_pose and silent > 1.0))
+                why = f"detector silent for {silent:.1f} s wall"
+                self._following_pose = self._following_pose or lost
+            if lost:
+                if not self._losing:  # one event per run of lost frames
+                    self._event(stream, "frames_lost", after=self.t, why=why)
+                self._losing = True
                 self.frames_lost += 1
-                self._following_pose = True
                 self.t = t_next
                 if self.lockstep is not None:
                     self.lockstep.take(self.t)
@@ -327,6 +368,7 @@ class MissionRunner:
         subs = [
             self.session.declare_subscriber(topics.key(topics.POSE, v), stream.on_pose),
             self.session.declare_subscriber(topics.key(topics.HISTOGRAM, v), stream.on_histogram),
+            self.session.declare_subscriber(topics.key(topics.DETECTOR_STATUS, v), stream.on_status),
         ]
         wall0 = time.monotonic()
         # attached from here: a vehicle run with --lockstep holds at t = 0 until the first ack
