@@ -751,6 +751,8 @@ def _plot_error_vs_dwells(rows: list[dict[str, Any]], path: Path) -> None:
             st = np.array([s for s in stats_ if s[4] >= 3] or stats_, dtype=float)
             line, = ax.plot(st[:, 0], st[:, 1], "o-", label=f"{label} (n={len(a)})")
             ax.fill_between(st[:, 0], st[:, 2], st[:, 3], color=line.get_color(), alpha=0.2)
+            ax.errorbar(st[:, 0], st[:, 1], yerr=[st[:, 1] - st[:, 2], st[:, 3] - st[:, 1]], fmt="none",
+                        color=line.get_color(), capsize=3)  # the band of a single dwell count is a bar
             ax.scatter(a[:, 0] + np.random.default_rng(0).uniform(-0.15, 0.15, len(a)), a[:, 1], s=4,
                        color=line.get_color(), alpha=0.25)
         ax.set_yscale("log")
