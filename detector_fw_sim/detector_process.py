@@ -239,6 +239,7 @@ class DetectorProcess:
         # the first frame of this process flags a gap unless it is frame 0: earlier frames were not sent
         self._driver = FrameConsumer(first_is_gap=True)
         self.stop_event = threading.Event()
+        self._last_hist_t: float | None = None
 
     # -- one frame -------------------------------------------------------------------------------
     def _pose_for(self, t_start: float, t_end: float) -> np.ndarray | None:
@@ -299,6 +300,7 @@ class DetectorProcess:
         hist = _to_histogram(frame, t=t_end, flags=gap, live_time=live, wall_time=time.time())
         self._hist_pub.put(hist.to_bytes())
         self.counters.published += 1
+        self._last_hist_t = float(t_end)
 
     def publish_status(self, t: float) -> None:
         """``detector/status`` at ``t``: every frame ending at or before ``t`` has been handled (its
@@ -308,7 +310,7 @@ class DetectorProcess:
         lost frame from a late one by it, on sim time, and a silent detector from a slow one."""
         c = self.counters
         msg = topics.DetectorStatus(t=float(t), frames=c.frames, stale_frames=c.stale_frames,
-                                    crc_errors=c.rejected, state=self.state)
+                                    crc_errors=c.rejected, state=self.state, last_histogram_t=self._last_hist_t)
         self._status_pub.put(msg.to_bytes())
 
     # -- the loop --------------------------------------------------------------------------------

@@ -96,6 +96,7 @@ class _Stream:
         self.hist_t = -1.0
         self.detector_t = -1.0
         self.detector_wall: float | None = None
+        self.detector_hist_t = -1.0  # the latest histogram time the detector says it published
 
     def _drop(self, exc: topics.PayloadError) -> None:
         """A payload that fails its schema or the board's limits: counted, logged (not every one), dropped."""
@@ -138,14 +139,25 @@ class _Stream:
             return
         with self.lock:
             self.detector_t = max(self.detector_t, status.t)
+            if status.last_histogram_t is not None:
+                self.detector_hist_t = max(self.detector_hist_t, status.last_histogram_t)
             self.detector_wall = time.monotonic()
 
-    def frame_fate(self, t_end: float) -> tuple[bool, float | None]:
-        """(the detector is done with the frame ending at ``t_end`` and sent no histogram for it, the
-        wall time the detector last spoke)."""
+    def frame_fate(self, t_end: float) -> tuple[str, float | None]:
+        """What became of the frame ending at ``t_end``: "received", "pending" (the detector is not done
+        with it yet), "in_flight" (the detector says it sent it or a later one: the histogram is on its
+        way, on another subscription than the status), "not_sent" (the detector is done with it and sent
+        no histogram for it or after it); and the wall time the detector last spoke."""
         with self.lock:
-            lost = self.detector_t >= t_end - 1e-6 and self.hist_t < t_end - 1e-6
-            return lost, self.detector_wall
+            if self.hist_t >= t_end - 1e-6:
+                fate = "received"
+            elif self.detector_t < t_end - 1e-6:
+                fate = "pending"
+            elif self.detector_hist_t >= t_end - 1e-6:
+                fate = "in_flight"
+            else:
+                fate = "not_sent"
+            return fate, self.detector_wall
 
     def _release(self, ready) -> None:
         """Record and queue the pending histograms, in order, up to the first that is not ``ready``."""
@@ -234,8 +246,9 @@ class MissionRunner:
         histogram, or None when it was lost. ``self.t`` is then the sim time of that frame's end.
 
         Lost, decided on sim time: ``detector/status`` says the detector is done with the frame's end and
-        its histogram was not received (statuses follow the histograms they cover on the same session,
-        so a histogram that was sent has arrived by then). Lost, decided on wall time (the flight then
+        sent no histogram for it (its ``last_histogram_t`` is older; statuses and histograms arrive on
+        separate subscriptions, so the status may overtake a histogram: such one is waited for, and
+        declared lost only if it never comes within FRAME_TIMEOUT_WALL_S). Lost, decided on wall time (the flight then
         differs from run to run): the detector has been silent for FRAME_TIMEOUT_WALL_S (killed, hung)
         and the vehicle's pose has passed the frame's end; while it stays silent the mission follows
         the pose frame by frame. A detector that is alive but slow is always waited for.
@@ -246,6 +259,7 @@ class MissionRunner:
         loop = asyncio.get_running_loop()
         start = last_pose_at = loop.time()
         last_pose_t = -1.0
+        in_flight_since: float | None = None
         while True:
             try:
                 hist = await asyncio.wait_for(stream.queue.get(), 0.05)
@@ -268,9 +282,12 @@ class MissionRunner:
                 last_pose_t, last_pose_at = p.t, now
             if now - last_pose_at > STALL_WALL_S:
                 raise RuntimeError(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
-            lost, spoke_wall = stream.frame_fate(t_next)
-            why = "not sent (detector/status)"
-            if not lost:
+            fate, spoke_wall = stream.frame_fate(t_next)
+            lost, why = fate == "not_sent", "not sent (detector/status)"
+            if fate == "in_flight":  # sent, yet not here: zenoh dropped it (wall time: a real loss)
+                in_flight_since = now if in_flight_since is None else in_flight_since
+                lost, why = now - in_flight_since > FRAME_TIMEOUT_WALL_S, "sent but never received"
+            if not lost and fate != "in_flight":
                 # (loop.time() is time.monotonic() on the default loop, as the stream's wall stamps)
                 silent = now - (start if spoke_wall is None else spoke_wall)
                 passed = p is not None and p.t >= t_next - 1e-6

@@ -275,6 +275,9 @@ class DetectorStatus(_Payload):
     stale_frames: int
     crc_errors: int
     state: str = "ok"
+    # sim time of the last histogram this process published (None: none yet, or an older sender); with
+    # ``t`` (every frame ending by then is handled) the mission tells a frame not sent from one in flight
+    last_histogram_t: float | None = None
 
     def validate(self) -> None:
         super().validate()

@@ -105,8 +105,10 @@ def test_mission_survives_injected_faults(tmp_path):
     assert any(DROPOUT_AT - 0.5 <= a <= DROPOUT_AT + 0.5 and 1.9 <= b - a <= 2.5 for a, b in gaps), gaps
     # the kill: no frame spans it. The last frame before it ends by the kill time (give or take how far
     # the launcher's view of the clock lagged the detector's), the restarted detector's first frame
-    # comes after it, and the restart (a new process) costs well over 1 s of sim time at 20x
-    assert any(a <= t_kill + 1.0 and b > t_kill and b - a >= 1.0 for a, b in gaps), \
+    # comes after it, and at least one frame is missing. How much sim time the restart costs depends on
+    # wall time: lockstep holds the clock while the detector is away unless it stays silent for
+    # mission_process.FRAME_TIMEOUT_WALL_S (then the mission follows the pose), so it may be one frame
+    assert any(a <= t_kill + 1.0 and b > t_kill and b - a > 0.15 for a, b in gaps), \
         (t_kill, [g for g in gaps if g[1] > KILL_AT - 10])
     vehicle_log = (out / "logs" / "vehicle.log").read_text()
     dropped = int(vehicle_log.rsplit("dropped-rx ", 1)[1].split()[0])
