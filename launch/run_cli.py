@@ -198,6 +198,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-q", "--quiet", action="store_true", help="no live progress")
     args = p.parse_args(argv)
     speedup = 1.0 if args.realtime else args.speedup
+    # refuse what the child processes would refuse, before any of them starts
+    if not 0 < speedup <= 1000:
+        p.error(f"--speedup {speedup:g} must be in (0, 1000] (the vehicle's range)")
+    if args.max_dwells < 1:
+        p.error(f"--max-dwells {args.max_dwells} must be >= 1")
 
     from detector_fw_sim.scene import SceneError, load_scene
     from radseek.dataset import write_json

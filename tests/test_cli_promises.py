@@ -11,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from radseek.inspect_cli import ZENOH_CLI_COMMAND
 from radseek.zenoh_session import open_session
 from tests.conftest import free_port
@@ -75,3 +77,15 @@ def test_plan_runs_with_no_arguments(tmp_path):
     proc = subprocess.run([*RADSEEK, "plan"], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "planning an exploration" in proc.stderr and "dwell point(s)" in proc.stdout
+
+
+@pytest.mark.parametrize("bad", [["--speedup", "-5"], ["--speedup", "0"], ["--speedup", "5000"],
+                                 ["--max-dwells", "0"]])
+def test_run_refuses_invalid_options_before_starting_anything(bad, tmp_path, capsys):
+    from launch import run_cli
+
+    with pytest.raises(SystemExit) as exc:
+        run_cli.main([*bad, "--out", str(tmp_path / "run")])
+    assert exc.value.code == 2
+    assert bad[0] in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before the output folder (or any process) was made
