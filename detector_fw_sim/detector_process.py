@@ -194,13 +194,17 @@ class TruthPoseFollower:
         """Block until a true pose at or after sim time ``t`` is in, so a frame's pose does not depend on
         which messages won the race against ``sim/clock`` (the clock and the poses arrive on separate
         subscriptions, and the clock may be seen first on a loaded host). Gives up (False) as soon as no
-        pose has arrived for ``stall_wall_s`` wall seconds: the stream stopped, the frame goes stale."""
+        pose has arrived for ``stall_wall_s`` wall seconds (the stream stopped, the frame goes stale) or
+        after 4 x ``stall_wall_s`` in all (poses flow but stay behind: the clock went back, an owner
+        restart, which ``follow_clock`` handles next)."""
+        deadline = time.monotonic() + 4 * stall_wall_s
         with self._lock:
             while True:
                 last = self._history.latest()
                 if last is not None and last.t >= t - 1e-6:
                     return True
-                if self._last_rx_wall is None or time.monotonic() - self._last_rx_wall > stall_wall_s:
+                now = time.monotonic()
+                if self._last_rx_wall is None or now - self._last_rx_wall > stall_wall_s or now > deadline:
                     return False
                 self._lock.wait(0.05)
 
