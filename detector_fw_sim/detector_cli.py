@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stale-after", type=_positive, default=0.5, metavar="S",
                    help="flag frames STALE_POSE when no true pose arrived for S sim seconds (default 0.5)")
     p.add_argument("--until", type=_positive, metavar="T", help="stop at sim time T (default: run until stopped)")
+    p.add_argument("--truth-wait", type=float, default=0.0, metavar="S",
+                   help="wait up to S wall seconds for the true pose at a frame's end before drawing it (lockstep "
+                        "runs: the pose and the clock may arrive in either order; default 0: do not wait)")
     f = p.add_argument_group("fault injection")
     f.add_argument("--corrupt-rate", type=_rate, default=0.0, metavar="P",
                    help="flip 1-3 bytes of a raw frame with probability P (consumers reject it by CRC)")
@@ -120,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     config = DetectorConfig(
         vehicle=args.vehicle_name,
         stale_after_s=args.stale_after,
+        truth_wait_wall_s=max(args.truth_wait, 0.0),
         fixed_pose=args.pose,
         until=args.until,
         seed=args.seed,

@@ -50,6 +50,9 @@ if TYPE_CHECKING:
     from detector_fw_sim.scene import Scene
 
 
+#: sim s: a true pose this far behind a frame's end is not late by a race with sim/clock (a step or two)
+RACE_WINDOW_S = 1.0
+
 class CountSource(Protocol):
     """What the process needs from ``detector_fw_sim.emulator.DetectorEmulator``."""
 
@@ -124,7 +127,7 @@ class DetectorConfig:
     max_catch_up_s: float = 10.0  # sim s: further behind than this (a clock jump), skip frames instead of bursting
     max_clock_back_s: float = 1.0  # sim s: the clock went back further than this (owner restart): resynchronise
     max_pose_lead_s: float = 5.0  # sim s: a true pose further ahead of the clock than this is dropped
-    truth_wait_wall_s: float = 0.5  # wall s: a frame waits for the true pose at its end while poses flow
+    truth_wait_wall_s: float = 0.0  # wall s: a frame waits for the true pose at its end while poses flow (lockstep)
 
 
 @dataclass
@@ -151,6 +154,7 @@ class TruthPoseFollower:
         self._lock = threading.Condition()  # notified at every pose added
         self._history: PoseHistory[topics.TruthPose] = PoseHistory(keep_s=30.0)
         self._last_rx_wall: float | None = None
+        self._gave_up_at: float | None = None  # _last_rx_wall when a wait last gave up
         self._counters = counters
         self._clock = clock
         self._max_lead_s = max_lead_s
@@ -203,8 +207,13 @@ class TruthPoseFollower:
                 last = self._history.latest()
                 if last is not None and last.t >= t - 1e-6:
                     return True
+                if last is not None and t - last.t > RACE_WINDOW_S:
+                    return False  # not a race of a step or two: another timeline (owner restart) or a hole
+                if self._last_rx_wall is None or self._last_rx_wall == self._gave_up_at:
+                    return False  # nothing new since the last wait gave up: a stalled stream costs one wait
                 now = time.monotonic()
-                if self._last_rx_wall is None or now - self._last_rx_wall > stall_wall_s or now > deadline:
+                if now - self._last_rx_wall > stall_wall_s or now > deadline:
+                    self._gave_up_at = self._last_rx_wall
                     return False
                 self._lock.wait(0.05)
 
@@ -265,7 +274,7 @@ class DetectorProcess:
             self.counters.dropout_frames += 1
             self.state = "dropout"
             return
-        if self._poses is not None:  # the pose at t1 is published before the clock, but may arrive after it
+        if self._poses is not None and self.config.truth_wait_wall_s > 0:  # the pose at t1 may arrive after the clock
             self._poses.wait_until(t1, self.config.truth_wait_wall_s)
         pose = self._pose_for(t0, t1)
         live: float | None = None

@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         stack.start("router", _radseek("router", "--listen", endpoint))
         detector_cmd = _radseek(
             "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
-            "--connect", endpoint, *args.detector_arg)
+            "--connect", endpoint, *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg)
         stack.start("detector", detector_cmd)
         # the vehicle owns sim time: start it only once the detector has built its response and is
         # waiting for the clock, and the mission is up and recording (its first mission/state follows its
