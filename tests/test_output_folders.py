@@ -176,7 +176,10 @@ def _rows(path: Path) -> int:
 
 
 def _port_free(port: int) -> bool:
+    """Nothing listens on the port. SO_REUSEADDR: connections the stopped router closed linger in TIME_WAIT
+    for 60 s and would fail a plain bind although no process holds the port."""
     with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("127.0.0.1", port))
         except OSError:
