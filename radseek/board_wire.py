@@ -25,6 +25,7 @@ the consumer-side check that flags lost frames (``FLAG_GAP``).
 
 from __future__ import annotations
 
+import operator
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -79,24 +80,36 @@ class Frame:
         return int(sum(self.counts))
 
 
+def _integer(what: str, value: object) -> int:
+    """``value`` as an exact integer (Python or numpy int); a float, bool or string is a ``ValueError``."""
+    if isinstance(value, bool):
+        raise ValueError(f"{what}={value!r} must be an integer, not a bool")
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise ValueError(f"{what}={value!r} must be an integer, not {type(value).__name__}") from None
+
+
 def encode_frame(frame: Frame) -> bytes:
     """The 90-byte wire encoding of ``frame``; raises ``ValueError`` if a field does not fit."""
     if len(frame.counts) != N_CHANNELS:
         raise ValueError(f"frame needs {N_CHANNELS} counts, got {len(frame.counts)}")
+    fields = {}
     for name, value, hi in (
         ("seq", frame.seq, U32_MAX),
         ("board_time_us", frame.board_time_us, U64_MAX),
         ("integration_us", frame.integration_us, U32_MAX),
         ("flags", frame.flags, 0xFF),
     ):
-        if not 0 <= value <= hi:
+        fields[name] = _integer(f"frame field {name}", value)
+        if not 0 <= fields[name] <= hi:
             raise ValueError(f"frame field {name}={value} does not fit its field (0..{hi})")
-    if any(not 0 <= c <= COUNT_MAX for c in frame.counts):
+    counts = [_integer(f"frame count [{i}]", c) for i, c in enumerate(frame.counts)]
+    if any(not 0 <= c <= COUNT_MAX for c in counts):
         raise ValueError(f"frame counts must be in 0..{COUNT_MAX} (clamp and set STATUS_SATURATED)")
-    head = _HEADER.pack(
-        SYNC, VERSION, FRAME_SIZE, frame.seq, frame.board_time_us, frame.integration_us, frame.flags, 0
-    )
-    body = head + _COUNTS.pack(*frame.counts)
+    head = _HEADER.pack(SYNC, VERSION, FRAME_SIZE, fields["seq"], fields["board_time_us"],
+                        fields["integration_us"], fields["flags"], 0)
+    body = head + _COUNTS.pack(*counts)
     return body + _CRC.pack(zlib.crc32(body[_CRC_START:]))
 
 

@@ -206,6 +206,25 @@ def test_encode_refuses_values_that_do_not_fit():
         encode_frame(Frame(seq=0, board_time_us=0, integration_us=0, flags=0, counts=(COUNT_MAX + 1,) + (0,) * 31))
 
 
+
+@pytest.mark.parametrize("field_name, value", [
+    ("seq", 2.5), ("board_time_us", "7"), ("integration_us", None), ("flags", True),
+])
+def test_encode_names_a_field_that_is_not_an_integer(field_name, value):
+    """A float/str/None/bool field is a ValueError naming the field, never a bare struct.error."""
+    kw = dict(seq=0, board_time_us=0, integration_us=100_000, flags=0, counts=(0,) * 32)
+    kw[field_name] = value
+    with pytest.raises(ValueError, match=field_name):
+        encode_frame(Frame(**kw))
+
+
+def test_encode_names_a_count_that_is_not_an_integer_and_accepts_numpy_ints():
+    with pytest.raises(ValueError, match=r"count \[3\]"):
+        encode_frame(Frame(seq=0, board_time_us=0, integration_us=0, flags=0, counts=(0, 0, 0, 2.5) + (0,) * 28))
+    f = Frame(seq=np.uint32(1), board_time_us=np.int64(2), integration_us=3, flags=0,
+              counts=tuple(np.arange(32, dtype=np.uint16)))
+    assert decode_frame(encode_frame(f)).counts == tuple(range(32))
+
 def test_histogram_message_carries_the_frame():
     f = Board().make_frame(12, np.arange(32))
     h = frame_to_histogram(f, t=1.3, flags=topics.FLAG_GAP)
