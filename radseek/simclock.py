@@ -28,6 +28,7 @@ from typing import Protocol
 import zenoh
 
 from radseek import topics
+from radseek.payload_drops import DropCounter
 
 log = logging.getLogger(__name__)
 
@@ -94,21 +95,19 @@ class ZenohClock:
         self.epoch = 0  # incremented at every resynchronisation
         self.resyncs = 0  # the clock was resynchronised to a new timeline (owner restart, real jump)
         self.rejected = 0  # samples off the timeline that the owner did not confirm (dropped)
-        self.bad_msgs = 0  # samples that failed validation (dropped)
+        self._drops = DropCounter(log, "dropped invalid sample")  # samples that failed validation
         self.last_jump: tuple[float, float] | None = None  # (from, to) of the last resync
         self._sub = session.declare_subscriber(topics.key(topics.SIM_CLOCK, vehicle), self._on_clock)
 
+    @property
+    def bad_msgs(self) -> int:
+        """Samples that failed validation (dropped)."""
+        return self._drops.count
+
     def _on_clock(self, sample: zenoh.Sample) -> None:
-        try:
-            msg = topics.SimClock.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError as exc:
-            with self._cond:
-                self.bad_msgs += 1
-                n = self.bad_msgs
-            if n <= 3 or n % 100 == 0:
-                log.warning("dropped invalid sample #%d: %s", n, exc)
-            return
-        self.offer(msg.t, msg.speedup)
+        msg = self._drops.decode(topics.SimClock, sample)
+        if msg is not None:
+            self.offer(msg.t, msg.speedup)
 
     def offer(self, t: float, speedup: float) -> None:
         """One owner sample (sim time ``t``, its speed-up): accept, ignore, hold or resynchronise."""

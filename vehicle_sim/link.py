@@ -27,6 +27,8 @@ os.environ.setdefault("MAVLINK20", "1")
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
+from radseek.payload_drops import worth_reporting  # noqa: E402
+
 log = logging.getLogger(__name__)
 
 SIGNING_EPOCH_S = 1420070400  # MAVLink signing timestamps count 10 us units since 2015-01-01
@@ -252,7 +254,7 @@ class Link:
     def _refused(self, ep: Endpoint, msg, reason: str, addr) -> None:
         self.stats.rejected_signature += 1
         n = self.stats.rejected_signature
-        if n <= 10 or n % 100 == 0:  # a flood of forgeries must not flood the log
+        if worth_reporting(n, first=10):  # a flood of forgeries must not flood the log
             log.warning("%s: refused %s from %d/%d at %s: %s (%d refused so far)", ep.name, msg.get_type(),
                         msg.get_srcSystem(), msg.get_srcComponent(), addr, reason, n)
 

@@ -20,6 +20,7 @@ import threading
 import time
 
 from radseek import topics
+from radseek.payload_drops import DropCounter
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +37,7 @@ class LockstepGate:
         self._last_msg: float | None = None
         self.released: str | None = None  # why lockstep was released (None while engaged)
         self.messages = 0
-        self.bad_messages = 0
+        self._drops = DropCounter(log, "lockstep: dropped invalid message")
         # wakes the vehicle loop's select() at once when a message arrives
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
@@ -44,16 +45,9 @@ class LockstepGate:
 
     # -- input -----------------------------------------------------------------------------------
     def on_sample(self, sample) -> None:
-        try:
-            msg = topics.MissionLockstep.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError as exc:
-            with self._lock:
-                self.bad_messages += 1
-                n = self.bad_messages
-            if n <= 3 or n % 100 == 0:
-                log.warning("lockstep: dropped invalid message #%d: %s", n, exc)
-            return
-        self.offer(msg)
+        msg = self._drops.decode(topics.MissionLockstep, sample)
+        if msg is not None:
+            self.offer(msg)
 
     def offer(self, msg: topics.MissionLockstep) -> None:
         with self._lock:
@@ -70,6 +64,11 @@ class LockstepGate:
             self._wake_w.send(b"\0")
         except OSError:  # buffer full: the loop is awake anyway
             pass
+
+    @property
+    def bad_messages(self) -> int:
+        """Messages that failed validation (dropped)."""
+        return self._drops.count
 
     # -- for the vehicle loop --------------------------------------------------------------------
     def limit(self, now_wall: float | None = None) -> float | None:
