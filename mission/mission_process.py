@@ -113,7 +113,8 @@ class _Stream:
             self._drop(exc)
             return
         with self.lock:
-            self.poses.add(pose)
+            if not self.poses.add(pose):
+                return  # out of order, or off the timeline until a second pose confirms it
             self.latest_pose = pose
             self._release(lambda h, _w: h.t <= pose.t + 1e-6)
 

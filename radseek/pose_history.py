@@ -19,23 +19,55 @@ P = TypeVar("P")
 
 
 class PoseHistory(Generic[P]):
-    """A bounded, thread-safe window of poses in time order; linear interpolation, yaw unwrapped."""
+    """A bounded, thread-safe window of poses in time order; linear interpolation, yaw unwrapped.
 
-    def __init__(self, keep_s: float = 60.0):
+    One pose off the timeline (a forged or corrupt time far ahead, a stale one far behind) must not
+    capture the history: a pose more than ``max_jump_s`` from the latest is held aside and taken only
+    when the next pose confirms its timeline (a real gap in the stream, or the owner restarted and its
+    clock went back, which starts the history anew). A single outlier is dropped and costs nothing."""
+
+    def __init__(self, keep_s: float = 60.0, max_jump_s: float = 5.0):
         self.keep_s = keep_s
+        self.max_jump_s = max_jump_s
         self._t: list[float] = []
         self._p: list[P] = []
+        self._held: P | None = None  # a pose off the timeline, waiting for a second one to confirm it
+        self.dropped_jumps = 0  # poses off the timeline that no second pose confirmed
+        self.restarts = 0  # confirmed jumps back in time: the history started anew
         self._lock = threading.Lock()
 
-    def add(self, pose: P) -> None:
+    def add(self, pose: P) -> bool:
+        """Add ``pose``; False when it is not (yet) taken: out of order, or off the timeline."""
+        t = pose.t  # type: ignore[attr-defined]
         with self._lock:
-            if self._t and pose.t < self._t[-1]:  # type: ignore[attr-defined]
-                return  # out of order: the newer estimate wins
-            self._t.append(pose.t)  # type: ignore[attr-defined]
-            self._p.append(pose)
-            cut = bisect.bisect_left(self._t, pose.t - self.keep_s)  # type: ignore[attr-defined]
-            if cut:
-                del self._t[:cut], self._p[:cut]
+            if self._t and abs(t - self._t[-1]) > self.max_jump_s:
+                held, self._held = self._held, pose
+                if held is None or not 0.0 <= t - held.t <= self.max_jump_s:  # type: ignore[attr-defined]
+                    if held is not None:
+                        self.dropped_jumps += 1
+                    return False
+                self._held = None
+                if t < self._t[-1]:  # the timeline went back and two poses agree: start anew
+                    self.restarts += 1
+                    self._t, self._p = [], []
+                self._append(held)
+                self._append(pose)
+                return True
+            if self._held is not None:
+                self.dropped_jumps += 1
+                self._held = None
+            if self._t and t < self._t[-1]:
+                return False  # out of order: the newer estimate wins
+            self._append(pose)
+            return True
+
+    def _append(self, pose: P) -> None:
+        t = pose.t  # type: ignore[attr-defined]
+        self._t.append(t)
+        self._p.append(pose)
+        cut = bisect.bisect_left(self._t, t - self.keep_s)
+        if cut:
+            del self._t[:cut], self._p[:cut]
 
     def __len__(self) -> int:
         return len(self._t)
