@@ -24,7 +24,7 @@ from typing import Any
 
 from radseek import topics
 from radseek.mcap_log import json_schema
-from radseek.serve import serve_until_stopped
+from radseek.serve import serve_on_session
 
 MAP_HZ = 5.0  # wall Hz at most for /map updates
 
@@ -194,7 +194,7 @@ def _load_area(args) -> tuple[Any, list[Any]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from radseek.zenoh_session import add_arguments, session_from_args
+    from radseek.zenoh_session import add_arguments
 
     p = argparse.ArgumentParser(prog="radseek view", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -218,20 +218,10 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - any unreadable map is reported the same way
         print(f"radseek view: cannot read the map: {exc}", file=sys.stderr)
         return 2
-    try:
-        session = session_from_args(args, wait_for_router_s=3.0)
-    except (TimeoutError, FileNotFoundError) as exc:
-        print(f"radseek view: {exc}", file=sys.stderr)
-        return 1
-    try:
-        view = LiveView(session, host=args.host, port=args.port, bounds=bounds, walls=walls)
-    except Exception as exc:  # noqa: BLE001 - foxglove raises its own error types for a taken port
-        session.close()
-        print(f"radseek view: cannot serve on {args.host}:{args.port} ({exc}): choose another with --port",
-              file=sys.stderr)
-        return 1
-    print(f"radseek view: Foxglove WebSocket on ws://{args.host}:{view.port} (open it in Foxglove)", flush=True)
-    serve_until_stopped(args.duration)
-    view.close()
-    session.close()
-    return 0
+    return serve_on_session(
+        "radseek view", args,
+        lambda session: LiveView(session, host=args.host, port=args.port, bounds=bounds, walls=walls),
+        Exception,  # foxglove raises its own error types for a taken port
+        lambda exc: f"cannot serve on {args.host}:{args.port} ({exc}): choose another with --port",
+        started=lambda view: f"radseek view: Foxglove WebSocket on ws://{args.host}:{view.port} (open it in Foxglove)",
+        stop=LiveView.close)

@@ -12,16 +12,13 @@ from __future__ import annotations
 import argparse
 import inspect
 import re
-import sys
 import threading
 import time
 from dataclasses import dataclass, fields
 
 from radseek import topics
-from radseek.serve import serve_until_stopped
-from radseek.zenoh_session import add_arguments, session_from_args
-
-ROUTER_WAIT_S = 3.0  # s: an inspection tool says at once that no router answers, instead of waiting silently
+from radseek.serve import open_session_or_report, serve_until_stopped
+from radseek.zenoh_session import add_arguments
 
 # who publishes each topic (documentation only; the schema itself lives in radseek/topics.py)
 PUBLISHERS: dict[str, str] = {
@@ -179,10 +176,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.duration <= 0:
         p.error("--duration must be > 0")
-    try:
-        session = session_from_args(args, wait_for_router_s=ROUTER_WAIT_S)
-    except (TimeoutError, FileNotFoundError) as exc:
-        print(f"radseek topics: {exc}", file=sys.stderr)
+    session = open_session_or_report("radseek topics", args)
+    if session is None:
         return 1
     lock = threading.Lock()
     stats: dict[str, KeyStats] = {}

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from radseek import topics
-from radseek.serve import serve_until_stopped
+from radseek.serve import serve_on_session
 
 log = logging.getLogger(__name__)
 RAW_ENCODING = "radseek.board_frame"
@@ -216,9 +216,8 @@ def read(path: str | Path) -> Iterator[tuple[str, int, int, Any]]:
 def main(argv: list[str] | None = None) -> int:
     """``radseek record``: write an MCAP log of the live zenoh topics and the vehicle's MAVLink."""
     import argparse
-    import sys
 
-    from radseek.zenoh_session import add_arguments, session_from_args
+    from radseek.zenoh_session import add_arguments
 
     p = argparse.ArgumentParser(prog="radseek record", description=main.__doc__)
     p.add_argument("--out", type=Path, default=Path("flight.mcap"), help="MCAP file to write (default flight.mcap)")
@@ -231,21 +230,9 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--duration must be > 0")
     if args.out.exists() and args.out.is_dir():
         p.error(f"--out {args.out} is a directory")
-    try:
-        session = session_from_args(args, wait_for_router_s=3.0)
-    except (TimeoutError, FileNotFoundError) as exc:
-        print(f"radseek record: {exc}", file=sys.stderr)
-        return 1
-    try:
-        rec = Recorder(args.out, session, mavlink_port=args.mavlink_port)
-    except OSError as exc:
-        session.close()
-        print(f"radseek record: UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another "
-              "with --mavlink-port", file=sys.stderr)
-        return 1
-    print(f"recording {topics.all_keys()} to {args.out}", flush=True)
-    serve_until_stopped(args.duration)
-    path = rec.stop()
-    session.close()
-    print(f"wrote {path}: {rec.log.count} messages", flush=True)
-    return 0
+    return serve_on_session(
+        "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=args.mavlink_port),
+        OSError, lambda exc: f"UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another with "
+                             "--mavlink-port",
+        started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
+        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints

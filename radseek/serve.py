@@ -2,8 +2,61 @@
 
 from __future__ import annotations
 
+import argparse
 import signal
+import sys
 import threading
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
+
+if TYPE_CHECKING:
+    import zenoh
+
+T = TypeVar("T")
+
+ROUTER_WAIT_S = 3.0  # s: an inspection tool says at once that no router answers, instead of waiting silently
+
+
+def open_session_or_report(prog: str, args: argparse.Namespace,
+                           wait_for_router_s: float = ROUTER_WAIT_S) -> zenoh.Session | None:
+    """The zenoh session the command line asks for (``radseek.zenoh_session`` options), or None after
+    printing ``<prog>: <why>`` on stderr (no router answered, the config file does not exist)."""
+    from radseek.zenoh_session import session_from_args  # zenoh only once a tool really connects
+
+    try:
+        return session_from_args(args, wait_for_router_s=wait_for_router_s)
+    except (TimeoutError, FileNotFoundError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+
+
+def serve_on_session(prog: str, args: argparse.Namespace, start: Callable[[zenoh.Session], T],
+                     errors: type[Exception] | tuple[type[Exception], ...], explain: Callable[[Exception], str], *,
+                     started: Callable[[T], str], stop: Callable[[T], str | None]) -> int:
+    """The life of a tool that serves the live topics until stopped (``radseek view``, ``radseek record``).
+
+    Opens the session (as ``open_session_or_report``), starts ``start(session)`` on it (a server, a recorder:
+    it binds a port), prints ``started(server)``, serves until SIGTERM, Ctrl-C or ``args.duration`` wall
+    seconds, then calls ``stop(server)``, closes the session and prints what ``stop`` returned (if not None).
+    Exit status 0, or 1 after printing ``<prog>: <why>`` on stderr when there is no session or ``start``
+    raises one of ``errors`` (the session is closed; ``explain(exc)`` is the why).
+    """
+    session = open_session_or_report(prog, args)
+    if session is None:
+        return 1
+    try:
+        server = start(session)
+    except errors as exc:
+        session.close()
+        print(f"{prog}: {explain(exc)}", file=sys.stderr)
+        return 1
+    print(started(server), flush=True)
+    serve_until_stopped(args.duration)
+    summary = stop(server)
+    session.close()
+    if summary is not None:
+        print(summary, flush=True)
+    return 0
 
 
 def serve_until_stopped(duration_s: float | None = None) -> None:
