@@ -44,23 +44,23 @@ RATES: dict[str, str] = {
 
 @dataclass
 class KeyStats:
+    """The messages seen on one key: how many, their bytes, when the first and the last arrived."""
     count: int = 0
     nbytes: int = 0
-    first: float = 0.0
-    last: float = 0.0
+    seen: tuple[float, float] | None = None  # wall times of the first and the last message (None: none yet)
 
     def add(self, n: int, wall: float) -> None:
-        if self.count == 0:
-            self.first = wall
         self.count += 1
         self.nbytes += n
-        self.last = wall
+        self.seen = (wall if self.seen is None else self.seen[0], wall)
 
     @property
     def rate(self) -> float:
         """Messages per wall second from inter-arrival times (0 with fewer than two messages)."""
-        span = self.last - self.first
-        return (self.count - 1) / span if self.count > 1 and span > 0 else 0.0
+        if self.seen is None or self.count < 2:
+            return 0.0
+        span = self.seen[1] - self.seen[0]
+        return (self.count - 1) / span if span > 0 else 0.0
 
 
 def schema_name(full_key: str) -> str:
