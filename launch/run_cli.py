@@ -38,7 +38,7 @@ from datetime import datetime
 from pathlib import Path
 
 from estimator.inflight import sigma_m
-from mission.search import STRATEGIES
+from mission.search import STRATEGIES, search_failure
 from radseek import topics
 from radseek.simclock import ZenohClock
 
@@ -47,18 +47,6 @@ PY = sys.executable
 EXIT_FOUND, EXIT_STACK, EXIT_USAGE, EXIT_SEARCH_FAILED = 0, 1, 2, 3
 #: what a run writes under --out, summaries and reports first: --force removes them in this order
 RUN_OUTPUTS = ("summary.json", "report.png", "dataset", "logs", "scenario.json", "scene.json")
-
-
-def search_failure(mission_summary: dict) -> str | None:
-    """Why the search failed, from the mission's summary; None when it located the source."""
-    reason = str(mission_summary.get("reason", ""))
-    if reason.startswith("search aborted"):
-        return reason
-    if mission_summary.get("estimate") is None:
-        return f"no source estimate ({reason})"
-    if reason.startswith("source found") or " pattern flown" in reason:
-        return None
-    return f"no source found: {reason}"
 
 
 def print_summary(summary: dict, out: Path, stdout=None, stderr=None) -> None:
@@ -296,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         stack.stop()
     wall = time.monotonic() - t0
-    if mission.returncode != 0:
+    if mission.returncode not in (EXIT_FOUND, EXIT_SEARCH_FAILED):  # the mission's own verdict is read below
         print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
         return EXIT_STACK
     try:
@@ -305,6 +293,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek run: the mission left no summary ({exc}); see {out}/logs/mission.log", file=sys.stderr)
         return EXIT_STACK
     failure = search_failure(mission_summary)
+    if (mission.returncode == EXIT_SEARCH_FAILED) != (failure is not None):
+        print(f"radseek run: the mission's exit code {mission.returncode} disagrees with its summary "
+              f"({mission_summary.get('reason')!r})", file=sys.stderr)
     atomic_write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
     from launch.report import write_report
 

@@ -6,6 +6,13 @@ flight is written to ``--out`` as a dataset, with ``mission_summary.json`` and `
 A non-empty ``--out`` is refused unless ``--force`` (which removes the previous mission outputs there
 first, the summary before the data; other files are kept); ``mission_summary.json`` is written
 atomically when the vehicle has landed, frames as they arrive.
+
+exit codes (as ``radseek run``'s):
+  0  the search ended on its own criterion with the source located (or a pattern flown to its end)
+  1  the flight failed: no vehicle, a refused command, a mission error (with --plan: the plan failed)
+  2  usage: bad options or scenario, or --out is not empty and --force was not given
+  3  the search failed: aborted (failsafe, vehicle landed, ...) or ended without locating the source;
+     the recorded flight and mission_summary.json are kept for examination
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import sys
 from pathlib import Path
 
 from mission.client.connection import DEFAULT_URL
-from mission.search import STRATEGIES
+from mission.search import STRATEGIES, search_failure
 from radseek import zenoh_session
 from radseek.dataset import DatasetError, read_scenario
 from radseek.outdir import OutputDirError, prepare_output
@@ -83,4 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         summary = run_mission(session, scenario, Path(args.out), config, settings)
     print(json.dumps({k: summary[k] for k in ("reason", "dwell_points", "mission_time_s", "estimate")},
                      default=float))
+    failure = search_failure(summary)
+    if failure is not None:
+        print(f"radseek mission: search failed: {failure}", file=sys.stderr)
+        return 3
     return 0

@@ -253,3 +253,15 @@ class SearchBrain:
     @property
     def estimate(self) -> dict | None:
         return self.estimates[-1] if self.estimates else None
+
+
+def search_failure(mission_summary: dict) -> str | None:
+    """Why the search failed, from the mission's summary; None when it located the source."""
+    reason = str(mission_summary.get("reason", ""))
+    if reason.startswith("search aborted"):
+        return reason
+    if mission_summary.get("estimate") is None:
+        return f"no source estimate ({reason})"
+    if reason.startswith("source found") or " pattern flown" in reason:
+        return None
+    return f"no source found: {reason}"

@@ -8,6 +8,7 @@ import sys
 
 import pytest
 
+from mission.search import search_failure
 from tests.conftest import free_port
 from vehicle_sim.harness import free_udp_port
 
@@ -38,8 +39,14 @@ def test_same_seed_same_flight(tmp_path):
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    for p, (_, err) in zip(procs, results, strict=True):
+    for p, (_, err), o in zip(procs, results, outs, strict=True):
         assert p.returncode in (0, 3), err[-3000:]  # 3: searched to the end of the 4-dwell budget
+        # the exit code is the mission's verdict, said by `radseek mission` itself (exit 3, logged) and by run
+        failure = search_failure(json.loads((o / "dataset" / "mission_summary.json").read_text()))
+        assert p.returncode == (0 if failure is None else 3), err[-3000:]
+        assert "disagrees with its summary" not in err
+        mission_log = (o / "logs" / "mission.log").read_text()
+        assert ("radseek mission: search failed" in mission_log) == (failure is not None), mission_log[-2000:]
     a, b = (json.loads((o / "summary.json").read_text()) for o in outs)
     assert a["dwell_points"] == 4 and a["frames_recorded"] > 100
     for key in ("error_m", "dwell_points", "mission_time_s", "flight_time_s", "frames_recorded"):
