@@ -113,29 +113,23 @@ class Progress:
         self.state: topics.MissionState | None = None
         self.estimate: topics.Estimate | None = None
         self.lock = threading.Lock()
-        self._subs = [
-            session.declare_subscriber(topics.key(topics.MISSION_STATE, vehicle), self._on_state),
-            session.declare_subscriber(topics.key(topics.ESTIMATE, vehicle), self._on_estimate),
-        ]
+        self._subs = [session.declare_subscriber(topics.key(name, vehicle), self._keeping(attr, schema))
+                      for name, attr, schema in ((topics.MISSION_STATE, "state", topics.MissionState),
+                                                 (topics.ESTIMATE, "estimate", topics.Estimate))]
         self._last = ""
 
-    def _on_state(self, sample) -> None:
-        try:
-            st = topics.MissionState.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError:
-            return
-        with self.lock:
-            self.state = st
-        self.show()
-
-    def _on_estimate(self, sample) -> None:
-        try:
-            est = topics.Estimate.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError:
-            return
-        with self.lock:
-            self.estimate = est
-        self.show()
+    def _keeping(self, attr: str, schema):
+        """A subscriber callback that keeps the latest valid ``schema`` message in ``attr`` and redraws
+        (an invalid one is ignored: the display shows what it can)."""
+        def on_sample(sample) -> None:
+            try:
+                msg = schema.from_bytes(sample.payload.to_bytes())
+            except topics.PayloadError:
+                return
+            with self.lock:
+                setattr(self, attr, msg)
+            self.show()
+        return on_sample
 
     def show(self) -> None:
         with self.lock:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -53,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="instead of a search: fly a QGroundControl .plan file (mission, geofence, rally points)")
     zenoh_session.add_arguments(p)
     args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="radseek mission: %(message)s", stream=sys.stderr)
     if args.plan is not None:
         from mission.client.connection import ConnectionFailed
         from mission.client.mission_upload import MissionFailed

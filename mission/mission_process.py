@@ -28,8 +28,8 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+import logging
 import math
-import sys
 import threading
 import time
 from dataclasses import asdict, dataclass
@@ -49,6 +49,9 @@ from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
 from radseek.outdir import atomic_write_json
+from radseek.payload_drops import DropCounter
+
+log = logging.getLogger("radseek.mission")
 
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
@@ -86,7 +89,7 @@ class _Stream:
         self.lock = threading.Lock()
         self.dwell_index = -1
         self.records: list[FrameRecord] = []  # the usable ones, for the estimator
-        self.bad_payloads = 0
+        self.drops = DropCounter(log, "dropped invalid payload", first=10)
         self.latest_pose: topics.Pose | None = None
         # histograms waiting for the pose at their end time (the pose is published before the clock that
         # makes the frame, but on another path): recorded in order once it is in, or after POSE_WAIT_WALL_S
@@ -98,19 +101,9 @@ class _Stream:
         self.detector_wall: float | None = None
         self.detector_hist_t = -1.0  # the latest histogram time the detector says it published
 
-    def _drop(self, exc: topics.PayloadError) -> None:
-        """A payload that fails its schema or the board's limits: counted, logged (not every one), dropped."""
-        with self.lock:
-            self.bad_payloads += 1
-            n = self.bad_payloads
-        if n <= 10 or n % 100 == 0:
-            print(f"radseek mission: dropped invalid payload #{n}: {exc}", file=sys.stderr, flush=True)
-
     def on_pose(self, sample: zenoh.Sample) -> None:
-        try:
-            pose = topics.Pose.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError as exc:
-            self._drop(exc)
+        pose = self.drops.decode(topics.Pose, sample)  # fails its schema or the board's limits: dropped
+        if pose is None:
             return
         with self.lock:
             if not self.poses.add(pose):
@@ -119,10 +112,8 @@ class _Stream:
             self._release(lambda h, _w: h.t <= pose.t + 1e-6)
 
     def on_histogram(self, sample: zenoh.Sample) -> None:
-        try:
-            hist = topics.Histogram.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError as exc:
-            self._drop(exc)
+        hist = self.drops.decode(topics.Histogram, sample)
+        if hist is None:
             return
         now = time.monotonic()
         with self.lock:
@@ -133,10 +124,8 @@ class _Stream:
             self._release(lambda h, w: (latest is not None and h.t <= latest.t + 1e-6) or now - w > POSE_WAIT_WALL_S)
 
     def on_status(self, sample: zenoh.Sample) -> None:
-        try:
-            status = topics.DetectorStatus.from_bytes(sample.payload.to_bytes())
-        except topics.PayloadError as exc:
-            self._drop(exc)
+        status = self.drops.decode(topics.DetectorStatus, sample)
+        if status is None:
             return
         with self.lock:
             self.detector_t = max(self.detector_t, status.t)
@@ -473,7 +462,7 @@ class MissionRunner:
                 "frames_received": recorder.received,
                 "frames_recorded": recorder.recorded,
                 "frames_flagged": recorder.flagged,
-                "bad_payloads": stream.bad_payloads,
+                "bad_payloads": stream.drops.count,
                 "frames_lost": self.frames_lost,
             }
             self.publish_state(stream, "done", summary["reason"])
