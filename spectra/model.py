@@ -16,7 +16,7 @@ Expected counts in native channel j of a measured spectrum (boundaries b_j in th
 - threshold: eff_thr(E) = Phi((E - E_thr) / w_thr), the discriminator's soft edge;
 - B_j: the measured background scaled by live time (fixed), A: the source amplitude (free).
 
-Every effect is a named group of parameters (``EFFECTS``); parameters of an effect that is off keep the baseline
+Every effect is a named group of parameters (``DECLARED``); parameters of an effect that is off keep the baseline
 value, which is the emulator's response before calibration (7 % FWHM at 662 keV, 1/sqrt(E), 5 % backscatter,
 10 mm crystal, no other effect).
 """
@@ -41,61 +41,75 @@ class Param:
     baseline: float
     lo: float
     hi: float
-    unit: str
     doc: str
+    unit: str = ""  # "" for a dimensionless parameter
+    #: where the fit starts the parameter once its effect is freed, when the baseline sits where the likelihood
+    #: is flat (a threshold at 0); None: at the baseline
+    start: float | None = None
+    #: not fitted by MIGRAD: a new value needs new deposit tables (profiled on a grid instead)
+    discrete: bool = False
 
 
-PARAMS: dict[str, Param] = {p.name: p for p in (
-    Param("gain", 1.0, 0.85, 1.15, "", "file energy per deposited energy"),
-    Param("offset_keV", 0.0, -40.0, 40.0, "keV", "file energy of a zero deposit"),
-    Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "1/MeV", "m = offset + gain e (1 + q e / 1 MeV)"),
-    Param("fwhm_at_662", 0.07, 0.02, 0.3, "", "FWHM / E at 662 keV"),
-    Param("fwhm_exponent", 0.5, 0.0, 1.0, "", "b in FWHM/E = r (662/E)^b"),
-    Param("threshold_keV", 0.0, 0.0, 80.0, "keV", "discriminator threshold (file energy)"),
-    Param("threshold_width_keV", 1.0, 0.3, 30.0, "keV", "width of the threshold's soft edge"),
-    Param("backscatter_fraction", 0.05, 0.0, 0.6, "", "share of photons back-scattered (110-180 deg) in the room"),
-    Param("scatter_side", 0.0, 0.0, 0.6, "", "share of photons scattered 20-110 deg in holder and nearby objects"),
-    Param("scatter_multiple", 0.0, 0.0, 0.6, "", "share of photons multiply scattered (flat in log E)"),
-    Param("absorber_g_cm2", 0.0, 0.0, 3.0, "g/cm^2", "aluminium between source and crystal"),
-    Param("pileup", 0.0, 0.0, 0.2, "", "share of recorded pulses that are two summed pulses"),
-    Param("crystal_mm", 10.0, 4.0, 25.0, "mm", "crystal diameter = length"),
-    Param("escape_scale", 1.0, 0.3, 3.0, "", "scale of the scattered photon's escape length"),
-    Param("k_escape", 0.0, 0.0, 1.0, "", "K X-ray escape on (1) or off (0)"),
-)}
+class Effect:
+    """A response effect: the physics it models (``source``) and its parameters, which forward selection
+    frees together; ``held`` parameters belong to the effect's physics but the fit keeps them at baseline."""
 
+    def __init__(self, source: str, *params: Param, held: tuple[Param, ...] = ()):
+        self.source = source
+        self.params = params
+        self.held = held
+
+
+#: the response effects and their parameters, each declared once here (forward selection adds whole effects)
+DECLARED: dict[str, Effect] = {
+    "energy_calibration": Effect(
+        "CsI(Tl) non-proportional light yield; device calibration (Knoll 4th ed. sec. 8.II)",
+        Param("gain", 1.0, 0.85, 1.15, "file energy per deposited energy"),
+        # held: with the offset (or a quadratic term) free, a Cs-137 spectrum alone cannot tell a calibration
+        # error from continuum shape, and the fitted offset spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
+        held=(Param("offset_keV", 0.0, -40.0, 40.0, "file energy of a zero deposit", "keV"),
+              Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "m = offset + gain e (1 + q e / 1 MeV)", "1/MeV"))),
+    "resolution_law": Effect(
+        "photo-electron statistics plus a constant light-collection term (Knoll sec. 10.III)",
+        Param("fwhm_at_662", 0.07, 0.02, 0.3, "FWHM / E at 662 keV"),
+        Param("fwhm_exponent", 0.5, 0.0, 1.0, "b in FWHM/E = r (662/E)^b")),
+    "threshold": Effect(  # matters only with fit_min_keV below ~20 keV
+        "the discriminator's soft edge (electronic noise)",
+        Param("threshold_keV", 0.0, 0.0, 80.0, "discriminator threshold (file energy)", "keV", start=15.0),
+        Param("threshold_width_keV", 1.0, 0.3, 30.0, "width of the threshold's soft edge", "keV", start=3.0)),
+    "backscatter": Effect(
+        "Klein-Nishina single scattering through 110-180 deg (response.backscatter_energies)",
+        Param("backscatter_fraction", 0.05, 0.0, 0.6, "share of photons back-scattered (110-180 deg) in the room")),
+    "side_scatter": Effect(
+        "Klein-Nishina single scattering through 20-110 deg (response.scattered_energies)",
+        Param("scatter_side", 0.0, 0.0, 0.6, "share of photons scattered 20-110 deg in holder and nearby objects")),
+    "multiple_scatter": Effect(
+        "build-up continuum of photons scattered several times, flat in log E",
+        Param("scatter_multiple", 0.0, 0.0, 0.6, "share of photons multiply scattered (flat in log E)")),
+    "absorber": Effect(
+        "NIST XCOM aluminium attenuation via pydecay",
+        Param("absorber_g_cm2", 0.0, 0.0, 3.0, "aluminium between source and crystal", "g/cm^2")),
+    "pileup": Effect(
+        "random summing: the deposited spectrum convolved with itself (Knoll sec. 17.IV)",
+        Param("pileup", 0.0, 0.0, 0.2, "share of recorded pulses that are two summed pulses")),
+    "crystal_size": Effect(
+        "interaction depth 1 - exp(-mu L) and escape length 2V/S (response.Crystal)",
+        Param("crystal_mm", 10.0, 4.0, 25.0, "crystal diameter = length", "mm", discrete=True),
+        Param("escape_scale", 1.0, 0.3, 3.0, "scale of the scattered photon's escape length", discrete=True)),
+    "k_xray_escape": Effect(
+        "Cs/I K fluorescence escape, semi-infinite slab, xraydb (Elam et al. 2002)",
+        Param("k_escape", 0.0, 0.0, 1.0, "K X-ray escape on (1) or off (0)", discrete=True)),
+}
+
+#: every parameter of the model, by name
+PARAMS: dict[str, Param] = {p.name: p for e in DECLARED.values() for p in (*e.params, *e.held)}
 #: response effects, each a group of parameters (forward selection adds whole groups)
-EFFECTS: dict[str, tuple[str, ...]] = {
-    # gain only: with the offset (or a quadratic term) free, a Cs-137 spectrum alone cannot tell a calibration
-    # error from continuum shape, and the fitted offset spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
-    "energy_calibration": ("gain",),
-    "resolution_law": ("fwhm_at_662", "fwhm_exponent"),
-    "threshold": ("threshold_keV", "threshold_width_keV"),  # matters only with fit_min_keV below ~20 keV
-    "backscatter": ("backscatter_fraction",),
-    "side_scatter": ("scatter_side",),
-    "multiple_scatter": ("scatter_multiple",),
-    "absorber": ("absorber_g_cm2",),
-    "k_xray_escape": ("k_escape",),
-    "pileup": ("pileup",),
-    "crystal_size": ("crystal_mm", "escape_scale"),
-}
-#: parameters not fitted by MIGRAD: a new crystal needs new deposit tables (profiled on a grid instead)
-DISCRETE = ("crystal_mm", "escape_scale", "k_escape")
-EFFECT_SOURCES = {
-    "energy_calibration": "CsI(Tl) non-proportional light yield; device calibration (Knoll 4th ed. sec. 8.II)",
-    "resolution_law": "photo-electron statistics plus a constant light-collection term (Knoll sec. 10.III)",
-    "threshold": "the discriminator's soft edge (electronic noise)",
-    "backscatter": "Klein-Nishina single scattering through 110-180 deg (response.backscatter_energies)",
-    "side_scatter": "Klein-Nishina single scattering through 20-110 deg (response.scattered_energies)",
-    "multiple_scatter": "build-up continuum of photons scattered several times, flat in log E",
-    "absorber": "NIST XCOM aluminium attenuation via pydecay",
-    "k_xray_escape": "Cs/I K fluorescence escape, semi-infinite slab, xraydb (Elam et al. 2002)",
-    "pileup": "random summing: the deposited spectrum convolved with itself (Knoll sec. 17.IV)",
-    "crystal_size": "interaction depth 1 - exp(-mu L) and escape length 2V/S (response.Crystal)",
-}
-
-
-#: where a freed parameter starts when its baseline sits where the likelihood is flat (threshold at 0)
-START = {"threshold_keV": 15.0, "threshold_width_keV": 3.0}
+EFFECTS: dict[str, tuple[str, ...]] = {name: tuple(p.name for p in e.params) for name, e in DECLARED.items()}
+#: parameters not fitted by MIGRAD (``Param.discrete``)
+DISCRETE = tuple(n for n, p in PARAMS.items() if p.discrete)
+EFFECT_SOURCES = {name: e.source for name, e in DECLARED.items()}
+#: where a freed parameter starts when its baseline sits where the likelihood is flat (``Param.start``)
+START = {n: p.start for n, p in PARAMS.items() if p.start is not None}
 
 
 def baseline_params() -> dict[str, float]:
