@@ -69,20 +69,31 @@ def step(
         brake = BRAKE_FRACTION * limits.max_accel
         speed = min(direction_speed_limit(direction, limits), math.sqrt(2.0 * brake * dist), dist / dt)
         v_des = direction * speed
+    new_pos, new_vel = accelerate(pos, vel, v_des, limits, dt)
+    if dist > 1e-9 and float(np.dot(target - new_pos, d)) < 0:  # never step past the target
+        new_pos = np.array(target, dtype=float)
+    new_yaw = yaw
+    if target_yaw is not None and math.isfinite(target_yaw):
+        new_yaw = turn(yaw, wrap_pi(target_yaw - yaw), limits, dt)
+    return new_pos, new_vel, new_yaw
+
+
+def accelerate(pos: np.ndarray, vel: np.ndarray, v_des: np.ndarray, limits: MotionLimits,
+               dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the velocity towards ``v_des`` changing by at most ``max_accel * dt``, and the position moved
+    by the step's mean velocity (trapezoid rule). Returns (new position, new velocity)."""
     dv = v_des - vel
     n = float(np.linalg.norm(dv))
     if n > limits.max_accel * dt:
         dv *= limits.max_accel * dt / n
     new_vel = vel + dv
-    new_pos = pos + 0.5 * (vel + new_vel) * dt
-    if dist > 1e-9 and float(np.dot(target - new_pos, d)) < 0:  # never step past the target
-        new_pos = np.array(target, dtype=float)
-    new_yaw = yaw
-    if target_yaw is not None and math.isfinite(target_yaw):
-        err = wrap_pi(target_yaw - yaw)
-        lim = limits.max_yaw_rate * dt
-        new_yaw = wrap_pi(yaw + max(-lim, min(lim, err)))
-    return new_pos, new_vel, new_yaw
+    return pos + 0.5 * (vel + new_vel) * dt, new_vel
+
+
+def turn(yaw: float, delta: float, limits: MotionLimits, dt: float) -> float:
+    """``yaw`` turned by ``delta`` rad, at most ``max_yaw_rate * dt`` either way, wrapped to (-pi, pi]."""
+    lim = limits.max_yaw_rate * dt
+    return wrap_pi(yaw + max(-lim, min(lim, delta)))
 
 
 def arrived(pos: np.ndarray, vel: np.ndarray, target: np.ndarray, radius: float = 0.1, speed: float = 0.2) -> bool:

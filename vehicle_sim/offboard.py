@@ -24,7 +24,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, enu_to_ned, geodetic_to_enu, wrap_pi, yaw_ned_to_enu
-from vehicle_sim.motion import MotionLimits
+from vehicle_sim.motion import MotionLimits, accelerate, turn
 
 IGNORE_POS = 0b111
 IGNORE_VEL = 0b111 << 3
@@ -123,18 +123,12 @@ def velocity_step(pos: np.ndarray, vel: np.ndarray, yaw: float, v_des: np.ndarra
     if h > limits.max_speed_xy:
         v[:2] *= limits.max_speed_xy / h
     v[2] = min(max(v[2], -limits.max_speed_down), limits.max_speed_up)
-    dv = v - vel
-    n = float(np.linalg.norm(dv))
-    if n > limits.max_accel * dt:
-        dv *= limits.max_accel * dt / n
-    new_vel = vel + dv
-    new_pos = pos + 0.5 * (vel + new_vel) * dt
+    new_pos, new_vel = accelerate(pos, vel, v, limits, dt)
     if new_pos[2] < 0:
         new_pos[2], new_vel[2] = 0.0, 0.0
     new_yaw = yaw
-    lim = limits.max_yaw_rate * dt
     if yaw_des is not None:
-        new_yaw = wrap_pi(yaw + max(-lim, min(lim, wrap_pi(yaw_des - yaw))))
+        new_yaw = turn(yaw, wrap_pi(yaw_des - yaw), limits, dt)
     elif yaw_rate is not None:
-        new_yaw = wrap_pi(yaw + max(-lim, min(lim, yaw_rate * dt)))
+        new_yaw = turn(yaw, yaw_rate * dt, limits, dt)
     return new_pos, new_vel, new_yaw
