@@ -19,52 +19,51 @@ class Leg:
     turns: float = 0.0
 
 
-@dataclass
 class Track:
-    """Piecewise pieces: start/end time and position, dwell index (-1 transit), yaw at start and yaw rate."""
+    """A flight as knots: at time ``times[k]`` the vehicle is at ``points[k]``, and from one knot to the next it
+    flies a straight line at constant speed (or hovers, both knots at one place). Piece k (knot k to k + 1) has
+    a dwell index ``dwell[k]`` (-1 moving) and the yaw ``yaw0[k] + yaw_rate[k] * (t - times[k])``.
 
-    t0: np.ndarray
-    t1: np.ndarray
-    p0: np.ndarray
-    p1: np.ndarray
-    dwell: np.ndarray
-    yaw0: np.ndarray
-    yaw_rate: np.ndarray
+    Built from ``legs`` all at once: every leg is a transit from the previous point (kept when longer than 1 um)
+    followed by a hover (kept when ``dwell_s`` > 0); these candidate pieces form a (legs, 2) grid, and the
+    kept ones, in leg order, are the track. Each hover draws a random heading from ``rng``, in order.
+    """
+
+    def __init__(self, start: tuple[float, float, float], legs: list[Leg], rng: np.random.Generator,
+                 speed: float = 1.0):
+        pts = np.array([start, *(leg.point for leg in legs)], dtype=float)
+        step = np.diff(pts, axis=0)
+        length = np.linalg.norm(step, axis=1)
+        dwell_s = np.array([leg.dwell_s for leg in legs], dtype=float)
+        hover = dwell_s > 0
+        keep = np.column_stack([length > 1e-6, hover]).ravel()
+
+        def pieces(transit: np.ndarray, hovering: np.ndarray) -> np.ndarray:
+            return np.column_stack([transit, hovering]).ravel()[keep]
+
+        heading = np.where(np.hypot(step[:, 0], step[:, 1]) > 1e-6, np.arctan2(step[:, 1], step[:, 0]), 0.0)
+        hover_yaw = np.zeros(len(legs))
+        hover_yaw[hover] = rng.uniform(-np.pi, np.pi, int(hover.sum()))
+        turns = np.array([leg.turns for leg in legs], dtype=float)
+        spin = np.divide(2 * np.pi * turns, dwell_s, out=np.zeros(len(legs)), where=hover)
+        self.times = np.r_[0.0, np.cumsum(pieces(length / speed, dwell_s))]
+        self.points = np.vstack([pts[:1], np.repeat(pts[1:], 2, axis=0)[keep]])
+        self.dwell = pieces(np.full(len(legs), -1), np.cumsum(hover) - 1)
+        self.yaw0 = pieces(heading, hover_yaw)
+        self.yaw_rate = pieces(np.zeros(len(legs)), spin)
 
     @property
     def duration(self) -> float:
-        return float(self.t1[-1])
+        return float(self.times[-1])
 
     def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(positions (N, 3), yaw (N,), dwell (N,), piece index (N,)) at times t."""
-        i = np.clip(np.searchsorted(self.t1, t, side="left"), 0, len(self.t1) - 1)
-        span = np.maximum(self.t1[i] - self.t0[i], 1e-9)
-        f = np.clip((t - self.t0[i]) / span, 0.0, 1.0)[:, None]
-        pos = self.p0[i] + f * (self.p1[i] - self.p0[i])
-        yaw = self.yaw0[i] + self.yaw_rate[i] * (t - self.t0[i])
+        i = np.clip(np.searchsorted(self.times[1:], t, side="left"), 0, len(self.dwell) - 1)
+        t0, t1 = self.times[i], self.times[i + 1]
+        f = np.clip((t - t0) / np.maximum(t1 - t0, 1e-9), 0.0, 1.0)[:, None]
+        pos = self.points[i] + f * (self.points[i + 1] - self.points[i])
+        yaw = self.yaw0[i] + self.yaw_rate[i] * (t - t0)
         return pos, (yaw + np.pi) % (2 * np.pi) - np.pi, self.dwell[i], i
-
-
-def fly(start: tuple[float, float, float], legs: list[Leg], rng: np.random.Generator, speed: float = 1.0) -> Track:
-    rows = []
-    t = 0.0
-    p = np.asarray(start, dtype=float)
-    k = 0
-    for leg in legs:
-        q = np.asarray(leg.point, dtype=float)
-        dist = float(np.linalg.norm(q - p))
-        if dist > 1e-6:
-            head = float(np.arctan2(q[1] - p[1], q[0] - p[0])) if np.hypot(*(q - p)[:2]) > 1e-6 else 0.0
-            rows.append((t, t + dist / speed, p, q, -1, head, 0.0))
-            t += dist / speed
-        if leg.dwell_s > 0:
-            rows.append((t, t + leg.dwell_s, q, q, k, rng.uniform(-np.pi, np.pi), 2 * np.pi * leg.turns / leg.dwell_s))
-            t += leg.dwell_s
-            k += 1
-        p = q
-    cols = list(zip(*rows, strict=True))
-    return Track(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]), np.array(cols[3]),
-                 np.array(cols[4], dtype=int), np.array(cols[5]), np.array(cols[6]))
 
 
 def ring_points(c: np.ndarray, rng: np.random.Generator, n: int, r_lo: float, r_hi: float) -> list[tuple[float, float]]:
@@ -79,7 +78,7 @@ def lattice(src: np.ndarray, far: tuple[float, float], rng: np.random.Generator,
     pts = ring_points(src, rng, n, *r)
     legs = [Leg((far[0], far[1], alt), dwell_s, turns)]
     legs += [Leg((x, y, alt + rng.uniform(-0.2, 0.2)), dwell_s * rng.uniform(0.8, 1.25), turns) for x, y in pts]
-    return fly((far[0], far[1], alt), legs, rng)
+    return Track((far[0], far[1], alt), legs, rng)
 
 
 def lawnmower(lo: tuple[float, float], hi: tuple[float, float], rng: np.random.Generator, spacing: float = 1.5,
@@ -97,7 +96,7 @@ def lawnmower(lo: tuple[float, float], hi: tuple[float, float], rng: np.random.G
     if len(ends) > 1:
         legs.append(Leg((ends[1][0], ends[1][1], alt), dwell_s))
     start = (ends[0][0], ends[0][1], alt) if ends else (lo[0], float(ys[0]), alt)
-    return fly(start, legs, rng, speed)
+    return Track(start, legs, rng, speed)
 
 
 def close_pass(src: np.ndarray, rng: np.random.Generator, alt: float = 1.0, dwell_s: float = 6.0) -> Track:
@@ -110,4 +109,4 @@ def close_pass(src: np.ndarray, rng: np.random.Generator, alt: float = 1.0, dwel
         legs.append(Leg((float(src[0] - d * np.cos(ang)), float(src[1] - d * np.sin(ang)), alt * 0.8)))
     legs.append(Leg((float(src[0] + 6.0), float(src[1]), alt), dwell_s))
     start = (float(src[0] + 7.0), float(src[1] + 1.0), alt)
-    return fly(start, legs, rng, speed=1.0)
+    return Track(start, legs, rng, speed=1.0)
