@@ -285,12 +285,12 @@ def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
     def mean(v: np.ndarray) -> np.ndarray:
         return np.bincount(key, weights=v, minlength=n) / cnt
 
-    counts = np.zeros((n, frames.counts.shape[1]))
-    np.add.at(counts, key, frames.counts)
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])  # key is a run index: pooled runs are slices
+    counts = np.add.reduceat(frames.counts, starts, axis=0)  # summed in COUNT_DTYPE: no float copy of counts
     return Frames(
         t=mean(frames.t), duration=np.bincount(key, weights=frames.duration, minlength=n), x=mean(frames.x),
         y=mean(frames.y), z=mean(frames.z), yaw=mean(frames.yaw), var_x=mean(frames.var_x), var_y=mean(frames.var_y),
-        var_z=mean(frames.var_z), dwell=mean(frames.dwell).astype(int), counts=counts.astype(COUNT_DTYPE),
+        var_z=mean(frames.var_z), dwell=mean(frames.dwell).astype(int), counts=counts.astype(COUNT_DTYPE, copy=False),
     )
 
 
