@@ -3,8 +3,10 @@
 The model is :class:`estimator.model.MeasurementModel` with the chosen ``effects`` (any subset of the
 effect vocabulary except ``gain_drift``): per-frame total counts n_i ~ Poisson(mu_i(theta)), maximised
 multi-start and bounded (MIGRAD), with the per-dwell pose offsets profiled out when
-``pose_uncertainty``. ``covariance_`` is the inverse Hessian of the negative log-likelihood (Fisher
-information, HESSE); ``crlb_`` is the Cramér-Rao bound for the flown poses at the estimate: paper 004
+``pose_uncertainty``. ``covariance_`` is the inverse Hessian of the negative log-likelihood (observed
+information, HESSE), widened where needed to cover the drift-aware expected-information bound
+(:func:`covering_covariance`, :func:`pose_aware_crlb`); ``crlb_`` is the Cramér-Rao bound for the flown
+poses at the estimate: paper 004
 eq. 5.3-5.7 generalised to the Poisson likelihood and the model's free parameters (J = sum_i grad mu_i
 grad mu_i^T / mu_i), inverted over all free parameters and then restricted to (x, y, z, cps_at_1m) per
 source (so nuisance parameters such as the background are accounted for, not ignored). That bound takes
@@ -28,7 +30,7 @@ import numpy as np
 from estimator.localizers.base import Localizer, source_dict
 from radseek.dataset import Frames, Scenario
 
-__all__ = ["MaximumLikelihood", "source_param_names", "pose_aware_crlb"]
+__all__ = ["MaximumLikelihood", "covering_covariance", "source_param_names", "pose_aware_crlb"]
 
 SOURCE_KEYS = ("x", "y", "z", "cps_at_1m")
 
@@ -80,6 +82,26 @@ def pose_aware_crlb(model, theta: dict[str, float], frames: Frames) -> np.ndarra
     return np.linalg.pinv(j)
 
 
+def covering_covariance(observed: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """The smallest-change covariance that covers both: ``expected + P+(observed - expected)``, P+ keeping
+    the positive eigen-part, so its ellipse holds both ellipses (Loewner order: >= each of them).
+
+    ``observed`` is the inverse Hessian of the fit (HESSE, observed information); ``expected`` the inverse
+    expected information with the pose offsets as nuisances under their drift prior (:func:`pose_aware_crlb`).
+    Where the likelihood has a kink (a wall's shadow edge sweeping over a frame: a hard edge in the
+    source position) the numerical Hessian sees an almost infinite curvature and the observed ellipse
+    collapses (± 0.000 m); the expected information caps what one pose group can tell by its drift
+    prior, so the reported uncertainty never claims more than the drift allows. A non-finite ``observed``
+    (a fit that did not converge) stays non-finite: no ellipse is claimed for it."""
+    observed = np.asarray(observed, dtype=float)
+    expected = np.asarray(expected, dtype=float)
+    if not (np.isfinite(observed).all() and np.isfinite(expected).all()):
+        return observed
+    diff = 0.5 * ((observed - expected) + (observed - expected).T)
+    w, v = np.linalg.eigh(diff)
+    return 0.5 * (expected + expected.T) + (v * np.clip(w, 0.0, None)) @ v.T
+
+
 class MaximumLikelihood(Localizer):
     """Poisson MLE with Fisher covariance and CRLB (see module docstring)."""
 
@@ -118,16 +140,19 @@ class MaximumLikelihood(Localizer):
         per_source = source_param_names(model.effects)
         self.result_ = res
         self.sources_ = [source_dict(*(res.values[n] for n in names)) for names in per_source]
-        self.covariance_ = _embed(np.asarray(res.covariance, dtype=float), res.free_names, per_source)
+        cov = np.asarray(res.covariance, dtype=float)
+        hybrid = None
+        if self.pose_uncertainty and np.any(frames.pose_variances > 0) and list(res.free_names) == model.free_names:
+            hybrid = pose_aware_crlb(model, res.values, frames)
+            cov = covering_covariance(cov, hybrid)
+        self.covariance_ = _embed(cov, res.free_names, per_source)
         self.background_ = float(res.values["background_cps"])
         self.crlb_ = None
-        self.crlb_pose_ = None
+        self.crlb_pose_ = None if hybrid is None else _embed(hybrid, model.free_names, per_source)
         if self.compute_crlb:
             c = crlb(model, res.values, frames)
             self.crlb_ = _embed(c, model.free_names, per_source)
             self.crlb_full_ = c
-            if self.pose_uncertainty and np.any(frames.pose_variances > 0):
-                self.crlb_pose_ = _embed(pose_aware_crlb(model, res.values, frames), model.free_names, per_source)
         self.info_: dict[str, Any] = {
             "effects": list(model.effects),
             "values": res.values,
