@@ -9,6 +9,13 @@ instead fits another localizer (``sphere``, ``pf``, ``multi-pf``, ``gp``, ``mle`
 The table shows how the estimate and its 1-sigma ellipse evolved, and its error when ``truth.json`` exists.
 ``--plot FILE`` draws error and sigma against dwell number; ``--json`` prints the rows. Works on any
 dataset in the shared format, recorded by radseek or not.
+
+``radseek replay OUT/flight.mcap`` (a path ending in ``.mcap``: the MCAP log ``radseek run`` records)
+replays from the recorded topics instead: the frames are rebuilt from ``detector/histogram``, ``pose``
+and ``mission/state`` exactly as the mission's recorder made them (``radseek/mcap_frames.py``), the first
+dwell comes from the first recorded ``estimate``, and the scenario from ``--scenario`` or the run's
+``dataset/scenario.json`` (else ``scenario.json``) beside the file; ``truth.json`` from the same place
+when it exists.
 """
 
 from __future__ import annotations
@@ -94,10 +101,35 @@ def flown_first_dwell(path: str | Path) -> int | None:
     return None
 
 
+def _read_mcap(path: str, scenario: str | None):
+    """The flight in a run's MCAP log as a dataset, and the dwell count of its first estimate (None: none
+    recorded). DatasetError or McapFrameError (both name the file) when it cannot be read."""
+    from radseek.dataset import DatasetError, read_scenario, read_truth
+    from radseek.mcap_frames import beside, read_flight
+
+    scenario_file = Path(scenario) if scenario else beside(path, "scenario.json")
+    if scenario_file is None:
+        folder = Path(path).parent
+        raise DatasetError(f"{path}: no scenario.json beside it (looked for {folder / 'dataset' / 'scenario.json'} "
+                           f"and {folder / 'scenario.json'}): give the flight's --scenario")
+    sc = read_scenario(scenario_file)
+    truth_file = beside(path, "truth.json")
+    flight = read_flight(path, sc)
+    dropped = ", ".join(f"{n} {topic}" for topic, n in flight.dropped.items())
+    usable = len(flight.frames)
+    print(f"radseek replay: {len(flight.records)} frames rebuilt from {path} ({usable} usable"
+          f"{'; dropped invalid: ' + dropped if dropped else ''}), scenario {scenario_file}", file=sys.stderr)
+    return flight.dataset(sc, read_truth(truth_file) if truth_file else None), flight.first_dwell()
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek replay", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json[, truth.json])")
+    p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json[, truth.json]), or a run's MCAP "
+                                   "log (a path ending in .mcap, e.g. OUT/flight.mcap)")
+    p.add_argument("--scenario", metavar="FILE",
+                   help="MCAP replay: the flight's scenario.json (default: dataset/scenario.json, else scenario.json, "
+                        "beside the .mcap file)")
     p.add_argument("--method", default=INFLIGHT,
                    help="inflight (the mission's in-flight estimate, default) or a localizer fitted afresh after "
                         "every dwell: sphere, pf, multi-pf, gp, mle")
@@ -107,17 +139,21 @@ def main(argv: list[str] | None = None) -> int:
                    help="inflight: the localizer the mission flew with (mission --localizer; default mle)")
     p.add_argument("--from-dwell", type=int, default=None, metavar="N",
                    help="inflight: the dwell count the mission first estimated at (default: from the flight's "
-                        "mission_log.jsonl, else 1)")
+                        "mission_log.jsonl, or an MCAP log's first estimate, else 1)")
     p.add_argument("--plot", help="write error/sigma against dwell number to this PNG")
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = p.parse_args(argv)
 
     from estimator.inflight import gof_warning
     from radseek.dataset import DatasetError, read_dataset
+    from radseek.mcap_frames import McapFrameError
 
+    from_mcap = args.dataset.endswith(".mcap")
+    if args.scenario and not from_mcap:
+        p.error("--scenario is for an MCAP log (a path ending in .mcap); a dataset holds its own scenario.json")
     try:
-        ds = read_dataset(args.dataset)
-    except DatasetError as exc:
+        ds, mcap_first = _read_mcap(args.dataset, args.scenario) if from_mcap else (read_dataset(args.dataset), None)
+    except (DatasetError, McapFrameError) as exc:  # both name the file
         print(f"radseek replay: {exc}", file=sys.stderr)
         return 2
     settings = {}
@@ -128,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError:
             settings[key] = value
     try:
-        flown = flown_first_dwell(args.dataset) if args.method == INFLIGHT else None
+        flown = (mcap_first if from_mcap else flown_first_dwell(args.dataset)) if args.method == INFLIGHT else None
         first = args.from_dwell if args.from_dwell is not None else flown or 1
         rows = replay(ds, args.method, settings, first_dwell=first, localizer=args.localizer)
     except ValueError as exc:
