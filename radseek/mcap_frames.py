@@ -13,7 +13,11 @@ The rebuild is the recorder's own rule (``mission/recorder.py``, ``mission/missi
   under lockstep (the default of ``radseek run``: no later frame exists while the mission decides); a
   free-running flight (``--no-lockstep``) may disagree with ``frames.csv`` on a frame or two at a dwell's
   edges, since there frames keep arriving while the mission decides;
-- payloads that fail their schema are dropped, as the mission drops them (``dropped`` counts them).
+- payloads that fail their schema are dropped, as the mission drops them (``dropped`` counts them);
+- the flight ends at the mission's state of phase ``done`` (``DONE_PHASE``): the mission stops recording
+  once it has landed and says so stamped with the last frame it took; the log goes on while the stack
+  shuts down (the vehicle runs free, the detector keeps measuring), and those frames are left out. A log
+  without that state (the mission was killed) keeps every frame.
 
 Usable records (``FrameRecord.usable``) make the ``Frames`` of a ``radseek.dataset.Dataset``, as
 ``frames.csv`` holds them but at full precision (``frames.csv`` rounds poses to 0.1 mm). The first
@@ -44,6 +48,8 @@ READ_TOPICS = (topics.HISTOGRAM, topics.POSE, topics.MISSION_STATE, topics.ESTIM
 #: what the mission's stream keeps (``mission_process._Stream``: ``PoseHistory(keep_s=120.0)``)
 POSE_KEEP_S = 120.0
 EPS_T = 1e-6  # s: the mission's tolerance on "the pose at the frame's end has arrived"
+#: ``MissionState.phase`` of the mission's last state: landed, recording stopped
+DONE_PHASE = "done"
 
 
 class McapFrameError(ValueError):
@@ -58,6 +64,7 @@ class RecordedFlight:
     records: list[FrameRecord]  # every received frame, in the order received (usable and flagged)
     estimates: list[topics.Estimate]  # the mission's published estimates, in order
     states: list[topics.MissionState]  # the mission's published states, in order
+    end_t: float | None = None  # sim time of the last frame the mission recorded (its "done" state), if known
     dropped: dict[str, int] = field(default_factory=dict)  # topic -> payloads that failed their schema
 
     @property
@@ -167,7 +174,11 @@ def read_flight(path: str | Path, scenario: Scenario | None = None,
     states = decode(topics.MISSION_STATE, topics.MissionState)
     records = rebuild_records(histograms, decode(topics.POSE, topics.Pose), states,
                               None if scenario is None else scenario.channel_edges_keV)
-    return RecordedFlight(path, records, decode(topics.ESTIMATE, topics.Estimate), states, dropped)
+    end_t = next((st.t for st in states if st.phase == DONE_PHASE), None)
+    if end_t is not None:
+        records = [r for r in records if r.t <= end_t + EPS_T]
+    return RecordedFlight(path, records, decode(topics.ESTIMATE, topics.Estimate), states, end_t=end_t,
+                          dropped=dropped)
 
 
 def beside(path: str | Path, name: str) -> Path | None:

@@ -43,8 +43,8 @@ def _pose(t, x):
 def test_records_join_the_pose_at_mid_time_and_the_dwell_of_the_state_before(tmp_path):
     """Poses on the 100 ms step grid, a histogram after each pose, the mission's states stamped with the
     frame they were decided on: the records are the recorder's (pose interpolated at t - 0.05, dwell
-    from the last state of an earlier frame), the stale-pose frame is kept but not usable, and a payload
-    that fails its schema is dropped and counted."""
+    from the last state of an earlier frame), the stale-pose frame is kept but not usable, a payload
+    that fails its schema is dropped and counted, and the flight ends with the mission's "done"."""
     msgs = [(topics.MISSION_STATE, topics.MissionState(t=0.0, phase="connect"))]
     for k in range(1, 11):
         t = round(0.1 * k, 10)
@@ -55,6 +55,9 @@ def test_records_join_the_pose_at_mid_time_and_the_dwell_of_the_state_before(tmp
         if k == 6:  # the dwell ended with the frame ending at 0.6
             msgs.append((topics.MISSION_STATE, topics.MissionState(t=t, phase="search", dwell_index=-1)))
     msgs.append((topics.HISTOGRAM, b'{"t": 1.2}'))  # fails the schema: dropped, as the mission drops it
+    # landed at the frame ending at 1.0: the frames the log holds after it are not the flight's
+    msgs.append((topics.MISSION_STATE, topics.MissionState(t=1.0, phase="done")))
+    msgs += [(topics.POSE, _pose(1.1, 1.1)), (topics.HISTOGRAM, _hist(1.1, seq=11))]
     msgs.append((topics.ESTIMATE, topics.Estimate(t=0.6, method="mle", sources=[], background_cps=1.0,
                                                   covariance=[])))
     flight = read_flight(_write(tmp_path / "f.mcap", msgs))
@@ -69,6 +72,7 @@ def test_records_join_the_pose_at_mid_time_and_the_dwell_of_the_state_before(tmp
     assert not flight.records[6].usable and len(flight.frames) == 9
     assert flight.dropped == {topics.HISTOGRAM: 1}
     assert flight.first_dwell() == 1 and flight.estimates[0].t == 0.6
+    assert flight.end_t == 1.0
 
 
 def test_a_histogram_waits_for_the_pose_at_its_end(tmp_path):
