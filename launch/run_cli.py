@@ -4,9 +4,16 @@ Starts the stack as separate processes on loopback — the zenoh router, the moc
 the simulation clock and the true pose), the detector emulator (following that clock, reading the
 true pose) and the mission process (MAVSDK client, dwell controller, estimator, planner, recorder) —
 shows live progress, stops when the mission lands, then writes under ``--out``: ``dataset/`` (the
-recorded flight in the dataset format, plus ``truth.json``), ``report.png``, ``summary.json`` and the
-processes' logs. Only this launcher and the detector see the scene's truth; the mission process is
-given the operator's ``scenario.json``.
+recorded flight in the dataset format, plus ``truth.json``), ``flight.mcap``, ``report.png``,
+``summary.json`` and the processes' logs. Only this launcher and the detector see the scene's truth; the
+mission process is given the operator's ``scenario.json``.
+
+``flight.mcap`` is the MCAP log of the whole flight (``radseek record``, ``radseek/mcap_log.py``, run as
+one more process of the stack from before the mission starts until it has landed): every zenoh topic of
+the run and the vehicle's MAVLink telemetry, which the recorder receives as the GCS on ``--gcs-port``.
+Open it in Foxglove or with the ``mcap`` reader; ``radseek replay OUT/flight.mcap`` replays the estimate
+from it. ``--no-mcap`` leaves it out (e.g. to keep ``--gcs-port`` for QGroundControl). The dataset stays the
+flight's primary record: a recorder that fails is reported on stderr and the flight goes on without it.
 
 A non-empty ``--out`` is refused unless ``--force`` (which removes that folder's previous radseek
 outputs first, summaries before data, and leaves other files alone). ``summary.json``, ``report.png``
@@ -46,7 +53,9 @@ PY = sys.executable
 
 EXIT_FOUND, EXIT_STACK, EXIT_USAGE, EXIT_SEARCH_FAILED = 0, 1, 2, 3
 #: what a run writes under --out, summaries and reports first: --force removes them in this order
-RUN_OUTPUTS = ("summary.json", "report.png", "dataset", "logs", "scenario.json", "scene.json")
+RUN_OUTPUTS = ("summary.json", "report.png", "flight.mcap", "dataset", "logs", "scenario.json", "scene.json")
+#: wall seconds the MCAP recorder may take to start, and to finish its file once stopped
+RECORDER_START_S, RECORDER_STOP_S = 60.0, 60.0
 
 
 def print_summary(summary: dict, out: Path, stdout=None, stderr=None) -> None:
@@ -103,6 +112,58 @@ class Stack:
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait(5)
+
+
+def _warn_no_mcap(out: Path, why: str) -> None:
+    print(f"radseek run: warning: {why}; see {out / 'logs' / 'recorder.log'} (the flight goes on: dataset/ is "
+          "its record)", file=sys.stderr)
+
+
+def start_recorder(stack: Stack, out: Path, endpoint: str, gcs_port: int) -> None:
+    """Start ``radseek record`` into ``out/flight.mcap``: every zenoh topic, and the MAVLink the vehicle
+    sends its GCS port (the recorder is that GCS: it listens and never answers)."""
+    stack.start("recorder", _radseek("record", "--out", str(out / "flight.mcap"), "--connect", endpoint,
+                                     "--mavlink-port", str(gcs_port)))
+
+
+def recorder_ready(stack: Stack, out: Path) -> subprocess.Popen | None:
+    """The recorder once it records; None, said on stderr, when it did not start (the flight goes on)."""
+    try:
+        stack.wait_for_line("recorder", "recording", timeout_s=RECORDER_START_S)
+    except RuntimeError as exc:
+        proc = stack.procs.pop("recorder")
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+        _warn_no_mcap(out, f"no flight.mcap: the recorder did not start ({exc})")
+        return None
+    return stack.procs["recorder"]
+
+
+def stop_recorder(stack: Stack, out: Path) -> bool:
+    """Stop the recorder (SIGTERM: it finishes the MCAP file, footer and index) and say on stderr if it
+    failed; True when flight.mcap is complete."""
+    proc = stack.procs.pop("recorder", None)
+    if proc is None:
+        return False
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(RECORDER_STOP_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+            _warn_no_mcap(out, f"the recorder did not finish {out / 'flight.mcap'} in {RECORDER_STOP_S:g} s and was "
+                               "killed: the file is truncated")
+            return False
+    else:
+        _warn_no_mcap(out, f"the recorder stopped during the flight (exit {proc.returncode}): "
+                           f"{out / 'flight.mcap'} is incomplete")
+        return False
+    if proc.returncode != 0 or "wrote" not in (out / "logs" / "recorder.log").read_text(errors="replace"):
+        _warn_no_mcap(out, f"the recorder failed to finish {out / 'flight.mcap'} (exit {proc.returncode})")
+        return False
+    return True
 
 
 class Progress:
@@ -170,6 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mavlink-port", type=int, default=14540, help="MAVSDK API port (default 14540)")
     p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
     p.add_argument("--vehicle-local-ports", default="14580,18570", help="vehicle's own UDP ports (api,gcs)")
+    p.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=True,
+                   help="record OUT/flight.mcap: every zenoh topic and the MAVLink telemetry, received on --gcs-port "
+                        "(default on; --no-mcap leaves that port to a GCS)")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget (default 16)")
     p.add_argument("--strategy", default="active", choices=STRATEGIES,
                    help="active search (paper 003) or a fixed pattern baseline (default active)")
@@ -217,10 +281,15 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         stack.start("router", _radseek("router", "--listen", endpoint))
+        if args.mcap:  # (radseek record gives up if no router answers within 3 s)
+            stack.wait_for_line("router", "listening", timeout_s=60.0)
+            start_recorder(stack, out, endpoint, args.gcs_port)
         detector_cmd = _radseek(
             "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
             "--connect", endpoint, *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg)
         stack.start("detector", detector_cmd)
+        # the log holds the whole flight: the recorder records before the vehicle (sim time) starts
+        recorder = recorder_ready(stack, out) if args.mcap else None
         # the vehicle owns sim time: start it only once the detector has built its response and is
         # waiting for the clock, and the mission is up and recording (its first mission/state follows its
         # subscriptions), so no simulated time passes unmeasured, however slowly the processes start
@@ -262,12 +331,17 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"radseek run: abandoned after {args.timeout:g} s wall", file=sys.stderr)
                         break
                     for name, proc in stack.procs.items():
-                        if name != "mission" and proc.poll() is not None:
+                        if name not in ("mission", "recorder") and proc.poll() is not None:
                             raise RuntimeError(f"{name} exited with {proc.returncode}: see {out}/logs/{name}.log")
+                    if recorder is not None and recorder.poll() is not None:  # the flight goes on without it
+                        stop_recorder(stack, out)
+                        recorder = None
                     time.sleep(0.2)
             finally:
                 if progress:
                     progress.close()
+            if recorder is not None:  # the mission has landed: finish the log before the summary
+                stop_recorder(stack, out)
     except (RuntimeError, TimeoutError) as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
         return EXIT_STACK

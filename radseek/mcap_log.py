@@ -16,6 +16,9 @@ Times: ``log_time`` is the wall clock at reception (ns, so the file sorts as it 
 
 ``Recorder`` runs it in the background (zenoh subscriber + optional UDP MAVLink listener, one writer
 thread); ``radseek record`` is its CLI; ``read`` iterates over a file's messages decoded.
+``radseek run`` runs ``radseek record`` for every flight into ``OUT/flight.mcap`` (listening on the vehicle's
+``--gcs-port``), and ``radseek replay OUT/flight.mcap`` rebuilds the flight's frames from it
+(``radseek.mcap_frames``).
 """
 
 from __future__ import annotations

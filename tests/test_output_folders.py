@@ -195,7 +195,7 @@ def test_aborted_run_leaves_its_frames_and_no_previous_summary(tmp_path):
     # the previous run's results, as a finished `radseek run` leaves them
     stale = {"summary.json": '{"dwell_points": 5, "error_m": 0.15}', "report.png": "png",
              "dataset/truth.json": "{}", "dataset/mission_summary.json": '{"dwell_points": 5}',
-             "dataset/frames.csv": "old frames"}
+             "dataset/frames.csv": "old frames", "flight.mcap": "old log"}
     for name, text in stale.items():
         (out / name).write_text(text)
     (out / "notes.txt").write_text("mine")
@@ -209,6 +209,7 @@ def test_aborted_run_leaves_its_frames_and_no_previous_summary(tmp_path):
             time.sleep(0.1)
         for name in ("summary.json", "report.png", "dataset/truth.json", "dataset/mission_summary.json"):
             assert not (out / name).exists(), f"stale {name} beside the new partial frames"
+        assert b"old log" not in (out / "flight.mcap").read_bytes()  # --force removed it (the new one is buffered)
         proc.send_signal(signal.SIGTERM)  # the run is aborted mid-flight
         _, stderr = proc.communicate(timeout=120)
     finally:
@@ -221,6 +222,10 @@ def test_aborted_run_leaves_its_frames_and_no_previous_summary(tmp_path):
     assert (out / "notes.txt").read_text() == "mine"
     assert _rows(out / "dataset" / "frames.csv") >= 20  # what was recorded is kept
     assert (out / "dataset" / "frames.csv").read_text().startswith("t,")
+    # the MCAP log is finished too (the recorder is stopped with the stack): its footer and index are there
+    from radseek.mcap_frames import read_flight
+
+    assert len(read_flight(out / "flight.mcap").records) >= 20
     # the stack was stopped with the launcher (its router no longer holds the port)
     deadline = time.monotonic() + 60
     while not _port_free(zport):

@@ -1,0 +1,152 @@
+"""`radseek run` records OUT/flight.mcap: every zenoh topic of the flight and the vehicle's MAVLink telemetry,
+readable by the `mcap` reader, and `radseek replay OUT/flight.mcap` reproduces the estimates the mission
+flew with. One real flight (all processes, lockstep), checked from every side to save flights: a fast honest
+configuration as tests/test_lockstep_repro.py (default scene, 50x, seed 0), with 4 dwells so that the
+search makes two in-flight estimates and the replay also covers the warm start from one to the next."""
+
+import json
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from launch.run_cli import Stack, recorder_ready, start_recorder, stop_recorder
+from radseek import topics
+from radseek.board_wire import decode_frame
+from radseek.dataset import read_dataset
+from radseek.mcap_frames import read_flight
+from radseek.zenoh_session import open_session
+from tests.conftest import free_port
+from vehicle_sim.harness import free_udp_port
+from vehicle_sim.telemetry import DEFAULT_RATES
+
+RUN_TIMEOUT_S = 900
+
+
+def _run(out):
+    cmd = [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
+           "--max-dwells", "4", "--seed", "0", "--zenoh-port", str(free_port()),
+           "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
+           "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 120)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(RUN_TIMEOUT_S + 400)
+def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_path):
+    from mcap.reader import make_reader
+
+    out = tmp_path / "run"
+    run = _run(out)
+    assert run.returncode in (0, 3), run.stderr[-3000:]  # 3: searched to the end of the 4-dwell budget
+    assert "recorder" not in run.stderr, run.stderr[-3000:]  # no recorder warning: the log is complete
+    mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["estimate_source"] == "in-flight" and len(mission["estimates"]) >= 2, mission
+
+    # --- the mcap reader opens it (footer, summary, index) and finds every topic
+    with open(out / "flight.mcap", "rb") as f:
+        reader = make_reader(f)
+        header = reader.get_header()
+        messages = [(ch.topic, ch.message_encoding, schema, m) for schema, ch, m in reader.iter_messages()]
+    assert header.library == "radseek"
+    by_topic: dict[str, list] = {}
+    for topic, encoding, schema, m in messages:
+        by_topic.setdefault(topic, []).append((encoding, schema, m))
+    # every topic radseek/topics.py declares is published in a run: clock, poses and truth pose (vehicle),
+    # raw frames, histograms and status (detector), state, lockstep, plan and estimate (mission: this
+    # search reached its estimate, asserted above)
+    declared = [*topics.PAYLOADS, topics.RAW_FRAME]
+    missing = [t for t in declared if topics.key(t) not in by_topic]
+    assert not missing, f"not in flight.mcap: {missing}; found {sorted(by_topic)}"
+    for name in declared:
+        encoding, schema, m = by_topic[topics.key(name)][0]
+        if name == topics.RAW_FRAME:
+            assert encoding == "radseek.board_frame" and len(decode_frame(m.data).counts) == topics.N_CHANNELS
+            continue
+        cls = topics.PAYLOADS[name]
+        assert encoding == "json" and schema.encoding == "jsonschema" and schema.name == f"radseek.{cls.__name__}"
+        assert json.loads(schema.data)["title"] == cls.__name__
+        for _, _, msg in by_topic[topics.key(name)]:
+            cls.from_bytes(msg.data)  # every recorded payload passes its schema
+    # the vehicle's MAVLink telemetry, received as the GCS: every message it streams
+    mav_missing = [n for n in DEFAULT_RATES if f"mavlink/{n}" not in by_topic]
+    assert not mav_missing, f"MAVLink not in flight.mcap: {mav_missing}"
+    heartbeat = json.loads(by_topic["mavlink/HEARTBEAT"][0][2].data)
+    assert heartbeat["mavpackettype"] == "HEARTBEAT" and heartbeat["autopilot"] == 12  # PX4
+    # the whole flight: from before take-off until the vehicle had landed (the mission's flight time)
+    clock = [topics.SimClock.from_bytes(m.data).t for _, _, m in by_topic[topics.key(topics.SIM_CLOCK)]]
+    assert min(clock) < 1.0 and max(clock) >= mission["flight_time_s"]
+
+    # --- the frames rebuilt from the log are the ones the mission recorded (frames.csv rounds to 0.1 mm)
+    ds = read_dataset(out / "dataset")
+    flight = read_flight(out / "flight.mcap", ds.scenario)
+    f, g = ds.frames, flight.frames
+    assert len(flight.records) == mission["frames_received"] and flight.dropped == {}
+    assert len(g) == len(f) == mission["frames_recorded"]
+    np.testing.assert_array_equal(g.dwell, f.dwell)
+    np.testing.assert_array_equal(g.counts, f.counts)
+    for name in ("t", "duration", "x", "y", "z", "yaw"):
+        np.testing.assert_allclose(getattr(g, name), getattr(f, name), rtol=0, atol=5.1e-5, err_msg=name)
+    for name in ("var_x", "var_y", "var_z"):  # written with 4 significant digits
+        np.testing.assert_allclose(getattr(g, name), getattr(f, name), rtol=5.1e-4, atol=0, err_msg=name)
+    assert flight.first_dwell() == mission["estimates"][0]["dwell"]
+
+    # --- radseek replay OUT/flight.mcap gives the estimates the mission flew with, and the final one
+    rep = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(out / "flight.mcap"), "--json"],
+                         capture_output=True, text=True, timeout=600)
+    assert rep.returncode == 0, rep.stderr[-3000:]
+    rows = json.loads(rep.stdout)
+    assert [r["dwells"] for r in rows] == [e["dwell"] for e in mission["estimates"]]
+    # The estimate is a deterministic function of the frames, and the rebuilt frames are the mission's
+    # in-memory records bit for bit (same JSON payloads, same interpolation): the tolerance, 1 um, only
+    # allows for floating-point rounding, far below the estimate's sigma (~0.1 m).
+    for row, est in zip(rows, mission["estimates"], strict=True):
+        for key in ("x", "y"):
+            assert row[key] == pytest.approx(est[key], abs=1e-6), (row["dwells"], key)
+    for key in ("x", "y"):
+        assert rows[-1][key] == pytest.approx(summary["estimate"][key], abs=1e-6), key
+    assert rows[-1]["error_m"] == pytest.approx(summary["error_m"], abs=1e-6)
+
+
+def test_the_launcher_finishes_the_log_it_started(router, tmp_path):
+    """run's recorder helpers on a real router: the recorder records, and stopping it (SIGTERM) leaves a
+    complete MCAP file the reader opens, with what was published meanwhile."""
+    from mcap.reader import make_reader
+
+    stack = Stack(tmp_path / "logs")
+    try:
+        start_recorder(stack, tmp_path, router, free_udp_port())
+        assert recorder_ready(stack, tmp_path) is not None
+        with open_session(connect=router) as session:
+            for _ in range(20):  # a few puts: the recorder's subscription reaches the router in milliseconds
+                session.put(topics.key(topics.MISSION_STATE), topics.MissionState(t=1.0, phase="connect").to_bytes())
+                time.sleep(0.1)
+        assert stop_recorder(stack, tmp_path) and "recorder" not in stack.procs
+    finally:
+        stack.stop()
+    with open(tmp_path / "flight.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert topics.key(topics.MISSION_STATE) in {ch.topic for ch in summary.channels.values()}
+
+
+def test_a_recorder_that_cannot_start_is_said_and_the_flight_goes_on(router, tmp_path, capsys):
+    """The GCS port is taken (say by QGroundControl): the recorder cannot listen there; the launcher says so
+    on stderr and carries on without a log instead of failing the flight."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        stack = Stack(tmp_path / "logs")
+        try:
+            start_recorder(stack, tmp_path, router, taken.getsockname()[1])
+            assert recorder_ready(stack, tmp_path) is None
+        finally:
+            stack.stop()
+    err = capsys.readouterr().err
+    assert "radseek run: warning: no flight.mcap: the recorder did not start" in err
+    assert "recorder.log" in err and "the flight goes on" in err
+    assert "unavailable" in (tmp_path / "logs" / "recorder.log").read_text()
+    assert not stop_recorder(stack, tmp_path)  # nothing to stop: no second warning
+    assert capsys.readouterr().err == ""
