@@ -17,7 +17,7 @@ import numpy as np
 
 from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
-from mission.search import Decision, Phase, SearchBrain, SearchConfig
+from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from radseek import topics
 from radseek.dataset import Dataset, Frames
 from radseek.frame_record import FrameRecord
@@ -115,8 +115,15 @@ def fly_offline(scene: Scene, config: SearchConfig | None = None, seed: int = 0,
                 home: tuple[float, float] | None = None, speed: float = 1.0,
                 yaw_rate_max: float = math.radians(45), odometry: OdometryParams | None = None,
                 verbose: bool = False) -> OfflineResult:
-    """Fly a whole search; returns the recorded dataset (with truth), the brain and the mission time."""
-    config = config or SearchConfig()
+    """Fly a whole search; returns the recorded dataset (with truth), the brain and the mission time.
+
+    Reproducible as `radseek run` with lockstep is: the planning trees are bounded by node count, not wall
+    time (``mission.search.reproducible``), and OMPL follows the seed, so a loaded machine or the flights
+    flown before in the same process do not change the flight."""
+    from planner.dwell_tree import seed_ompl
+
+    config = reproducible(config or SearchConfig())
+    seed_ompl(seed + 1)  # as run_mission: OMPL refuses seed 0
     scenario = scene.scenario()
     brain = SearchBrain(scenario, config, seed=seed)
     lo = scenario.bounds_min

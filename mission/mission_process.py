@@ -26,7 +26,6 @@ follows the pose until the detector speaks again. That flight differs from run t
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import json
 import logging
 import math
@@ -44,7 +43,7 @@ from mission.client.mission_upload import DwellPoint, MissionControl
 from mission.client.telemetry import TelemetryWatch
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
-from mission.search import Decision, Phase, SearchBrain, SearchConfig
+from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
@@ -487,18 +486,6 @@ class MissionRunner:
         loc = self.brain.localizer
         if loc is not None:
             self._est_pub.put(loc.to_estimate(self._now(stream)).to_bytes())
-
-
-def reproducible(config: SearchConfig) -> SearchConfig:
-    """The search settings with every planning tree bounded by its node count (N_max) instead of a wall
-    time budget: a tree grown "for 0.2 s" depends on the machine's load, so the same seed would plan
-    differently. With lockstep the wall time costs no flight time; a 30 s hard limit stays as a guard."""
-    def tree(t):
-        return dataclasses.replace(t, time_budget=math.inf, time_limit=max(t.time_limit, 30.0))
-
-    return dataclasses.replace(
-        config, frontier=dataclasses.replace(config.frontier, tree=tree(config.frontier.tree)),
-        next_best=dataclasses.replace(config.next_best, tree=tree(config.next_best.tree)))
 
 
 def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,

@@ -15,6 +15,7 @@ MAVLink and zenoh, and ``launch.offline`` in-process for seeded benchmarks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -265,3 +266,15 @@ def search_failure(mission_summary: dict) -> str | None:
     if reason.startswith("source found") or " pattern flown" in reason:
         return None
     return f"no source found: {reason}"
+
+
+def reproducible(config: SearchConfig) -> SearchConfig:
+    """The search settings with every planning tree bounded by its node count (N_max) instead of a wall
+    time budget: a tree grown "for 0.2 s" depends on the machine's load, so the same seed would plan
+    differently. With lockstep the wall time costs no flight time; a 30 s hard limit stays as a guard."""
+    def tree(t):
+        return dataclasses.replace(t, time_budget=math.inf, time_limit=max(t.time_limit, 30.0))
+
+    return dataclasses.replace(
+        config, frontier=dataclasses.replace(config.frontier, tree=tree(config.frontier.tree)),
+        next_best=dataclasses.replace(config.next_best, tree=tree(config.next_best.tree)))
