@@ -5,7 +5,8 @@
 Fits ``Cs137_b.xml`` minus ``bg.xml`` (forward selection over response effects), saves the detector file, then
 evaluates it without refit on ``Ba133_a.xml`` (same device, same background) and ``data_am241.n42`` (another
 RadiaCode-102, no background of its own: evaluated with and without ``bg.xml`` as a stand-in). Prints the shape
-distances before (the emulator's response) and after calibration. Targets (issue 15): Cs-137 total_variation_32
+distances before (the emulator's response) and after calibration, and each strong photopeak's shift and FWHM
+ratio against the Cs-137 response (``spectra.fit.line_checks``). Targets (issue 15): Cs-137 total_variation_32
 <= 0.03; Ba-133 and Am-241 <= 0.04 with no refit.
 """
 
@@ -46,6 +47,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:<40} {b['total_variation_32']:>11.4f} {r['total_variation_32']:>10.4f} "
               f"{b['total_variation_native']:>13.4f} {r['total_variation_native']:>12.4f} "
               f"{r['deviance_per_dof']:>8.2f}")
+    print("photopeaks against the Cs-137 response (shift of the file energy, FWHM ratio):")
+    for name, r in rows.items():
+        for ln in r["lines"]:
+            print(f"  {name:<40} {ln['line_keV']:>7.1f} keV: {ln['shift_keV']:+6.2f} +- "
+                  f"{ln['shift_error_keV']:<5.2g} keV  FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
     print(f"selected effects: {', '.join(cs['effects'])}; CPU {time.process_time() - t0:.0f} s")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))

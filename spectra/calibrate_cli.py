@@ -7,7 +7,9 @@ Without ``--no-fit``: forward selection over response effects (``spectra.fit``) 
 from ``--detector``'s parameters), printing each effect it adds and the deviance and 32-channel shape distance
 after it. With ``--no-fit``: the saved response on this spectrum, only the amplitude fitted. ``--json`` prints
 parameters, errors, missing, deviance_per_dof, total_variation_32, total_variation_native and the baseline's
-distances. Dead time changes only the total rate, not the shape of one spectrum: it is reported as not identifiable.
+distances, and ``lines``: each strong photopeak's shift (keV) and FWHM ratio against the response (``fit.line_checks``),
+which shows what one Cs-137 photopeak cannot calibrate (the light yield and resolution at low energies). Dead time
+changes only the total rate, not the shape of one spectrum: it is reported as not identifiable.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
                     "deviance_drop": round(s["deviance_drop"], 1),
                     "total_variation_32_after": round(s["total_variation_32"], 4)} for s in res.steps[1:]]
     d = F.shape_distances(problem, res.shape)
+    params_for_lines = dict(res.params)
     result = {
         "spectrum": str(spectrum), "nuclides": list(nuclides), "background": background,
         "live_time_s": sp.live_time_s, "no_fit": no_fit,
@@ -84,6 +87,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
         "effects": list(res.effects),
         "missing": missing,
         "still_missing": F.residual_regions(problem, res) + NOT_IDENTIFIABLE,
+        "lines": F.line_checks(problem, params_for_lines),
         "steps": [{k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()} for s in res.steps],
         "deviance": round(res.deviance, 2), "dof": res.dof,
         "deviance_per_dof": round(res.deviance_per_dof, 4),
@@ -140,6 +144,12 @@ def _print_human(r: dict) -> None:
                   f"channels, measured {100 * w['relative']:+.1f} % vs model")
         else:
             print(f"    {w['effect']}: {w['why']}")
+    if r["lines"]:
+        print("  photopeaks, measured against the response (local shift of the file energy, FWHM ratio):")
+        for ln in r["lines"]:
+            print(f"    {ln['line_keV']:>8.1f} keV: shift {ln['shift_keV']:+.2f} +- {ln['shift_error_keV']:.2g} keV "
+                  f"({100 * ln['shift_relative']:+.2f} %), "
+                  f"FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
     for k in ("out", "plot"):
         if k in r:
             print(f"  wrote {r[k]}")

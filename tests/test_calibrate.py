@@ -57,6 +57,26 @@ def test_forward_selection_finds_the_effects_the_baseline_lacks():
     assert res.steps[-1]["total_variation_32"] < res.steps[0]["total_variation_32"]
 
 
+def test_line_checks_recover_a_known_peak_shift_and_width():
+    """A Ba-133 spectrum drawn with its peaks 2 keV higher and 15 % narrower than the response says: each photopeak
+    group's local shift and FWHM ratio come back within their errors (the light yield and resolution at low energies
+    that one Cs-137 photopeak cannot calibrate); the response's own spectrum gives no shift and a ratio of 1."""
+    resp = M.baseline_params()
+    resp.update(fwhm_at_662=0.10, fwhm_exponent=0.47, gain=0.995)
+    truth = dict(resp, offset_keV=2.0, fwhm_at_662=0.085)
+    cal = (-6.0, 2.4, 4e-4)
+    prob0 = F.Problem(sf.Spectrum(np.ones(1024), 300.0, calibration=cal), ("Ba-133",), None)
+    for params, shift, ratio in ((truth, 2.0, 0.85), (resp, 0.0, 1.0)):
+        shape = prob0.shape(params)
+        rng = np.random.default_rng(7)
+        sp = sf.Spectrum(rng.poisson(2.0e5 * shape / shape.sum()).astype(float), 300.0, calibration=cal)
+        checks = F.line_checks(F.Problem(sp, ("Ba-133",), None), resp)
+        assert [c["line_keV"] for c in checks] == [81.0, 302.85, 356.01]  # 276 + 303 and 356 + 384 are blends
+        for c in checks:
+            assert abs(c["shift_keV"] - shift) < 4 * c["shift_error_keV"] + 0.05, c
+            assert abs(c["fwhm_ratio"] - ratio) < 4 * c["fwhm_ratio_error"] + 0.005, c
+
+
 def test_shape_distance_is_zero_for_the_model_itself():
     prob, true = synthetic(seed=1)
     shape = prob.shape(true)
