@@ -173,10 +173,11 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:
         print(f"radseek replay: {args.dataset} has no dwell points (dwell column is -1 throughout)", file=sys.stderr)
         return 1
+    # the last estimate is the one the flight ended with: say so when its model does not fit the data
+    last = next((r for r in reversed(rows) if "error" not in r), None)
+    warning = gof_warning(last.get("p_value"), args.dataset) if last else None
     if args.json:
         print(json.dumps(rows, indent=2))
-        last = next((r for r in reversed(rows) if "error" not in r), None)
-        warning = gof_warning(last.get("p_value"), args.dataset) if last else None
         if warning:
             print(f"radseek replay: warning: {warning}", file=sys.stderr)
     else:
@@ -189,9 +190,6 @@ def main(argv: list[str] | None = None) -> int:
             err = f"{r['error_m']:9.3f}" if "error_m" in r else f"{'-':>9}"
             print(f"{r['dwells']:>6} {r['t']:>8.1f} {r['x']:7.2f} {r['y']:7.2f} {r['cps_at_1m']:8.0f} "
                   f"{r['sigma_m']:9.3f} {err} {r.get('p_value', math.nan):8.2g}")
-        # the last estimate is the one the flight ended with: say so when its model does not fit the data
-        last = next((r for r in reversed(rows) if "error" not in r), None)
-        warning = gof_warning(last.get("p_value"), args.dataset) if last else None
         if warning:
             print(f"THE MODEL MISSES SOMETHING HERE: {warning}")
     if args.plot:

@@ -107,11 +107,19 @@ class Stack:
                 os.killpg(proc.pid, signal.SIGTERM)
         deadline = time.monotonic() + 10.0  # one grace period for the whole stack, not 10 s per process
         for proc in self.procs.values():
-            try:
-                proc.wait(max(deadline - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
+            wait_or_kill(proc, max(deadline - time.monotonic(), 0.1))
+
+
+def wait_or_kill(proc: subprocess.Popen, timeout_s: float) -> bool:
+    """Wait up to ``timeout_s`` for ``proc`` to exit, else SIGKILL its process group; True if it exited by
+    itself (``timeout_s`` 0: kill it now unless it has already exited)."""
+    try:
+        proc.wait(timeout_s)
+        return True
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5)
+        return False
 
 
 def _warn_no_mcap(out: Path, why: str) -> None:
@@ -131,10 +139,7 @@ def recorder_ready(stack: Stack, out: Path) -> subprocess.Popen | None:
     try:
         stack.wait_for_line("recorder", "recording", timeout_s=RECORDER_START_S)
     except RuntimeError as exc:
-        proc = stack.procs.pop("recorder")
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        wait_or_kill(stack.procs.pop("recorder"), 0.0)
         _warn_no_mcap(out, f"no flight.mcap: the recorder did not start ({exc})")
         return None
     return stack.procs["recorder"]
@@ -148,11 +153,7 @@ def stop_recorder(stack: Stack, out: Path) -> bool:
         return False
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(RECORDER_STOP_S)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(10)
+        if not wait_or_kill(proc, RECORDER_STOP_S):
             _warn_no_mcap(out, f"the recorder did not finish {out / 'flight.mcap'} in {RECORDER_STOP_S:g} s and was "
                                "killed: the file is truncated")
             return False

@@ -32,6 +32,7 @@ the recorder was killed before it finished the file) or damaged.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -67,9 +68,9 @@ class RecordedFlight:
     end_t: float | None = None  # sim time of the last frame the mission recorded (its "done" state), if known
     dropped: dict[str, int] = field(default_factory=dict)  # topic -> payloads that failed their schema
 
-    @property
+    @cached_property
     def frames(self) -> Frames:
-        """The usable records as ``frames.csv`` columns (rows in the order recorded)."""
+        """The usable records as ``frames.csv`` columns (rows in the order recorded; built once)."""
         return Frames.from_records([r for r in self.records if r.usable])
 
     def first_dwell(self) -> int | None:
