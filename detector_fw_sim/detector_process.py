@@ -43,6 +43,7 @@ from detector_fw_sim.board import Board
 from radseek import topics
 from radseek.board_wire import FRAME_SIZE, FrameConsumer, encode_frame
 from radseek.board_wire import frame_to_histogram as _to_histogram
+from radseek.payload_drops import worth_reporting
 from radseek.pose_history import PoseHistory
 from radseek.simclock import Clock
 
@@ -174,7 +175,7 @@ class TruthPoseFollower:
             with self._lock:
                 self._counters.bad_pose_msgs += 1
                 n = self._counters.bad_pose_msgs
-            if n <= 3 or n % 100 == 0:
+            if worth_reporting(n):
                 print(f"radseek detector: dropped true-pose message #{n}: {exc}", file=sys.stderr, flush=True)
             return
         with self._lock:
@@ -186,7 +187,7 @@ class TruthPoseFollower:
             if hole:
                 self.holes += 1
                 n = self.holes
-        if hole and (n <= 3 or n % 100 == 0):
+        if hole and worth_reporting(n):
             print(f"radseek detector: true-pose stream has a hole #{n}: {prev:.3f} -> {msg.t:.3f} s "
                   "(messages lost?)", file=sys.stderr, flush=True)
         with self._lock:

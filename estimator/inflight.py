@@ -197,8 +197,12 @@ class InflightEstimator:
             return est
         # an estimate that is not trustworthy (sigma_m inf) has no finite ellipse either
         est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
-        est["bound_m"] = flown_bound(self.scenario, self._frames, est, self.method, self.settings) \
-            if self._frames is not None else math.nan
+        hybrid = getattr(self.localizer, "crlb_pose_", None)  # the fit computed it for its covariance already
+        if hybrid is not None:
+            est["bound_m"] = bound_m(hybrid)
+        else:
+            est["bound_m"] = flown_bound(self.scenario, self._frames, est, self.method, self.settings) \
+                if self._frames is not None else math.nan
         return est
 
     def _fit(self, frames: Frames, settings: dict[str, Any]) -> Localizer | None:
