@@ -136,14 +136,18 @@ def test_tree_path_lengths_follow_the_parents():
 def test_pose_gain_commits_to_no_more_metres_than_eq6_on_the_same_trees():
     """Seeded whole searches (launch.offline, default scene, real drift): at every next-best decision both
     gains score the same tree, so the paired difference of the chosen node's path length isolates the gain
-    (OMPL's trees are not seedable per call). Its mean over the decisions of a few seeds must not exceed
+    (OMPL's trees are not seedable per call; a tree with no valid node, which either gain
+leaves unchosen, drops out). Its mean over the decisions of a few seeds must not exceed
     zero by more than its spread allows (3 standard errors, plus 5 cm for the case where every pair is
     equal and the spread is zero)."""
     from benchmarks.planner_pose_gain import same_tree_choices
 
     rows = [r for seed in range(5) for r in same_tree_choices("default", seed)]
-    assert len(rows) >= 5
-    d = np.array([r["L_eq6_pose"] - r["L_eq6"] for r in rows])
-    assert np.isfinite(d).all()
+    pose = np.array([r["L_eq6_pose"] for r in rows])
+    eq6 = np.array([r["L_eq6"] for r in rows])
+    # a tree may hold no valid node (all too close or too weak: NaN); validity does not depend on the gain
+    np.testing.assert_array_equal(np.isnan(pose), np.isnan(eq6))
+    d = (pose - eq6)[np.isfinite(eq6)]
+    assert len(d) >= 5
     se = d.std(ddof=1) / np.sqrt(len(d))
     assert d.mean() <= 3 * se + 0.05, (d.mean(), se)
