@@ -11,7 +11,9 @@ warm-starts from. The policy, in order:
    warm-started from the previous estimate;
 4. wall shadow test: if the scenario maps walls (and the settings do not choose the effects), a wall matters
    only where a recorded line of sight to the source crosses it; then refit with ``wall_attenuation``
-   (warm-started from the last walled estimate) and keep the wall-free fit if that refit fails. Once the
+   (warm-started from the last walled estimate) and keep the wall-free fit if that refit fails. A wall-free
+   fit that fails its goodness of fit is refitted with the walls too, even unshadowed (a source behind a wall
+   reads weak and the wall-free optimum flees the shadow), and the walled fit kept if its likelihood is higher. Once the
    last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted,
    from that estimate (``WARM_WALLED_STARTS`` starts): each refit stays well under a second;
 5. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues);
@@ -165,7 +167,8 @@ class InflightEstimator:
             loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
             if loc is None:
                 return None
-            if walls and self._shadowed(frames, [loc.sources_[0][k] for k in ("x", "y", "z")]):
+            shadowed = walls and self._shadowed(frames, [loc.sources_[0][k] for k in ("x", "y", "z")])
+            if walls and (shadowed or _misfit(loc)):
                 # fit the wall's attenuation too (mu is unidentifiable unless a line of sight crosses a wall);
                 # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
                 # local optimum of the walled model (mu = 0), so starting only there never leaves it
@@ -174,7 +177,11 @@ class InflightEstimator:
                         {**loc.sources_[0], "background_cps": loc.background_})
                 walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
                                             "n_starts": max(settings.get("n_starts", 3), 5)})
-                if walled is not None:  # even unconverged: sigma_m() then refuses to call it confident
+                # even unconverged: sigma_m() then refuses to call it confident. A wall-free fit that fails
+                # its goodness of fit with no recorded line of sight near it crossing a wall may have fled
+                # the shadow (a source behind a wall reads weak, so the wall-free optimum moves away): then
+                # the walled model is kept only if it explains the counts better
+                if walled is not None and (shadowed or walled.info_["nll"] < loc.info_["nll"]):
                     loc = walled
         self.localizer = loc
         self._frames = frames
@@ -220,6 +227,11 @@ class InflightEstimator:
         src = np.asarray(source, dtype=float)
         around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
         return bool(path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0)
+
+
+def _misfit(loc: Localizer) -> bool:
+    """The fit's goodness of fit fails (p < :data:`GOOD_FIT_P`; no p-value: not known to fail)."""
+    return bool(getattr(loc, "info_", {}).get("p_value", 1.0) < GOOD_FIT_P)
 
 
 def flown_bound(scenario: Scenario, frames: Frames, record: Mapping[str, Any], localizer: str = DEFAULT_LOCALIZER,

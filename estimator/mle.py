@@ -498,6 +498,12 @@ def fit(
         if best is None or m.fval < best.fval:
             best = m
     assert best is not None
+    if not best.valid:
+        # the cheap search stopped short (call limit, EDM above tolerance; a wall's shadow edge makes the
+        # likelihood kinked): polish the best minimum with full-strategy MIGRAD before calling it failed
+        best.strategy = 1
+        best.tol = 0.1
+        best.migrad(ncall=4000)
     best.hesse()  # the full Hessian at the best minimum (MIGRAD's strategy 0 only estimates it)
     values = {**fixed, **dict(zip(names, (float(v) for v in best.values), strict=True))}
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)

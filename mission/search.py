@@ -4,8 +4,9 @@ Strategy ``active`` (paper 003's autonomous search): ``explore`` (frontier explo
 dwell readings stand above background, paper 003 sec. IV-B-2, with paper 004's frontier choice), then
 ``search`` (estimate the source from every frame recorded so far with ``estimator.inflight``, the
 estimate ``radseek replay`` reproduces, then fly to the next-best dwell point of the random tree scored
-with eq. 6), until the source's 1-sigma (x-y) position ellipse is smaller than ``stop_sigma_m`` and
-the estimate is stable, or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
+with eq. 6), until the source's 1-sigma (x-y) position ellipse is smaller than ``stop_sigma_m``, the
+estimate is stable and its model fits the counts (goodness of fit p >= ``estimator.inflight.GOOD_FIT_P``),
+or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
 The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
@@ -22,7 +23,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator
+from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, GOOD_FIT_P, InflightEstimator
 from estimator.localizers.base import Localizer
 from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
@@ -149,18 +150,21 @@ class SearchBrain:
             else:
                 return self._explore(current, f"explore: {self._above()} of 3 readings above background")
         belief, sigma = self._estimate(frames)
+        misfit = self._misfit()
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
-                sigma < self.config.stop_sigma_m and self._stable():
+                sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
         if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
-            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m)")
+            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})")
         if belief is None:
             return self._explore(current, "no estimate yet: keep exploring")
         plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.next_best,
                                rng=self.rng)
         if not plan.ok:
-            return self._done(f"no valid next dwell point (1-sigma {sigma:.3f} m)")
-        return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m)")
+            # every tree node inside the belief's ellipse or predicted too weak (a broad early belief covers
+            # the whole tree): gather counts where none were taken yet rather than give up with budget left
+            return self._explore(current, f"no valid next-best dwell point (1-sigma {sigma:.3f} m): explore")
+        return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
 
     # ---------------------------------------------------------------------------- helpers
 
@@ -180,6 +184,12 @@ class SearchBrain:
         if not plan.ok:
             return self._done("exploration found no frontier left")
         return Decision(Phase.EXPLORE, plan, reason)
+
+    def _misfit(self) -> str:
+        """A note when the last estimate's goodness of fit fails (p < ``GOOD_FIT_P``: the model misses
+        something, so its small ellipse is no found source), else ''."""
+        p = self.estimate["p_value"] if self.estimate else math.nan
+        return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
 
     def _stable(self) -> bool:
         """The last two estimates agree within 2 combined x-y ellipse sizes: a small ellipse around an

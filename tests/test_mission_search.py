@@ -30,3 +30,56 @@ def test_search_finds_the_default_source(seed):
         m = f.dwell == k
         assert m.sum() >= 40  # >= t_min of 5 s at 10 Hz (fewer would mean frames were lost)
         assert np.allclose(f.positions[m].mean(0), pos, atol=0.05)
+
+
+def _misfit_everywhere(monkeypatch):
+    """The injected fault: every in-flight fit reports a failed goodness of fit (p = 0)."""
+    import estimator.inflight as inflight
+
+    update = inflight.InflightEstimator.update
+
+    def misfit(self, frames, dwell):
+        rec = update(self, frames, dwell)
+        if rec is not None:
+            rec["p_value"] = 0.0
+        return rec
+
+    monkeypatch.setattr(inflight.InflightEstimator, "update", misfit)
+
+
+def test_a_fit_that_misses_the_counts_is_no_found_source(monkeypatch):
+    """Same seed, same flight up to the stop: the honest fit stops "source found"; when every fit fails its
+    goodness of fit the search flies on to its budget and says why."""
+    config = SearchConfig()
+    honest = fly_offline(load_scene(), config, seed=1)
+    assert honest.decisions[-1].reason.startswith("source found")
+    _misfit_everywhere(monkeypatch)
+    r = fly_offline(load_scene(), config, seed=1)
+    reasons = [d.reason for d in r.decisions]
+    assert not any(x.startswith("source found") for x in reasons)
+    assert r.decisions[-1].reason.startswith("dwell budget spent")
+    assert "the model misses something, fit p = 0" in r.decisions[-1].reason
+    assert r.brain.search_dwells > honest.brain.search_dwells
+
+
+def test_no_valid_next_best_point_explores_instead_of_giving_up(monkeypatch):
+    """The injected fault: the first next-best planning finds no valid node (as when a broad early belief
+    covers the whole tree); the brain explores and the search goes on."""
+    import mission.search as ms
+    from planner.plan import DwellPlan
+
+    plan = ms.plan_next_dwell
+    calls = []
+
+    def none_first(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            return DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), "next_best_eq6")
+        return plan(*args, **kwargs)
+
+    monkeypatch.setattr(ms, "plan_next_dwell", none_first)
+    r = fly_offline(load_scene(), SearchConfig(), seed=1)
+    fallback = [d for d in r.decisions if d.reason.startswith("no valid next-best dwell point")]
+    assert len(fallback) == 1 and fallback[0].phase is Phase.EXPLORE and fallback[0].plan.ok
+    assert len(calls) >= 2 and r.decisions[-1].phase is Phase.DONE
+    assert r.brain.estimate is not None
