@@ -43,7 +43,7 @@ from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, semi_major_axis
 
 __all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "GOOD_FIT_P", "MIN_SIGMA_M", "InflightEstimator", "bound_m",
-           "ellipse", "gof_warning", "repair_covariance", "sigma_m"]
+           "drift_floor_m", "ellipse", "gof_warning", "repair_covariance", "sigma_m"]
 
 DEFAULT_LOCALIZER = "mle"
 #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
@@ -103,6 +103,17 @@ def ellipse(covariance: Any, level: float = 0.95) -> dict[str, float]:
     return {"a_m": a, "b_m": b, "angle_deg": (angle + 90.0) % 180.0 - 90.0}
 
 
+def drift_floor_m(crlb_pose: Any) -> float:
+    """The 1-sigma the drift alone allows: semi-major axis of the x-y block of the drift-aware bound
+    (``crlb_pose_`` of the fit: pose offsets as nuisances under their random-walk prior), nan without one.
+    An estimate whose ``sigma_m`` sits at this floor and has stopped falling is drift-limited: more dwells
+    add metres (drift) about as fast as they add counts."""
+    if crlb_pose is None:
+        return math.nan
+    c = np.asarray(crlb_pose, dtype=float)[:2, :2]
+    return semi_major_axis(c) if np.isfinite(c).all() else math.nan
+
+
 def bound_m(crlb_xy: Any) -> float:
     """The bound as a distance: the rms horizontal error an unbiased estimate can reach, sqrt(trace) of the
     x-y block of a Cramér-Rao bound (as ``radseek localize`` reports it)."""
@@ -128,7 +139,8 @@ class InflightEstimator:
     ``x``, ``y``, ``z`` (m), ``cps_at_1m``, ``background_cps`` (cps), ``covariance`` ((3, 3) position
     covariance in m^2, repaired, as nested lists), ``sigma_m`` (:func:`sigma_m`), ``effects`` (the fitted
     model's), ``params`` (the fitted effects' parameters, e.g. ``wall_attenuation.mu_per_m``), ``converged``
-    and ``p_value`` (goodness of fit, nan if the localizer reports none). :meth:`finalize` adds ``bound_m``
+    ``p_value`` (goodness of fit, nan if the localizer reports none) and ``drift_floor_m``
+    (:func:`drift_floor_m`). :meth:`finalize` adds ``bound_m``
     and ``ellipse_95`` to the last record.
     """
 
@@ -193,7 +205,8 @@ class InflightEstimator:
                   "covariance": cov.tolist(), "sigma_m": sigma_m(cov, converged),
                   "effects": list(getattr(loc, "effects", ())),
                   "params": {k: float(v) for k, v in values.items() if k not in _BASE_PARAMS},
-                  "converged": converged, "p_value": float(info.get("p_value", math.nan))}
+                  "converged": converged, "p_value": float(info.get("p_value", math.nan)),
+                  "drift_floor_m": drift_floor_m(getattr(loc, "crlb_pose_", None))}
         self.estimates.append(record)
         return record
 

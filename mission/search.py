@@ -6,7 +6,9 @@ dwell readings stand above background, paper 003 sec. IV-B-2, with paper 004's f
 estimate ``radseek replay`` reproduces, then fly to the next-best dwell point of the random tree scored
 with eq. 6), until the source's 1-sigma (x-y) position ellipse is smaller than ``stop_sigma_m``, the
 estimate is stable and its model fits the counts (goodness of fit p >= ``estimator.inflight.GOOD_FIT_P``),
-or the dwell budget is spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
+or the same holds of an ellipse that has stopped shrinking at the floor odometry drift allows (drift-limited:
+a larger scene flies more metres, and its drift bound may lie above ``stop_sigma_m``), or the dwell budget is
+spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
 The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
@@ -46,6 +48,10 @@ class Phase(StrEnum):
 
 
 STRATEGIES = ("active", "lattice", "lawnmower")
+#: the drift-limited stop: the 1-sigma fell by less than 5 % per dwell over the last two dwells ...
+PLATEAU = 0.95
+#: ... and is within 25 % of the floor the odometry drift alone allows
+AT_FLOOR = 1.25
 
 
 @dataclass(frozen=True)
@@ -154,6 +160,12 @@ class SearchBrain:
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
                 sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
+        floor = self._drift_limited()
+        if belief is not None and self.search_dwells >= self.config.min_search_dwells and floor and \
+                self._stable() and not misfit:
+            return self._done(f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the "
+                              f"odometry-drift floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is "
+                              "below what this flight's drift allows)")
         if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
             return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})")
         if belief is None:
@@ -190,6 +202,21 @@ class SearchBrain:
         something, so its small ellipse is no found source), else ''."""
         p = self.estimate["p_value"] if self.estimate else math.nan
         return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
+
+    def _drift_limited(self) -> float:
+        """The drift floor (m) when the estimate is drift-limited, else 0: over the last two dwells its
+        1-sigma fell by less than ``PLATEAU`` each time and sits within ``AT_FLOOR`` of the floor odometry
+        drift alone allows (``drift_floor_m``: the drift-aware bound's semi-major axis). More dwells then buy
+        nothing: each adds metres, so drift, about as fast as counts."""
+        last = self.estimates[-3:]
+        if len(last) < 3 or [e["dwell"] for e in last] != list(range(last[0]["dwell"], last[0]["dwell"] + 3)):
+            return 0.0
+        s = [e["sigma_m"] for e in last]
+        floor = float(last[-1].get("drift_floor_m", math.nan))
+        if not (np.isfinite(s).all() and math.isfinite(floor) and floor > 0):
+            return 0.0
+        falling = s[1] < PLATEAU * s[0] or s[2] < PLATEAU * s[1]
+        return floor if not falling and s[2] <= AT_FLOOR * floor else 0.0
 
     def _stable(self) -> bool:
         """The last two estimates agree within 2 combined x-y ellipse sizes: a small ellipse around an

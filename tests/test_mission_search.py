@@ -1,5 +1,7 @@
 """The search brain flown in-process against the emulator, and the truth-isolation rule."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -83,3 +85,21 @@ def test_no_valid_next_best_point_explores_instead_of_giving_up(monkeypatch):
     assert len(fallback) == 1 and fallback[0].phase is Phase.EXPLORE and fallback[0].plan.ok
     assert len(calls) >= 2 and r.decisions[-1].phase is Phase.DONE
     assert r.brain.estimate is not None
+
+
+@pytest.mark.parametrize(("sigmas", "floor", "dwells", "limited"), [
+    ((0.161, 0.159, 0.157), 0.157, (5, 6, 7), True),  # outdoor seed 1: at the floor, no longer falling
+    ((0.200, 0.180, 0.157), 0.157, (5, 6, 7), False),  # still falling by 10 % a dwell
+    ((0.161, 0.159, 0.157), 0.100, (5, 6, 7), False),  # plateau well above the drift floor: something else
+    ((0.161, 0.159, 0.157), 0.157, (4, 6, 7), False),  # a dwell without an estimate in between
+    ((0.161, math.inf, 0.157), 0.157, (5, 6, 7), False),  # an untrustworthy estimate in the window
+    ((0.161, 0.159, 0.157), math.nan, (5, 6, 7), False),  # no drift bound (another localizer)
+])
+def test_drift_limited_rule(sigmas, floor, dwells, limited):
+    from estimator.inflight import InflightEstimator
+    from mission.search import SearchBrain
+
+    brain = SearchBrain(load_scene("outdoor").scenario())
+    brain.estimator = InflightEstimator(brain.scenario)
+    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor} for d, s in zip(dwells, sigmas)]
+    assert brain._drift_limited() == (floor if limited else 0.0)
