@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# CI is deterministic: every property test draws the same examples on every run (a fuzz test that found a
+# new case at random once in a while would block every landing). To explore beyond them, run
+# HYPOTHESIS_PROFILE=explore pytest tests/test_fuzz_*.py (new random draws on every run).
+settings.register_profile("ci", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False, database=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATASETS = REPO.parent / "shared" / "datasets"

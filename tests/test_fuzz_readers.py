@@ -124,10 +124,14 @@ def frames_csv(draw) -> tuple[str, bool]:
         r = draw(st.integers(0, len(rows) - 1))
         action = draw(st.sampled_from(["cell", "cell", "drop_cell", "add_cell", "blank", "header"]))
         clean = False
+        if not rows[r] and action in ("cell", "drop_cell"):
+            action = "add_cell"  # an earlier drop emptied the row
+        if not rows[0] and action == "header":
+            action = "add_cell"
         if action == "cell":
             c = draw(st.integers(0, len(rows[r]) - 1))
             rows[r][c] = draw(st.sampled_from(HOSTILE_CELLS) | st.text(max_size=5))
-        elif action == "drop_cell" and rows[r]:
+        elif action == "drop_cell":
             rows[r].pop(draw(st.integers(0, len(rows[r]) - 1)))
         elif action == "add_cell":
             rows[r].append(draw(st.sampled_from(HOSTILE_CELLS)))

@@ -101,5 +101,6 @@ def test_drift_limited_rule(sigmas, floor, dwells, limited):
 
     brain = SearchBrain(load_scene("outdoor").scenario())
     brain.estimator = InflightEstimator(brain.scenario)
-    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor} for d, s in zip(dwells, sigmas)]
+    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor}
+                                 for d, s in zip(dwells, sigmas, strict=True)]
     assert brain._drift_limited() == (floor if limited else 0.0)

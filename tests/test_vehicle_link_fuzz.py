@@ -23,7 +23,7 @@ KEY, WRONG_KEY = bytes(range(32)), bytes(range(100, 132))
 GCS_ADDR = ("127.0.0.1", 14550)
 AV_ID = M.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 TICKS = 100_000  # signing ticks per second
-FUZZ = settings(max_examples=300, deadline=None, derandomize=True, database=None,
+FUZZ = settings(max_examples=300, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -290,7 +290,7 @@ def test_fuzzed_datagrams_over_udp():
     with vt as vehicle, Gcs(gcs_port) as gcs:
         gcs.wait_vehicle()
 
-        @settings(max_examples=60, deadline=None, derandomize=True, database=None,
+        @settings(max_examples=60, deadline=None,
                   suppress_health_check=[HealthCheck.too_slow])
         @given(datagrams)
         def run(datagram_recipes):
