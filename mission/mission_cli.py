@@ -44,6 +44,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="use a non-empty --out: remove its previous mission outputs first (other files are kept)")
     p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
+    p.add_argument("--connect-timeout", type=float, default=60.0, metavar="S",
+                   help="wall seconds to wait for the autopilot's heartbeat and health (default 60; a booting "
+                        "SITL may need more)")
     p.add_argument("--altitude", type=float, default=1.5, help="dwell altitude, m (default 1.5)")
     p.add_argument("--stop-sigma", type=float, default=0.10, help="stop when the 1-sigma error ellipse is below, m")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
@@ -87,9 +90,18 @@ def main(argv: list[str] | None = None) -> int:
     config = SearchConfig(altitude_m=args.altitude, stop_sigma_m=args.stop_sigma,
                           max_dwells=args.max_dwells, max_search_dwells=min(6, args.max_dwells),
                           localizer=args.localizer, strategy=args.strategy)
-    settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed)
-    with zenoh_session.session_from_args(args) as session:
-        summary = run_mission(session, scenario, Path(args.out), config, settings)
+    if not args.connect_timeout > 0:
+        p.error(f"--connect-timeout must be > 0 s, got {args.connect_timeout}")
+    settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed,
+                               connect_timeout_s=args.connect_timeout)
+    from mission.client.connection import ConnectionFailed
+
+    try:
+        with zenoh_session.session_from_args(args) as session:
+            summary = run_mission(session, scenario, Path(args.out), config, settings)
+    except ConnectionFailed as exc:
+        print(f"radseek mission: {exc} (frames recorded while waiting are in {args.out})", file=sys.stderr)
+        return 1
     print(json.dumps({k: summary[k] for k in ("reason", "dwell_points", "mission_time_s", "estimate")},
                      default=float))
     failure = search_failure(summary)

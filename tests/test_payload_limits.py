@@ -13,6 +13,8 @@ from __future__ import annotations
 import csv
 import json
 import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -87,7 +89,7 @@ def test_running_mission_drops_impossible_histograms_and_nested_json(router, tmp
     out = tmp_path / "flight"
     # no autopilot answers: the mission records while it waits for one, which is all this test needs
     mission = Proc("mission", "--scenario", str(scenario), "--out", str(out), "--connect", router,
-                   "--url", f"udpin://127.0.0.1:{free_udp_port()}")
+                   "--url", f"udpin://127.0.0.1:{free_udp_port()}", "--connect-timeout", "3600")
     try:
         with open_session(connect=router) as s:
             pose_pub = s.declare_publisher(topics.key(topics.POSE))
@@ -136,3 +138,17 @@ def test_running_mission_drops_impossible_histograms_and_nested_json(router, tmp
     assert "Traceback" not in text and "RecursionError" not in text
     ds = read_dataset(out)  # the flight stays readable
     assert len(ds.frames) == len(rows) and ds.frames.counts.max() <= 65535
+
+
+def test_mission_without_an_autopilot_says_so_and_exits_1(router, tmp_path):
+    from detector_fw_sim.scene import load_scene
+
+    scenario = tmp_path / "scenario.json"
+    write_json(scenario, load_scene().scenario().to_dict())
+    port = free_udp_port()
+    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "mission", "--scenario", str(scenario), "--out",
+                           str(tmp_path / "flight"), "--connect", router, "--url", f"udpin://127.0.0.1:{port}",
+                           "--connect-timeout", "2"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stderr
+    assert f"no autopilot heartbeat: udpin://127.0.0.1:{port} after 2 s" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -10,10 +10,13 @@ NAV_RALLY_POINT). A list is checked item by item (``validate``) and, once comple
 Upload: MISSION_COUNT -> MISSION_REQUEST_INT(seq) ... MISSION_ITEM_INT -> MISSION_ACK. A request
 whose item does not arrive within ``retry_s`` is sent again, up to ``max_retries`` times, then the
 upload is cancelled (MISSION_ACK OPERATION_CANCELLED). A repeated MISSION_COUNT restarts the upload;
-a repeated last item after completion is re-acknowledged (the GCS lost our ACK). Because MAVSDK does
-*not* resend the last item when the final ACK is lost (it just times out), the final ACK is sent
-``final_ack_copies`` times back to back: on a link losing 10 % of datagrams independently, 3 copies cut
-the chance of a spurious upload timeout from 1 in 10 to 1 in 1000. Requests are re-sent after
+a repeated last item after completion is re-acknowledged (the GCS lost our ACK). The final ACK is sent
+once, as PX4 does: MAVSDK's upload takes *any* MISSION_ACK ACCEPTED as its own, whatever its
+mission_type, and one arriving before its last item is a PROTOCOL_ERROR
+(``MavlinkMissionTransferClient::UploadWorkItem::process_mission_ack``), so a late copy of a fence
+upload's ACK broke the rally upload that followed it on a loaded machine. MAVSDK does not resend the last
+item when the final ACK is lost (it times out); radseek's client tries such a transfer again
+(``mission.client.mission_upload.MissionControl.transfer``). Requests are re-sent after
 ``retry_s`` = 0.2 s, faster than MAVSDK's own 0.5 s timeout, so a lost item costs MAVSDK one retry
 rather than two (it gives up after 5).
 """
@@ -142,9 +145,8 @@ class MissionProtocol:
     """Holds the vehicle's mission, fence and rally lists and runs the transfer protocol."""
 
     def __init__(self, validate: Validator = basic_validate, *, max_items: int = 500, retry_s: float = 0.2,
-                 max_retries: int = 15, final_ack_copies: int = 3, sysid: int = 1, compid: int = 1,
+                 max_retries: int = 15, sysid: int = 1, compid: int = 1,
                  validate_list: ListValidator = _accept_list):
-        self.final_ack_copies = max(1, final_ack_copies)
         self.validate, self.validate_list = validate, validate_list
         self.max_items, self.retry_s, self.max_retries = max_items, retry_s, max_retries
         self.sysid, self.compid = sysid, compid
@@ -284,7 +286,7 @@ class MissionProtocol:
         self._store(mtype, up.items)
         self._last_done = (partner, up.count, mtype)
         log.info("list of %d items (type %d) accepted", len(up.items), mtype)
-        return [self._ack(partner, M.MAV_MISSION_ACCEPTED, mtype)] * self.final_ack_copies
+        return [self._ack(partner, M.MAV_MISSION_ACCEPTED, mtype)]
 
     def poll(self, now: float) -> list:
         """Retransmit a request whose answer is late; cancel a stalled upload."""

@@ -31,6 +31,10 @@ MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 
 
+#: tries of a whole-list transfer that times out (MissionControl.transfer)
+TRANSFER_ATTEMPTS = 3
+
+
 class MissionFailed(Exception):
     """An upload/start/set-current the vehicle refused; ``result`` is MAVSDK's MissionRawResult name."""
 
@@ -94,15 +98,26 @@ class MissionControl:
         except MissionRawError as exc:
             raise MissionFailed(call, exc.result.name) from None
 
+    async def transfer(self, call: str, start) -> object:
+        """A whole-list transfer (``start()`` makes the MAVSDK call), tried again when it times out, up to
+        ``TRANSFER_ATTEMPTS`` times: uploads, downloads and clears are idempotent, and a lost final
+        MISSION_ACK is a timeout in MAVSDK (it never resends the last item), as with PX4."""
+        for attempt in range(1, TRANSFER_ATTEMPTS + 1):
+            try:
+                return await start()
+            except MissionRawError as exc:
+                if exc.result.name != "TIMEOUT" or attempt == TRANSFER_ATTEMPTS:
+                    raise MissionFailed(call, exc.result.name) from None
+
     async def upload(self, items: list[MissionItem]) -> None:
-        await self._do("upload_mission", self._mr.upload_mission(items))
+        await self.transfer("upload_mission", lambda: self._mr.upload_mission(items))
         self.items = list(items)
 
     async def download(self) -> list[MissionItem]:
-        return list(await self._do("download_mission", self._mr.download_mission()))
+        return list(await self.transfer("download_mission", self._mr.download_mission))
 
     async def clear(self) -> None:
-        await self._do("clear_mission", self._mr.clear_mission())
+        await self.transfer("clear_mission", self._mr.clear_mission)
         self.items = []
 
     async def start(self) -> None:
