@@ -83,3 +83,25 @@ def test_pose_aware_crlb_reduces_to_poisson_crlb_and_grows_with_pose_variance():
     np.testing.assert_allclose(pose_aware_crlb(model, theta, exact), crlb(model, theta, exact), rtol=1e-6)
     c0, c1 = crlb(model, theta, noisy), pose_aware_crlb(model, theta, noisy)
     assert np.all(np.diag(c1) >= np.diag(c0)) and c1[0, 0] > 1.5 * c0[0, 0]
+
+
+def test_landmark_free_drift_bound():
+    """Without walls a pose offset and a source translation are the same thing, so the landmark-free
+    bound is the detector-offset bound; behind a mapped wall the wall's edges would pin the pose, and the
+    landmark-free bound claims none of that (it is larger, never smaller)."""
+    from estimator.localizers.mle import pose_aware_crlb
+    from estimator.model import MeasurementModel
+    from radseek.dataset import Wall
+
+    src = (4.3, 3.7, 0.0, 1600.0)
+    theta = {"x": 4.3, "y": 3.7, "cps_at_1m": 1600.0, "background_cps": 30.0}
+    noisy = dwell_frames(lattice_points((4.3, 3.7)), [src], 30.0, dwell_s=10.0, exact=True, pose_sd=0.04)
+    free = MeasurementModel(scenario_for())
+    np.testing.assert_allclose(pose_aware_crlb(free, theta, noisy, landmarks=False),
+                               pose_aware_crlb(free, theta, noisy, landmarks=True), rtol=2e-3)
+    wall = Wall(start=(4.6, 3.4), end=(4.6, 8.0), thickness=0.2, height=2.0)  # its end 0.4 m from the source
+    walled = MeasurementModel(scenario_for(walls=[wall]), effects=("wall_attenuation",))
+    th = {**theta, "wall_attenuation.mu_per_m": 3.0}
+    c_free = pose_aware_crlb(walled, th, noisy, landmarks=False)[:2, :2]
+    c_mark = pose_aware_crlb(walled, th, noisy, landmarks=True)[:2, :2]
+    assert np.linalg.eigvalsh(c_free - c_mark).min() > -1e-12 and np.trace(c_free) > 1.2 * np.trace(c_mark)
