@@ -48,7 +48,7 @@ class Phase(StrEnum):
 
 
 STRATEGIES = ("active", "lattice", "lawnmower")
-#: the drift-limited stop: the 1-sigma fell by less than 5 % per dwell over the last two dwells ...
+#: the drift-limited stop: the 1-sigma fell by less than 5 % over the last dwell ...
 PLATEAU = 0.95
 #: ... and is within 25 % of the floor the odometry drift alone allows
 AT_FLOOR = 1.25
@@ -204,19 +204,18 @@ class SearchBrain:
         return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
 
     def _drift_limited(self) -> float:
-        """The drift floor (m) when the estimate is drift-limited, else 0: over the last two dwells its
-        1-sigma fell by less than ``PLATEAU`` each time and sits within ``AT_FLOOR`` of the floor odometry
-        drift alone allows (``drift_floor_m``: the drift-aware bound's semi-major axis). More dwells then buy
-        nothing: each adds metres, so drift, about as fast as counts."""
-        last = self.estimates[-3:]
-        if len(last) < 3 or [e["dwell"] for e in last] != list(range(last[0]["dwell"], last[0]["dwell"] + 3)):
+        """The drift floor (m) when the estimate is drift-limited, else 0: over the last dwell its 1-sigma fell
+        by less than ``1 - PLATEAU`` and it sits within ``AT_FLOOR`` of the floor odometry drift alone allows
+        (``drift_floor_m``: the drift-aware bound's semi-major axis). More dwells then buy nothing: each adds
+        metres, so drift, about as fast as counts."""
+        last = self.estimates[-2:]
+        if len(last) < 2 or last[1]["dwell"] != last[0]["dwell"] + 1:
             return 0.0
         s = [e["sigma_m"] for e in last]
         floor = float(last[-1].get("drift_floor_m", math.nan))
         if not (np.isfinite(s).all() and math.isfinite(floor) and floor > 0):
             return 0.0
-        falling = s[1] < PLATEAU * s[0] or s[2] < PLATEAU * s[1]
-        return floor if not falling and s[2] <= AT_FLOOR * floor else 0.0
+        return floor if s[1] >= PLATEAU * s[0] and s[1] <= AT_FLOOR * floor else 0.0
 
     def _stable(self) -> bool:
         """The last two estimates agree within 2 combined x-y ellipse sizes: a small ellipse around an
