@@ -57,6 +57,14 @@ TRANSIT_CHUNK = 10
 _MIN_INCREMENT = 1e-6
 
 
+def walk_starts(frames: Frames) -> np.ndarray:
+    """(N,) bool: frames that begin another vehicle's odometry walk. Frames of several vehicles are
+    concatenated vehicle by vehicle, each in time order, so a frame earlier than its predecessor starts the
+    next vehicle's walk; the first frame starts a walk too. One vehicle's frames: only the first."""
+    t = np.asarray(frames.t, dtype=float)
+    return np.r_[True, t[1:] < t[:-1]] if len(t) else np.zeros(0, dtype=bool)
+
+
 def pose_error_model(frames: Frames, declared: str | None = None) -> str:
     """Which prior the recorded pose errors follow: ``declared`` (scenario.json ``pose_error``) if given,
     else ``random_walk`` when the reported variance grows along the flight (odometry drift: a random
@@ -71,7 +79,8 @@ def pose_error_model(frames: Frames, declared: str | None = None) -> str:
         return INDEPENDENT
     k = max(len(v) // 10, 1)
     first, last = float(np.median(v[:k])), float(np.median(v[-k:]))
-    falls = np.diff(v) < -1e-3 * v.max()  # a random walk's variance never falls (rounding aside)
+    falls = (np.diff(v) < -1e-3 * v.max()) & ~walk_starts(frames)[1:]  # a random walk's variance never falls
+    # (rounding aside), except where another vehicle's walk begins
     return RANDOM_WALK if last > 1.5 * max(first, _NO_VARIANCE) and falls.mean() < 0.05 else INDEPENDENT
 
 
@@ -86,12 +95,19 @@ class PoseGroups:
     (transit runs cut every ``TRANSIT_CHUNK`` frames) in time order, e_0 ~ N(0, var_0) and
     e_g - e_(g-1) ~ N(0, var_g - var_(g-1)): the reported variance's growth is the increment. Its prior
     precision is tridiagonal per axis; ``increments`` (G, 3) holds the increment variances.
+
+    Several vehicles (paper 004's team; ``mission.team.team_frames``): each vehicle's odometry is a walk of
+    its own, so the frames are concatenated vehicle by vehicle (each in time order) and a frame whose time
+    is before its predecessor's starts a new walk (:func:`walk_starts`): its first group has the prior
+    e ~ N(0, var) and no link to the group before it (``restarts``). One vehicle's frames are in time
+    order and form one walk, as before.
     """
 
     index: np.ndarray  # (N,) group of each frame
     variance: np.ndarray  # (G, 3) marginal prior variance of each group's offset
     kind: str = INDEPENDENT
     increments: np.ndarray | None = None  # (G, 3) random-walk increment variances (random_walk only)
+    restarts: np.ndarray | None = None  # (G,) bool: the group begins a new walk (no link to g - 1)
 
     @property
     def n_groups(self) -> int:
@@ -106,7 +122,8 @@ class PoseGroups:
     def from_frames(frames: Frames, kind: str | None = None) -> PoseGroups:
         kind = pose_error_model(frames, kind)
         dwell = np.asarray(frames.dwell)
-        starts = np.r_[True, dwell[1:] != dwell[:-1]]
+        walk = walk_starts(frames)
+        starts = np.r_[True, dwell[1:] != dwell[:-1]] | walk
         run = np.cumsum(starts) - 1
         if kind == RANDOM_WALK:
             first = np.flatnonzero(starts)
@@ -123,8 +140,17 @@ class PoseGroups:
             var[:, j] = np.bincount(index, weights=v, minlength=g) / counts
         if kind != RANDOM_WALK:
             return PoseGroups(index=index, variance=var)
-        inc = np.maximum(np.diff(var, axis=0, prepend=0.0), _MIN_INCREMENT)
-        return PoseGroups(index=index, variance=np.cumsum(inc, axis=0), kind=RANDOM_WALK, increments=inc)
+        restarts = np.zeros(g, dtype=bool)
+        restarts[index[walk]] = True
+        restarts[0] = True
+        step = np.diff(var, axis=0, prepend=0.0)
+        step[restarts] = var[restarts]  # a new walk starts from its own initial variance
+        inc = np.maximum(step, _MIN_INCREMENT)
+        walk_id = np.cumsum(restarts) - 1
+        cum = np.cumsum(inc, axis=0)
+        base = np.r_[np.zeros((1, 3)), cum][np.flatnonzero(restarts)][walk_id]  # cumsum before each walk
+        return PoseGroups(index=index, variance=cum - base, kind=RANDOM_WALK, increments=inc,
+                          restarts=restarts if restarts[1:].any() else None)
 
     # -- the prior: precision-vector products and the banded system (random walk) or 3 x 3 blocks
 
@@ -133,8 +159,14 @@ class PoseGroups:
         if self.increments is None:
             return delta / np.maximum(self.variance, _NO_VARIANCE)
         w = 1.0 / self.increments  # (G, 3): precision of each step e_g - e_(g-1), with e_(-1) = 0
-        step = np.diff(delta, axis=0, prepend=0.0) * w  # (G, 3)
-        return step - np.r_[step[1:], np.zeros((1, 3))]
+        prev = np.r_[np.zeros((1, 3)), delta[:-1]]
+        if self.restarts is not None:
+            prev[self.restarts] = 0.0  # a new walk's first step is from 0, not from the other walk
+        step = (delta - prev) * w  # (G, 3)
+        back = np.r_[step[1:], np.zeros((1, 3))]
+        if self.restarts is not None:
+            back[np.flatnonzero(self.restarts[1:])] = 0.0  # the next group is not linked to this one
+        return step - back
 
     def penalty(self, delta: np.ndarray) -> float:
         """delta^T Sigma^-1 delta over the active axes."""
@@ -157,7 +189,10 @@ class PoseGroups:
             x = np.linalg.solve(f + inv[:, :, None] * np.eye(3), r * a[None, :, None])
         else:
             w = np.where(a, 1.0 / self.increments, 0.0)  # (G, 3)
-            diag = w + np.r_[w[1:], np.zeros((1, 3))] + np.where(a, 0.0, 1.0)
+            link = w.copy()  # precision coupling group g to g - 1 (none where a new walk starts)
+            if self.restarts is not None:
+                link[self.restarts] = 0.0
+            diag = w + np.r_[link[1:], np.zeros((1, 3))] + np.where(a, 0.0, 1.0)
             ab = np.zeros((4, 3 * g))
             ab[3] = (np.einsum("gjj->gj", f) + diag).ravel()
             up1 = np.zeros((g, 3))
@@ -167,7 +202,7 @@ class PoseGroups:
             up2[:, 2] = f[:, 0, 2]
             ab[1] = up2.ravel()
             up3 = np.zeros((g, 3))
-            up3[1:] = -w[1:]  # A[3(g-1)+j, 3g+j] couples consecutive groups
+            up3[1:] = -link[1:]  # A[3(g-1)+j, 3g+j] couples consecutive groups of one walk
             ab[0] = up3.ravel()
             x = solveh_banded(ab, (r * a[None, :, None]).reshape(3 * g, -1)).reshape(g, 3, -1)
         x = x * a[None, :, None]
