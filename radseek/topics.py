@@ -55,6 +55,12 @@ MISSION_STATE = "mission/state"
 MISSION_LOCKSTEP = "mission/lockstep"
 ESTIMATE = "estimate"
 PLAN = "plan"
+TEAM_STATUS = "team/status"
+#: the key chunk of what belongs to the whole team (``radseek run --vehicles N``) rather than one vehicle:
+#: the joint estimate from every vehicle's frames is ``Estimate`` on ``key(ESTIMATE, TEAM)``
+TEAM = "team"
+#: topics only a team publishes (``radseek run --vehicles N``): a single vehicle's run has none of them
+TEAM_ONLY = (TEAM_STATUS,)
 
 # Histogram.flags bits (mirrors the board's status byte, radseek.board_wire)
 FLAG_SATURATED = 0x01  # a comparator counter wrapped or the input stage saturated
@@ -404,10 +410,70 @@ class Plan(_Payload):
                     _check_number(self.TOPIC, f"{name}[{i}][{k}]", v)
 
 
+#: what a team member is doing (``TeamStatus.state``)
+TEAM_STATES = ("start", "fly", "dwell", "hold", "done")
+
+
+@dataclass(frozen=True)
+class TeamStatus(_Payload):
+    """``team/status``: one vehicle's mission to its teammates (paper 004's multi-robot search).
+
+    Sent on every change (a plan, a dwell's start and end, a hold, the end) and about once a wall second
+    in between (a heartbeat: a teammate silent for long is taken as failed). ``reservation`` is the
+    airspace the vehicle has committed to: (x, y, z) points of the rest of its path, its next dwell point
+    last (one point while it dwells or holds); teammates keep their separation from it. ``dwells`` lists
+    every dwell the vehicle has ended, cumulative so that a lost message loses nothing: each {index, x, y,
+    z, mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in
+    cps, the sim times of its first and last frames). ``flown`` samples the path it has flown (x, y, z),
+    for the team's explored area. ``reason`` says why the search ended (state ``done``), ``decided``
+    whether this vehicle's estimate ended it (the whole team then ends its search). ``stamp`` (wall
+    seconds since the epoch) orders two claims made at once: of two crossing reservations the later
+    claim yields and plans again."""
+
+    TOPIC: ClassVar[str] = TEAM_STATUS
+    t: float  # s, the sender's sim time
+    vehicle: str
+    seq: int  # counts the sender's messages
+    state: str  # one of TEAM_STATES
+    reservation: list[list[float]]
+    dwells: list[dict[str, float]] = field(default_factory=list)
+    flown: list[list[float]] = field(default_factory=list)
+    reason: str = ""
+    decided: bool = False
+    stamp: float = 0.0  # wall s since the epoch when this reservation was claimed
+
+    def validate(self) -> None:
+        super().validate()
+        if self.state not in TEAM_STATES:
+            raise PayloadError(f"{self.TOPIC}: field 'state' must be one of {TEAM_STATES}, got {_short(self.state)}")
+        _check_int(self.TOPIC, "seq", self.seq, 0)
+        if not isinstance(self.decided, bool):
+            raise PayloadError(f"{self.TOPIC}: field 'decided' must be true or false, got {_short(self.decided)}")
+        for name in ("reservation", "flown"):
+            rows = getattr(self, name)
+            if not isinstance(rows, list) or not all(isinstance(r, list) and len(r) == 3 for r in rows):
+                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a list of (x, y, z) lists")
+            for i, row in enumerate(rows):
+                for k, v in enumerate(row):
+                    _check_number(self.TOPIC, f"{name}[{i}][{k}]", v)
+        if not self.reservation:
+            raise PayloadError(f"{self.TOPIC}: field 'reservation' must hold at least one point")
+        if not isinstance(self.dwells, list):
+            raise PayloadError(f"{self.TOPIC}: field 'dwells' must be a list of objects")
+        for i, d in enumerate(self.dwells):
+            if not isinstance(d, dict):
+                raise PayloadError(f"{self.TOPIC}: dwells[{i}] must be an object")
+            _check_int(self.TOPIC, f"dwells[{i}].index", d.get("index"), 0)
+            for name in ("x", "y", "z", "mean_rate", "t_first", "t_last"):
+                if name not in d:
+                    raise PayloadError(f"{self.TOPIC}: dwells[{i}] lacks {name!r}")
+                _check_number(self.TOPIC, f"dwells[{i}].{name}", d[name])
+
+
 PAYLOADS: dict[str, type[_Payload]] = {
     cls.TOPIC: cls
     for cls in (SimClock, TruthPose, Pose, Histogram, DetectorStatus, MissionState, MissionLockstep,
-                Estimate, Plan)
+                Estimate, Plan, TeamStatus)
 }
 
 

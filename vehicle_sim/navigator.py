@@ -128,6 +128,7 @@ class Navigator:
         self.orbit: Orbit | None = None
         self.rally_points: list[np.ndarray] = []  # ENU; RTL goes to the nearest of home and these
         self._rtl_home = np.zeros(2)
+        self.launch_xy = np.zeros(2)  # ENU x-y where the vehicle started: RTL's home (the frame origin by default)
 
     # -- state queries -------------------------------------------------------------------------
     @property
@@ -221,8 +222,8 @@ class Navigator:
         return True
 
     def rtl_destination(self) -> np.ndarray:
-        """Where RTL lands: the nearest of home and the rally points (PX4 RTL_TYPE 0), ENU x-y."""
-        best = np.zeros(2)
+        """Where RTL lands: the nearest of home (the launch point) and the rally points (PX4 RTL_TYPE 0), ENU x-y."""
+        best = self.launch_xy.copy()
         for r in self.rally_points:
             if np.linalg.norm(r[:2] - self.pos[:2]) < np.linalg.norm(best - self.pos[:2]):
                 best = np.asarray(r[:2], dtype=float)

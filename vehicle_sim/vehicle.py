@@ -68,6 +68,9 @@ class VehicleConfig:
     max_wall_hz: float = 20.0  # cap per telemetry message, Hz of wall time
     lockstep: bool = False  # hold sim time for the mission process (mission/lockstep), vehicle_sim.lockstep
     lockstep_timeout_s: float = 5.0  # wall s without a mission/lockstep message before lockstep is released
+    #: m, local ENU: where the vehicle stands at start (its launch point, where RTL lands it, as PX4 sets its
+    #: home where it arms). Several vehicles of a team share the frame origin (``home``) and start apart
+    start_xy: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not 0 < self.speedup <= 1000:
@@ -146,6 +149,10 @@ class Vehicle:
         self.cfg = cfg
         self.home, self.fence = cfg.home, cfg.fence
         self.nav = Navigator(cfg.home, cfg.limits, cfg.nav)
+        if any(cfg.start_xy):
+            self.nav.pos[:2] = cfg.start_xy
+            self.nav.target = self.nav.pos.copy()
+            self.nav.launch_xy = np.asarray(cfg.start_xy, dtype=float)
         self.odo = Odometry(cfg.odometry, seed=cfg.seed)
         self.battery = 1.0
         self.failsafe = Failsafe(cfg.failsafe, cfg.battery.low_threshold, cfg.battery.critical_threshold)

@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "(write --bounds=-5,... for negative values; "
                                     "default: from --scene, else -1000,-1000,0,1000,1000,120, "
                                     "wide enough for MAVSDK's examples)")
+    s.add_argument("--start", default="0,0", metavar="X,Y",
+                   help="launch point in local ENU m (where RTL lands; default 0,0, the home; vehicles of a team "
+                        "share the home and start apart)")
     s.add_argument("--scene", help="scene (bundled name or TOML/JSON file): its x-y bounds plus a 1 m margin "
                                    "become the geofence, 0-10 m above its top")
     s.add_argument("--wall-fence", action="store_true",
@@ -119,8 +122,21 @@ def config_from_args(args: argparse.Namespace):
         signing_key=load_signing_key(args.signing_key) if args.signing_key else None,
         drop_rate=args.drop_rate, zenoh=not args.no_zenoh, zenoh_config=args.zenoh_config,
         zenoh_connect=args.connect, vehicle_name=args.vehicle_name,
-        lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
+        lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout, start_xy=_start(args.start, fence),
     )
+
+
+def _start(text: str, fence) -> tuple[float, float]:
+    """--start X,Y as a point inside the geofence (ValueError otherwise)."""
+    import numpy as np
+
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--start {text!r} must be X,Y in metres") from None
+    if not fence.contains(np.array([x, y, 0.0]), tol=0.0):
+        raise ValueError(f"--start {x:g},{y:g} is outside the geofence")
+    return x, y
 
 
 def _bind_problem(args: argparse.Namespace) -> str | None:
