@@ -256,3 +256,105 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     }
     atomic_write_json(out / "summary.json", summary)  # last, and whole or not at all
     return summary
+
+
+#: one colour per vehicle of a team (``radseek run --vehicles N``)
+VEHICLE_COLOURS = ("tab:blue", "tab:green", "tab:purple", "tab:brown")
+
+
+def vehicle_track(frames) -> dict[str, Any]:
+    """One vehicle's record as the team summary has it: dwell points (distinct dwell indices) and the
+    distance flown between them (estimated path length over the transit frames, m)."""
+    moving = frames.dwell[1:] < 0
+    step = np.linalg.norm(np.diff(frames.positions, axis=0), axis=1) if len(frames) > 1 else np.zeros(0)
+    finite = np.isfinite(step)
+    return {"dwell_points": len(set(frames.dwell[frames.dwell >= 0].tolist())),
+            "distance_m": float(step[moving & finite].sum())}
+
+
+def write_team_report(out: str | Path, names: list[str], decider: str | None, killed: dict[str, float] | None = None,
+                      wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
+    """The team's report (``radseek run --vehicles N``): every vehicle's path and dwells on one map, the joint
+    estimate that ended the search (``decider``'s) against the truth, and ``summary.json`` with ``per_vehicle``
+    ({vehicle, dwell_points, distance_m, failed}) beside ``error_m``, ``sigma_m``, ``mission_time_s``."""
+    out = Path(out)
+    killed = killed or {}
+    data = {n: read_dataset(out / "dataset" / n) for n in names if (out / "dataset" / n / "frames.csv").exists()}
+    missions = {}
+    for n in names:
+        try:
+            missions[n] = json.loads((out / "dataset" / n / "mission_summary.json").read_text())
+        except (OSError, ValueError):
+            continue
+    mission = missions.get(decider or "", {})
+    est = mission.get("estimate")
+    if not est:
+        raise ValueError("the team's search ended without an estimate")
+    from estimator.inflight import ellipse
+
+    est = dict(est)
+    if "ellipse_95" not in est:
+        est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
+    any_ds = next(iter(data.values()))
+    truth = any_ds.truth
+    err = math.hypot(est["x"] - truth.sources[0].x, est["y"] - truth.sources[0].y) if truth else math.nan
+    cov = np.asarray(est["covariance"], dtype=float)[:2, :2]
+
+    fig, ax = plt.subplots(figsize=(9, 8))
+    for w in any_ds.scenario.walls:
+        ax.add_patch(Polygon(_wall_polygon(w), color="0.45", alpha=0.8))
+    per_vehicle = []
+    for i, n in enumerate(names):
+        colour = VEHICLE_COLOURS[i % len(VEHICLE_COLOURS)]
+        row = {"vehicle": n, "dwell_points": 0, "distance_m": 0.0, "failed": n in killed or n not in missions}
+        if n in killed:
+            row["failed_at_s"] = killed[n]
+        if n in data:
+            f = data[n].frames
+            row.update(vehicle_track(f))
+            state = " (failed)" if row["failed"] else ""
+            ax.plot(f.x, f.y, "-", color=colour, lw=0.9, alpha=0.8, label=f"{n}{state}: {row['dwell_points']} dwells, "
+                                                                             f"{row['distance_m']:.1f} m")
+            for k in sorted(set(f.dwell[f.dwell >= 0].tolist())):
+                m = f.dwell == k
+                ax.scatter(f.x[m].mean(), f.y[m].mean(), s=60, color=colour, edgecolor="k", zorder=3)
+                ax.annotate(f"{n[-1]}.{k}", (f.x[m].mean(), f.y[m].mean()), xytext=(4, 4), textcoords="offset points",
+                            fontsize=8)
+        per_vehicle.append(row)
+    ax.plot(est["x"], est["y"], "k+", ms=14, mew=2, label=f"joint estimate ({est['x']:.2f}, {est['y']:.2f})")
+    if math.isfinite(est.get("sigma_m", math.inf)):
+        _ellipse(ax, (est["x"], est["y"]), cov, N_SIGMA_95, color="k", lw=1.0, ls="--")
+    if truth:
+        ax.plot(truth.sources[0].x, truth.sources[0].y, "r*", ms=14, label="truth")
+    lo, hi = any_ds.scenario.bounds_min, any_ds.scenario.bounds_max
+    ax.set_xlim(lo[0] - 0.5, hi[0] + 0.5)
+    ax.set_ylim(lo[1] - 0.5, hi[1] + 0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(f"{len(names)} vehicles: error {err:.3f} m; {mission.get('reason', '')}"[:110], fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    with atomic_path(out / "report.png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    summary = {
+        "error_m": err,
+        "sigma_m": float(est["sigma_m"]),
+        "ellipse_95": est["ellipse_95"],
+        "bound_m": float(est.get("bound_m", math.nan)),
+        "p_value": float(est.get("p_value", math.nan)),
+        "warnings": [],
+        "estimate_source": "in-flight (joint)",
+        "estimate": est,
+        "decided_by": decider,
+        "dwell_points": sum(r["dwell_points"] for r in per_vehicle),
+        "mission_time_s": float(mission.get("mission_time_s", math.nan)),
+        "per_vehicle": per_vehicle,
+        "truth": truth.to_dict() if truth else None,
+        "stop_reason": mission.get("reason"),
+        "wall_time_s": wall_time_s,
+        "speedup": speedup,
+    }
+    atomic_write_json(out / "summary.json", summary)
+    return summary

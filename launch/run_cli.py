@@ -243,6 +243,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--detector-arg", action="append", default=[], help="extra argument for radseek detector")
     p.add_argument("--kill-detector-at", type=float, metavar="T",
                    help="fault injection: kill -9 the detector at sim time T and start it again")
+    p.add_argument("--vehicles", type=int, default=1, metavar="N",
+                   help="fly a team of N vehicles (1..4) on one zenoh router: one mock autopilot, detector and "
+                        "mission per vehicle, one joint estimate (launch/run_team.py; default 1)")
+    p.add_argument("--kill-mission-at", metavar="VEHICLE:T",
+                   help="fault injection with --vehicles N: kill -9 that vehicle's mission process (e.g. uav1:40) "
+                        "at its sim time T; the others finish the search")
     p.add_argument("-q", "--quiet", action="store_true", help="no live progress")
     args = p.parse_args(argv)
     speedup = 1.0 if args.realtime else args.speedup
@@ -251,6 +257,14 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--speedup {speedup:g} must be in (0, 1000] (the vehicle's range)")
     if args.max_dwells < 1:
         p.error(f"--max-dwells {args.max_dwells} must be >= 1")
+    from mission.team import MAX_VEHICLES
+
+    if not 1 <= args.vehicles <= MAX_VEHICLES:
+        p.error(f"--vehicles {args.vehicles} must be in 1..{MAX_VEHICLES}")
+    if args.vehicles > 1 and args.strategy != "active":
+        p.error("--vehicles N flies the active search only (a team's pattern baselines are not built)")
+    if args.vehicles == 1 and args.kill_mission_at is not None:
+        p.error("--kill-mission-at needs --vehicles N >= 2 (one vehicle's mission is the run)")
 
     from detector_fw_sim.scene import SceneError, load_scene
     from radseek.dataset import write_json
@@ -268,6 +282,10 @@ def main(argv: list[str] | None = None) -> int:
     except OutputDirError as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if args.vehicles > 1:
+        from launch.run_team import run_team
+
+        return run_team(args, scene, out, speedup)
     scenario_file = out / "scenario.json"
     write_json(scenario_file, scene.scenario().to_dict())
     scene_file = out / "scene.json"

@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="active search (paper 003) or a fixed pattern baseline (default active)")
     p.add_argument("--plan", type=Path, metavar="FILE",
                    help="instead of a search: fly a QGroundControl .plan file (mission, geofence, rally points)")
+    p.add_argument("--team", metavar="NAMES",
+                   help="fly as one vehicle of a team (radseek run --vehicles N): the team's vehicle names, "
+                        "comma-separated, this one (--vehicle-name) included; one joint estimate and allocation")
     zenoh_session.add_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="radseek mission: %(message)s", stream=sys.stderr)
@@ -92,8 +95,17 @@ def main(argv: list[str] | None = None) -> int:
                           localizer=args.localizer, strategy=args.strategy)
     if not args.connect_timeout > 0:
         p.error(f"--connect-timeout must be > 0 s, got {args.connect_timeout}")
+    team = tuple(n.strip() for n in args.team.split(",")) if args.team else ()
+    if team:
+        from mission.team import MAX_VEHICLES
+
+        if args.vehicle_name not in team or len(set(team)) != len(team) or not 2 <= len(team) <= MAX_VEHICLES:
+            p.error(f"--team {args.team!r}: 2..{MAX_VEHICLES} distinct names including --vehicle-name "
+                    f"{args.vehicle_name!r}")
+        if args.strategy != "active":
+            p.error("--team flies the active search only")
     settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed,
-                               connect_timeout_s=args.connect_timeout)
+                               connect_timeout_s=args.connect_timeout, team=team)
     from mission.client.connection import ConnectionFailed
 
     try:

@@ -44,6 +44,8 @@ from mission.client.telemetry import TelemetryWatch
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
+from mission.team import TeamBrain, TeamConfig, TeamDecision, team_frames
+from planner.allocation import path_clear
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
@@ -59,6 +61,16 @@ FRAME_TIMEOUT_WALL_S = 10.0  # wall s of detector silence (no histogram, no stat
 POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
 LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle
+TEAM_SILENT_WALL_S = 10.0  # wall s without a teammate's team/status (nor its vehicle's clock) before it is failed
+#: sim s a teammate's vehicle may fly past its mission's last team/status before the mission is taken as failed:
+#: under lockstep a live mission's vehicle never runs more than a frame past its ack, and the mission repeats its
+#: status every TEAM_HEARTBEAT_SIM_S, so a vehicle that does has had its lockstep released: its mission is gone
+MATE_LAG_SIM_S = 5.0
+TEAM_HEARTBEAT_WALL_S = 1.0  # wall s between team/status repeats ...
+TEAM_HEARTBEAT_SIM_S = 1.0  # ... and sim s
+CLAIM_WALL_S = 0.3  # wall s a claimed reservation waits for a crossing claim made at the same time
+CLAIM_ATTEMPTS = 5  # claims yielded in a row before the vehicle holds instead
+TEAM_START_WALL_S = 180.0  # wall s to wait for every teammate to be airborne before the first plan
 
 
 @dataclass
@@ -68,6 +80,8 @@ class MissionSettings:
     seed: int = 0
     connect_timeout_s: float = 60.0
     leg_speed_m_s: float = 1.0  # expected cruise speed: a leg may take 3 x distance / speed + 30 s (sim)
+    #: the team's vehicle names, this one included (``radseek run --vehicles N``); empty: a single vehicle
+    team: tuple[str, ...] = ()
 
 
 async def _in_air(tel: TelemetryWatch) -> bool:
@@ -177,6 +191,226 @@ class _Stream:
             return self.latest_pose
 
 
+class _MateStream:
+    """A teammate's frames as its own mission records them: its histograms with its estimated pose at each
+    frame's mid-time (``pose`` and ``detector/histogram`` under its name), the dwell index of each frame
+    from the dwell intervals it announces (``team/status``)."""
+
+    def __init__(self, name: str, channel_edges_keV: np.ndarray):
+        self.name = name
+        self.edges = channel_edges_keV
+        self.poses = PoseHistory(keep_s=120.0)
+        self.lock = threading.Lock()
+        self._pending: list[tuple[topics.Histogram, float]] = []
+        self.records: list[FrameRecord] = []
+        self.status: topics.TeamStatus | None = None
+        self.heard_wall = time.monotonic()  # (a teammate never heard from is failed after the timeout too)
+        self.silent = False
+        self.pose_t = -1.0  # the latest sim time of its vehicle's pose
+        self.drops = DropCounter(log, f"dropped invalid payload from teammate {name}", first=5)
+
+    def on_pose(self, sample: zenoh.Sample) -> None:
+        pose = self.drops.decode(topics.Pose, sample)
+        if pose is None:
+            return
+        with self.lock:
+            self.pose_t = max(self.pose_t, pose.t)
+            if self.poses.add(pose):
+                self._release(lambda h, _w: h.t <= pose.t + 1e-6)
+
+    def on_histogram(self, sample: zenoh.Sample) -> None:
+        hist = self.drops.decode(topics.Histogram, sample)
+        if hist is None:
+            return
+        now = time.monotonic()
+        with self.lock:
+            self._pending.append((hist, now))
+            self._release(lambda _h, w: now - w > POSE_WAIT_WALL_S)
+
+    def on_status(self, sample: zenoh.Sample) -> None:
+        msg = self.drops.decode(topics.TeamStatus, sample)
+        if msg is None or msg.vehicle != self.name:
+            return
+        with self.lock:
+            if self.status is None or msg.seq >= self.status.seq:
+                self.status = msg
+            self.heard_wall = time.monotonic()
+            self.silent = False
+
+    def _release(self, ready) -> None:
+        while self._pending and ready(*self._pending[0]):
+            hist, _ = self._pending.pop(0)
+            record = FrameRecord.from_histogram(hist, self.poses.at(hist.t - hist.duration / 2), -1, self.edges)
+            if record.usable:
+                self.records.append(record)
+
+    def frames(self) -> Frames | None:
+        """Its usable frames so far, each labelled with its dwell index (-1 in transit)."""
+        with self.lock:
+            records = list(self.records)
+            dwells = list(self.status.dwells) if self.status is not None else []
+        if not records:
+            return None
+        f = Frames.from_records(records)
+        dwell = np.full(len(f), -1)
+        for d in dwells:
+            dwell[(f.t >= d["t_first"] - 1e-6) & (f.t <= d["t_last"] + 1e-6)] = int(d["index"])
+        f.dwell[:] = dwell
+        return f
+
+
+class _Team:
+    """This vehicle's side of the team's zenoh traffic (``team/status`` and the joint ``estimate``)."""
+
+    def __init__(self, session: zenoh.Session, me: str, names: tuple[str, ...], channel_edges_keV: np.ndarray):
+        if me not in names:
+            raise ValueError(f"vehicle {me!r} is not one of the team {names}")
+        self.me, self.names, self.index = me, names, names.index(me)
+        self.mates = {n: _MateStream(n, channel_edges_keV) for n in names if n != me}
+        self._subs = []
+        for n, m in self.mates.items():
+            self._subs += [session.declare_subscriber(topics.key(topics.POSE, n), m.on_pose),
+                           session.declare_subscriber(topics.key(topics.HISTOGRAM, n), m.on_histogram),
+                           session.declare_subscriber(topics.key(topics.TEAM_STATUS, n), m.on_status)]
+        self._pub = session.declare_publisher(topics.key(topics.TEAM_STATUS, me))
+        self._est_pub = session.declare_publisher(topics.key(topics.ESTIMATE, topics.TEAM))
+        self.seq = 0
+        self.state = "start"
+        self.reservation = np.zeros((1, 3))
+        self.stamp = 0.0
+        self.dwells: list[dict[str, float]] = []
+        self.flown = np.zeros((0, 3))
+        self.reason = ""
+        self.decided = False
+        self.t = 0.0
+        self._sent_wall = -math.inf
+        self._sent_t = -math.inf
+        self._taken = {n: 0 for n in self.mates}  # teammates' dwells already handed to the brain
+        self._flown_taken = {n: 0 for n in self.mates}
+
+    # -- publishing
+    def _put(self) -> None:
+        msg = topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
+                                reservation=self.reservation.tolist(), dwells=self.dwells,
+                                flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
+                                stamp=self.stamp)
+        self.seq += 1
+        self._pub.put(msg.to_bytes())
+        self._sent_wall, self._sent_t = time.monotonic(), self.t
+
+    def set(self, t: float, state: str, reservation: np.ndarray) -> None:
+        self.t, self.state = float(t), state
+        self.reservation = np.asarray(reservation, dtype=float).reshape(-1, 3)
+        self._put()
+
+    def claim(self, t: float, path: np.ndarray) -> float:
+        """Announce the plan's path as this vehicle's reservation; returns the claim's stamp."""
+        self.stamp = time.time()
+        self.set(t, "fly", path)
+        return self.stamp
+
+    def add_dwell(self, index: int, position: np.ndarray, mean_rate: float, t_first: float, t_last: float,
+                  flown: np.ndarray) -> None:
+        rate = float(mean_rate) if math.isfinite(mean_rate) else 0.0
+        self.dwells.append({"index": int(index), "x": float(position[0]), "y": float(position[1]),
+                            "z": float(position[2]), "mean_rate": rate, "t_first": float(t_first),
+                            "t_last": float(t_last)})
+        if len(flown):
+            self.flown = np.vstack([self.flown, flown])
+
+    def finish(self, t: float, reason: str, decided: bool) -> None:
+        self.reason, self.decided = reason, decided
+        self.set(t, "done", self.reservation[-1:])
+
+    def heartbeat(self, t: float) -> None:
+        """Repeat the status every TEAM_HEARTBEAT_WALL_S wall and TEAM_HEARTBEAT_SIM_S sim seconds (once it has
+        said where it is)."""
+        self.t = max(self.t, float(t))
+        if self.seq and (time.monotonic() - self._sent_wall > TEAM_HEARTBEAT_WALL_S or
+                         self.t - self._sent_t >= TEAM_HEARTBEAT_SIM_S):
+            self._put()
+
+    def publish_estimate(self, payload: bytes) -> None:
+        self._est_pub.put(payload)
+
+    # -- what the teammates say
+    def _statuses(self) -> dict[str, topics.TeamStatus]:
+        out = {}
+        for n, m in self.mates.items():
+            with m.lock:
+                if m.status is not None:
+                    out[n] = m.status
+        return out
+
+    def reserved(self) -> dict[int, np.ndarray]:
+        """Every teammate's last reservation by team index (a failed teammate's stays: where it was last)."""
+        return {self.names.index(n): np.asarray(st.reservation, dtype=float) for n, st in self._statuses().items()}
+
+    def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float) -> str | None:
+        """A teammate whose reservation crosses ``path`` and was claimed before ``stamp`` (this claim yields)."""
+        for n, st in self._statuses().items():
+            if st.state == "fly" and (st.stamp, self.names.index(n)) < (stamp, self.index) and \
+                    not path_clear(path, [np.asarray(st.reservation, dtype=float)], separation):
+                return n
+        return None
+
+    def over(self) -> str | None:
+        """The reason the team's search ended, when a teammate's estimate ended it."""
+        for n, st in self._statuses().items():
+            if st.state == "done" and st.decided:
+                return f"{st.reason} (decided by {n})"
+        return None
+
+    def newly_silent(self) -> list[tuple[str, str]]:
+        """Teammates whose mission is gone (once each, with why): its vehicle flew ``MATE_LAG_SIM_S`` of its sim
+        time past the mission's last status (lockstep released), or nothing came for ``TEAM_SILENT_WALL_S``."""
+        now, out = time.monotonic(), []
+        for n, m in self.mates.items():
+            with m.lock:
+                if m.silent or (m.status is not None and m.status.state == "done"):
+                    continue
+                why = None
+                if m.status is not None and m.pose_t - m.status.t > MATE_LAG_SIM_S:
+                    why = f"its vehicle flew {m.pose_t - m.status.t:.1f} s past its mission's last status"
+                elif now - m.heard_wall > TEAM_SILENT_WALL_S:
+                    why = f"no team/status for {TEAM_SILENT_WALL_S:g} s wall"
+                if why is not None:
+                    m.silent = True
+                    out.append((n, why))
+        return out
+
+    def new_dwells(self) -> list[tuple[int, dict, np.ndarray | None]]:
+        """Teammates' dwells not yet handed to the brain, with the path each flew since its last."""
+        out = []
+        for n, st in self._statuses().items():
+            new = st.dwells[self._taken[n]:]
+            if not new:
+                continue
+            self._taken[n] = len(st.dwells)
+            flown = np.asarray(st.flown, dtype=float).reshape(-1, 3)
+            path, self._flown_taken[n] = flown[self._flown_taken[n]:], len(flown)
+            for k, d in enumerate(new):
+                out.append((self.names.index(n), d, path if k == 0 else None))
+        return out
+
+    def frames(self, own: Frames) -> Frames:
+        """The team's frames (``mission.team.team_frames``): this vehicle's and every teammate's so far."""
+        per = [own if n == self.me else self.mates[n].frames() for n in self.names]
+        return team_frames(per)
+
+    def summary(self, brain: SearchBrain, own: Frames) -> dict:
+        step = np.linalg.norm(np.diff(own.positions, axis=0), axis=1) if len(own) > 1 else np.zeros(0)
+        moving = own.dwell[1:] < 0 if len(own) > 1 else np.zeros(0, dtype=bool)
+        return {"vehicle": self.me, "team": list(self.names), "decided": self.decided,
+                "distance_m": float(step[moving].sum()), "own_dwell_points": len(self.dwells),
+                "teammates_lost": [n for n, m in self.mates.items() if m.silent]}
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self._subs = []
+
+
 class MissionRunner:
     def __init__(self, session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig,
                  settings: MissionSettings):
@@ -185,8 +419,14 @@ class MissionRunner:
         self.out = Path(out)
         self.config = config
         self.settings = settings
-        self.brain = SearchBrain(scenario, config, seed=settings.seed)
         v = settings.vehicle
+        self.team: _Team | None = None
+        if len(settings.team) > 1:
+            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
+            self.brain: SearchBrain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)),
+                                                seed=settings.seed)
+        else:
+            self.brain = SearchBrain(scenario, config, seed=settings.seed)
         self._state_pub = session.declare_publisher(topics.key(topics.MISSION_STATE, v))
         self._est_pub = session.declare_publisher(topics.key(topics.ESTIMATE, v))
         self._plan_pub = session.declare_publisher(topics.key(topics.PLAN, v))
@@ -244,6 +484,8 @@ class MissionRunner:
         ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
         if self.lockstep is not None:
             self.lockstep.ack(self.t, self.frame_s)
+        if self.team is not None:
+            self._team_heartbeat(stream)
         t_next = self.t + self.frame_s
         loop = asyncio.get_running_loop()
         start = last_pose_at = loop.time()
@@ -313,7 +555,7 @@ class MissionRunner:
         t0 = self.t
         limit = 3.0 * path_length / self.settings.leg_speed_m_s + 30.0
         inside_since: float | None = None
-        while self.t - t0 < limit and self.abort_reason is None:
+        while self.t - t0 < limit and self.abort_reason is None and self._team_over() is None:
             await self._tick(stream)
             p = stream.pose_at(self.t)
             if p is not None:
@@ -330,7 +572,7 @@ class MissionRunner:
         moving do not count) to the dwell controller until it is satisfied (None if the vehicle left
         the search meanwhile)."""
         self.brain.begin_dwell()
-        while self.abort_reason is None:
+        while self.abort_reason is None and self._team_over() is None:
             hist = await self._tick(stream)
             if hist is None:
                 continue
@@ -394,7 +636,10 @@ class MissionRunner:
             await self._climb(stream, self.config.altitude_m)
             self.t_start = self.t
             current = self._current(stream)
-            decision = self.brain.start(current)
+            if self.team is not None:  # the team's search (mission.team): decided jointly, flown here
+                decision = await self._fly_team(stream, mission)
+            else:
+                decision = self.brain.start(current)
             while decision.plan is not None and self.abort_reason is None:
                 self._publish_plan(stream, decision)
                 plan = decision.plan
@@ -433,7 +678,10 @@ class MissionRunner:
             self.publish_state(stream, "rtl", f"search done: {reason}")
             t_done = self._now(stream)
             try:
-                await actions.return_to_launch()
+                if self.team is not None:  # land where it is: the vehicles are apart there (RTL paths may cross)
+                    await actions.land()
+                else:
+                    await actions.return_to_launch()
             except ActionFailed as exc:
                 # a failsafe (low battery, link loss) may have taken the vehicle home already
                 if await _in_air(tel):
@@ -464,11 +712,15 @@ class MissionRunner:
                 "bad_payloads": stream.drops.count,
                 "frames_lost": self.frames_lost,
             }
+            if self.team is not None:
+                summary.update(self.team.summary(self.brain, stream.frames()))
             self.publish_state(stream, "done", summary["reason"])
             return summary
         finally:
             for s in subs:
                 s.undeclare()
+            if self.team is not None:
+                self.team.close()
             self.lockstep.detach()
             recorder.close()
 
@@ -485,7 +737,131 @@ class MissionRunner:
     def _publish_estimate(self, stream: _Stream) -> None:
         loc = self.brain.localizer
         if loc is not None:
-            self._est_pub.put(loc.to_estimate(self._now(stream)).to_bytes())
+            payload = loc.to_estimate(self._now(stream)).to_bytes()
+            self._est_pub.put(payload)
+            if self.team is not None:  # the joint estimate, on the team's one key
+                self.team.publish_estimate(payload)
+
+    # ------------------------------------------------------------------------------ team (mission.team)
+
+    def _team_over(self) -> str | None:
+        """Why the team's search is over (a teammate's estimate ended it), else None; always None alone."""
+        return None if self.team is None else self.team.over()
+
+    def _team_heartbeat(self, stream: _Stream) -> None:
+        assert self.team is not None
+        self.team.heartbeat(self.t)
+        for name, why in self.team.newly_silent():
+            self._event(stream, "teammate_lost", vehicle=name, why=why)
+
+    def _ingest_team(self) -> None:
+        """Hand the teammates' newly announced dwells to the team brain."""
+        assert self.team is not None and isinstance(self.brain, TeamBrain)
+        for index, dwell, flown in self.team.new_dwells():
+            self.brain.add_dwell(index, np.array([dwell["x"], dwell["y"], dwell["z"]]), dwell["mean_rate"], flown)
+
+    async def _claim(self, stream: _Stream, decide, first: TeamDecision | None = None) -> TeamDecision:
+        """Decide (``decide()`` -> TeamDecision) and claim the plan's reservation: publish it, wait
+        ``CLAIM_WALL_S`` of wall time (lockstep holds sim time) for a teammate's claim made at the same time,
+        and plan again if an earlier claim crosses this one (``mission.team``'s allocation rule, made safe
+        between processes: of two crossing claims the later one yields)."""
+        assert self.team is not None
+        team = self.team
+        for attempt in range(CLAIM_ATTEMPTS):
+            self._ingest_team()
+            decision = first if attempt == 0 and first is not None else decide()
+            if decision.plan is None:
+                return decision
+            stamp = team.claim(self.t, decision.plan.path[:, :3])
+            await asyncio.sleep(CLAIM_WALL_S)
+            crossing = team.earlier_crossing(decision.plan.path[:, :3], stamp, self.brain.team.separation_m)
+            if crossing is None:
+                return decision
+            self._event(stream, "yield", to=crossing, attempt=attempt)
+            team.set(self.t, "hold", self._current(stream)[None, :3])
+        return TeamDecision(self.team.index, self.brain.phase, None, "hold: claims kept crossing",
+                            self.brain.team.hold_s)
+
+    async def _fly_team(self, stream: _Stream, mission: MissionControl) -> Decision:
+        """The team's search from this vehicle: plans from the team brain (every vehicle's dwells and frames),
+        reservations claimed on ``team/status``; returns the final decision (the plan None)."""
+        assert self.team is not None and isinstance(self.brain, TeamBrain)
+        team, brain, me = self.team, self.brain, self.team.index
+        current = self._current(stream)
+        team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :])
+        # no plan before every teammate has said where it is (airborne at its launch point), or is given up
+        # on: the wait is in wall time, while lockstep holds sim time, so it costs no flight time
+        waited = time.monotonic()
+        while len(team.reserved()) < len(team.mates) and time.monotonic() - waited < TEAM_START_WALL_S:
+            team.heartbeat(self.t)
+            await asyncio.sleep(0.05)
+        missing = [n for n in team.mates if self.team.names.index(n) not in team.reserved()]
+        if missing:
+            self._event(stream, "teammates_missing_at_start", vehicles=missing)
+        decision = await self._claim(stream, lambda: brain.start(self._current(stream), me, team.reserved()))
+        own_dwells = 0
+        while self.abort_reason is None:
+            over = team.over()
+            if over is not None:
+                return Decision(Phase.DONE, None, over)
+            if decision.done:
+                team.finish(self.t, decision.reason, decided=True)
+                return decision.as_decision()
+            if decision.plan is None:  # hold where it is, then ask again
+                here = self._current(stream)
+                team.set(self.t, "hold", here[None, :3])
+                self.publish_state(stream, "hold", decision.reason)
+                t_end = self.t + decision.hold_s
+                while self.t < t_end - 1e-6 and self.abort_reason is None and team.over() is None:
+                    await self._tick(stream)
+                decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()))
+                continue
+            self._publish_plan(stream, decision.as_decision())
+            plan = decision.plan
+            points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
+            d = plan.dwell_points[0]
+            points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
+            await mission.replace_remaining(points)
+            await mission.start()
+            self.publish_state(stream, decision.phase.value, f"flying to dwell point {own_dwells}: {decision.reason}")
+            first_frame = len(stream.records)
+            if not await self._arrive(stream, d, plan.path_length() + 0.5):
+                if self.abort_reason is not None or team.over() is not None:
+                    continue
+                self._event(stream, "leg_timeout", target=d.tolist())
+            with stream.lock:
+                stream.dwell_index = own_dwells
+            team.set(self.t, "dwell", d[None, :3])
+            self.publish_state(stream, "dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
+            status = await self._dwell(stream)
+            if status is None:
+                continue
+            p = stream.pose_at(self.t)
+            position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
+            self._event(stream, "dwell", index=own_dwells, position=position.tolist(),
+                        **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
+            with stream.lock:
+                records = list(stream.records)
+            times = [r.t for r in records if r.dwell == own_dwells]
+            flown = np.array([(r.x, r.y, r.z) for r in records[first_frame:] if r.dwell < 0]).reshape(-1, 3)
+            team.add_dwell(own_dwells, position, status.mean_rate, min(times, default=self.t),
+                           max(times, default=self.t), flown)
+            self._ingest_team()
+            frames = team.frames(stream.frames())
+            decision = brain.end_dwell(position, status, frames, self._current(stream), flown, me, team.reserved())
+            if decision.plan is not None:  # claim it (and plan again if an earlier claim crosses it)
+                decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()),
+                                             first=decision)
+            await mission.end_dwell()
+            own_dwells += 1
+            with stream.lock:
+                stream.dwell_index = -1
+            if self.brain.estimate is not None:
+                self._publish_estimate(stream)
+            self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
+                        estimate=self.brain.estimate)
+        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
+        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")
 
 
 def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,

@@ -158,19 +158,10 @@ class TeamBrain(SearchBrain):
         ``reserved`` every other live vehicle's reservation (``planner.allocation.reservation``)."""
         if self.final is not None:
             return self._again(vehicle)
-        pos = np.asarray(position, dtype=float).reshape(3)
-        rate = status.mean_rate if np.isfinite(status.mean_rate) else 0.0
-        self.history = DwellHistory(np.vstack([self.history.positions, pos]), np.r_[self.history.rates, rate])
-        self.dwelled_by.append(int(vehicle))
-        if flown is not None and len(flown):
-            self.visited = np.vstack([self.visited, np.asarray(flown, dtype=float).reshape(-1, 3)])
-        if self.phase is Phase.SEARCH:
-            self.search_dwells += 1
+        self.add_dwell(vehicle, position, status.mean_rate, flown)
         n_dwells = len(self.history)
         if self.phase is Phase.EXPLORE:
-            if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
-                self.phase = Phase.SEARCH
-            elif n_dwells >= self.config.max_dwells:
+            if n_dwells >= self.config.max_dwells:
                 return self._team_done(vehicle, "dwell budget spent during exploration")
             else:
                 return self._team_explore(vehicle, current, reserved,
@@ -191,6 +182,23 @@ class TeamBrain(SearchBrain):
         if belief is None:
             return self._team_explore(vehicle, current, reserved, "no estimate yet: keep exploring")
         return self._team_next(vehicle, current, reserved, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
+
+    def add_dwell(self, vehicle: int, position: np.ndarray, mean_rate: float, flown: np.ndarray | None = None
+                  ) -> None:
+        """A dwell ended (by ``vehicle``: this process's own, or a teammate's as announced on ``team/status``):
+        the team's history, explored area, search dwell count and phase (exploration ends once three team
+        readings stand above background, paper 003 sec. IV-B-2) take it in."""
+        pos = np.asarray(position, dtype=float).reshape(3)
+        rate = float(mean_rate) if np.isfinite(mean_rate) else 0.0
+        self.history = DwellHistory(np.vstack([self.history.positions, pos]), np.r_[self.history.rates, rate])
+        self.dwelled_by.append(int(vehicle))
+        if flown is not None and len(flown):
+            self.visited = np.vstack([self.visited, np.asarray(flown, dtype=float).reshape(-1, 3)])
+        if self.phase is Phase.SEARCH:
+            self.search_dwells += 1
+        elif self.phase is Phase.EXPLORE and exploration_done(self.history, self.scenario.background_cps,
+                                                              self.config.frontier):
+            self.phase = Phase.SEARCH
 
     def replan(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray] | None = None
                ) -> TeamDecision:

@@ -1,0 +1,218 @@
+"""``radseek run --vehicles N`` (N = 2..4): a team on one zenoh router, one joint search (issue 18).
+
+Per vehicle ``uav<v>``: a mock autopilot (``radseek vehicle``: MAVLink system id v + 1, API port
+``--mavlink-port`` + v, GCS port ``--gcs-port`` + v, its own local ports ``--vehicle-local-ports`` + v, its own
+odometry seed ``--seed`` + 1000 v, launch point ``mission.team.home_positions``), a detector (its own count
+seed) and a mission process (``radseek mission --team``: MAVSDK on its vehicle's port, the team brain of
+``mission.team`` fed with every vehicle's frames). The missions announce their reservations and dwells on
+``radseek/<vehicle>/team/status`` and publish the joint estimate on ``radseek/team/estimate``; the vehicle
+whose estimate ends the search says so there and the others end theirs; each vehicle lands where it is.
+
+Output (``--out``): ``dataset/uav<v>/`` (each vehicle's recorded flight, its ``mission_summary.json`` and
+``truth.json``), ``report.png`` (every vehicle's path and dwells, the joint estimate), ``summary.json``
+(``error_m``, ``sigma_m``, ``mission_time_s`` of the joint estimate that ended the search, plus
+``per_vehicle``: one {vehicle, dwell_points, distance_m, failed} per vehicle), ``flight.mcap`` (every zenoh
+topic; MAVLink of uav0), ``logs/``.
+
+``--kill-mission-at uav1:T`` (fault injection): SIGKILL that vehicle's mission process when its clock passes
+T sim seconds; its vehicle's own failsafes take over (lockstep released, link loss: hold, then RTL), the
+others finish the search.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from launch.run_cli import (
+    EXIT_FOUND,
+    EXIT_SEARCH_FAILED,
+    EXIT_STACK,
+    Stack,
+    _radseek,
+    print_summary,
+    recorder_ready,
+    start_recorder,
+    stop_recorder,
+)
+from mission.search import search_failure
+from mission.team import MAX_VEHICLES, TeamConfig, home_positions
+from radseek import topics
+
+
+def vehicle_names(n: int) -> list[str]:
+    return [f"uav{v}" for v in range(n)]
+
+
+def parse_kill(text: str | None, names: list[str]) -> tuple[str, float] | None:
+    """``--kill-mission-at VEHICLE:T`` -> (vehicle, T); ValueError on a bad one."""
+    if text is None:
+        return None
+    name, _, t = text.partition(":")
+    if name not in names:
+        raise ValueError(f"--kill-mission-at {text!r}: vehicle must be one of {', '.join(names)}")
+    try:
+        at = float(t)
+    except ValueError:
+        raise ValueError(f"--kill-mission-at {text!r}: T must be sim seconds") from None
+    if not at >= 0:
+        raise ValueError(f"--kill-mission-at {text!r}: T must be >= 0")
+    return name, at
+
+
+def team_verdict(summaries: dict[str, dict]) -> tuple[str | None, dict | None]:
+    """The vehicle whose estimate ended the team's search and its summary (else the first that has one)."""
+    for name, s in summaries.items():
+        if s.get("decided"):
+            return name, s
+    for name, s in summaries.items():
+        return name, s
+    return None, None
+
+
+def run_team(args, scene, out: Path, speedup: float) -> int:
+    from radseek.dataset import write_json
+    from radseek.outdir import atomic_write_json
+    from radseek.simclock import ZenohClock
+    from radseek.zenoh_session import open_session
+
+    n = int(args.vehicles)
+    names = vehicle_names(n)
+    try:
+        kill = parse_kill(args.kill_mission_at, names)
+    except ValueError as exc:
+        print(f"radseek run: {exc}", file=sys.stderr)
+        return 2
+    scenario = scene.scenario()
+    homes = home_positions(scenario, TeamConfig(n_vehicles=n))
+    scenario_file = out / "scenario.json"
+    write_json(scenario_file, scenario.to_dict())
+    scene_file = out / "scene.json"
+    scene_file.write_text(scene.model_dump_json(indent=2))
+    endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
+    api_local, gcs_local = (int(p) for p in args.vehicle_local_ports.split(","))
+    stack = Stack(out / "logs")
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
+    print(f"radseek run: scene {scene.name!r}, {n} vehicles, speed-up {speedup:g}, output {out}", file=sys.stderr)
+    t0 = time.monotonic()
+    missions: dict[str, object] = {}
+    killed: dict[str, float] = {}
+    try:
+        stack.start("router", _radseek("router", "--listen", endpoint))
+        if args.mcap:
+            stack.wait_for_line("router", "listening", timeout_s=60.0)
+            start_recorder(stack, out, endpoint, args.gcs_port)
+        for v, name in enumerate(names):
+            stack.start(f"detector-{name}", _radseek(
+                "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed + 1000 * v),
+                "--connect", endpoint, "--vehicle-name", name,
+                *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg))
+        recorder = recorder_ready(stack, out) if args.mcap else None
+        for name in names:
+            stack.wait_for_line(f"detector-{name}", "waiting for", timeout_s=180.0)
+        with open_session(connect=endpoint) as session:
+            up = {name: threading.Event() for name in names}
+            subs = [session.declare_subscriber(topics.key(topics.MISSION_STATE, name),
+                                               lambda _s, e=up[name]: e.set()) for name in names]
+            for v, name in enumerate(names):
+                missions[name] = stack.start(f"mission-{name}", _radseek(
+                    "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset" / name),
+                    "--connect", endpoint, "--vehicle-name", name, "--team", ",".join(names),
+                    "--url", f"udpin://0.0.0.0:{args.mavlink_port + v}", "--seed", str(args.seed + 1000 * v),
+                    "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
+            ready_by = time.monotonic() + 180.0
+            for name in names:
+                while not up[name].wait(0.1):
+                    if missions[name].poll() is not None:
+                        raise RuntimeError(f"mission {name} exited with {missions[name].returncode}: see "
+                                           f"{out}/logs/mission-{name}.log")
+                    if time.monotonic() > ready_by:
+                        raise RuntimeError(f"mission {name} did not get ready in 180 s")
+            for s in subs:
+                s.undeclare()
+            for v, name in enumerate(names):
+                stack.start(f"vehicle-{name}", _radseek(
+                    "vehicle", "--speedup", str(speedup), "--seed", str(args.seed + 1000 * v), "--connect", endpoint,
+                    "--vehicle-name", name, "--sysid", str(v + 1),
+                    "--api-port", str(args.mavlink_port + v), "--gcs-port", str(args.gcs_port + v),
+                    "--api-local-port", str(api_local + v), "--gcs-local-port", str(gcs_local + v),
+                    f"--start={homes[v][0]:g},{homes[v][1]:g}", "--max-speed", "1.0",
+                    "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg))
+            clocks = {name: ZenohClock(session, name) for name in names}
+            while any(m.poll() is None for m in missions.values()):
+                if kill is not None and clocks[kill[0]].now() >= kill[1]:
+                    proc = missions[kill[0]]
+                    if proc.poll() is None:
+                        os.killpg(proc.pid, signal.SIGKILL)
+                        proc.wait(10)
+                    killed[kill[0]] = clocks[kill[0]].now()
+                    print(f"radseek run: fault injected: mission {kill[0]} killed at t={killed[kill[0]]:.1f} s",
+                          file=sys.stderr)
+                    kill = None
+                if time.monotonic() - t0 > args.timeout:
+                    print(f"radseek run: abandoned after {args.timeout:g} s wall", file=sys.stderr)
+                    break
+                for pname, proc in stack.procs.items():
+                    if not pname.startswith(("mission", "recorder")) and proc.poll() is not None:
+                        raise RuntimeError(f"{pname} exited with {proc.returncode}: see {out}/logs/{pname}.log")
+                if recorder is not None and recorder.poll() is not None:
+                    stop_recorder(stack, out)
+                    recorder = None
+                time.sleep(0.2 if kill is None else 0.01)  # a pending kill watches the clock closely
+            if recorder is not None:
+                stop_recorder(stack, out)
+    except (RuntimeError, TimeoutError) as exc:
+        print(f"radseek run: {exc}", file=sys.stderr)
+        return EXIT_STACK
+    except KeyboardInterrupt:
+        print(f"radseek run: interrupted; the frames recorded so far are in {out / 'dataset'} (no summary)",
+              file=sys.stderr)
+        return 128 + signal.SIGINT
+    finally:
+        stack.stop()
+    wall = time.monotonic() - t0
+    summaries: dict[str, dict] = {}
+    for name in names:
+        if name in killed:
+            continue
+        code = missions[name].returncode
+        if code not in (EXIT_FOUND, EXIT_SEARCH_FAILED):
+            print(f"radseek run: mission {name} failed (exit {code}); see {out}/logs/mission-{name}.log",
+                  file=sys.stderr)
+            continue
+        try:
+            summaries[name] = json.loads((out / "dataset" / name / "mission_summary.json").read_text())
+        except (OSError, ValueError) as exc:
+            print(f"radseek run: mission {name} left no summary ({exc})", file=sys.stderr)
+    decider, verdict = team_verdict(summaries)
+    if verdict is None:
+        print("radseek run: no mission of the team finished", file=sys.stderr)
+        return EXIT_STACK
+    failure = search_failure(verdict)
+    for name in names:
+        if (out / "dataset" / name / "frames.csv").exists():
+            atomic_write_json(out / "dataset" / name / "truth.json", scene.truth().to_dict())
+    from launch.report import write_team_report
+
+    try:
+        summary = write_team_report(out, names, decider, killed=killed, wall_time_s=wall, speedup=speedup)
+    except Exception as exc:  # noqa: BLE001 - the flights are recorded whatever the report does
+        print(f"radseek run: no report ({type(exc).__name__}: {exc}); the recorded flights are in {out / 'dataset'}",
+              file=sys.stderr)
+        if failure is None:
+            return EXIT_STACK
+    else:
+        print_summary(summary, out)
+    if failure is not None:
+        print(f"radseek run: search failed: {failure}", file=sys.stderr)
+        return EXIT_SEARCH_FAILED
+    return EXIT_FOUND
+
+
+__all__ = ["MAX_VEHICLES", "parse_kill", "run_team", "team_verdict", "vehicle_names"]
