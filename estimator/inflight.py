@@ -16,8 +16,11 @@ warm-starts from. The policy, in order:
    reads weak and the wall-free optimum flees the shadow), and the walled fit kept if its likelihood is higher. Once the
    last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted,
    from that estimate (``WARM_WALLED_STARTS`` starts): each refit stays well under a second;
-5. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues);
-6. :func:`sigma_m`: the one definition of the estimate's 1-sigma; the record also carries the fit's
+5. second source: a one-source fit that fails its goodness of fit (or a last estimate with two sources) is
+   refitted with ``second_source`` and that fit kept when its likelihood-ratio test passes
+   (:data:`SECOND_SOURCE_LR`); the record is the strongest source's, the other's position in ``params``;
+6. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues);
+7. :func:`sigma_m`: the one definition of the estimate's 1-sigma; the record also carries the fit's
    goodness-of-fit ``p_value`` (below :data:`GOOD_FIT_P` the model misses something: :func:`gof_warning`).
 
 At the end of the flight :meth:`InflightEstimator.finalize` adds to the final record, once, the
@@ -36,6 +39,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from estimator.localizers.base import Localizer, make_localizer
 from estimator.mle import pooled
@@ -60,6 +64,8 @@ _INIT_KEYS = ("x", "y", "cps_at_1m", "background_cps")
 #: a fit whose goodness-of-fit p-value is below this misses a physical effect: ``localize``, ``run`` and
 #: ``replay`` say so (:func:`gof_warning`)
 GOOD_FIT_P = 1e-3
+#: a second source is kept when 2 delta log L exceeds this: chi2 with 3 dof (its x, y and strength) at GOOD_FIT_P
+SECOND_SOURCE_LR = float(chi2.isf(GOOD_FIT_P, 3))
 _BASE_PARAMS = ("x", "y", "z", "cps_at_1m", "background_cps")
 _FIT_ERRORS = (ValueError, np.linalg.LinAlgError, RuntimeError)
 
@@ -152,6 +158,7 @@ class InflightEstimator:
         self.estimates: list[dict[str, Any]] = []
         self.localizer: Localizer | None = None
         self._frames: Frames | None = None  # the (pooled) frames of the last record
+        self._primary = 0  # which fitted source the last record is (the strongest)
 
     @property
     def estimate(self) -> dict[str, Any] | None:
@@ -195,20 +202,42 @@ class InflightEstimator:
                 # the walled model is kept only if it explains the counts better
                 if walled is not None and (shadowed or walled.info_["nll"] < loc.info_["nll"]):
                     loc = walled
+        if "effects" not in self.settings and "wall_attenuation" not in getattr(loc, "effects", ()):
+            loc = self._second_source(frames, settings, loc, last)
         self.localizer = loc
         self._frames = frames
         info = getattr(loc, "info_", {})
         converged = bool(info.get("converged", True))
-        cov = repair_covariance(loc.covariance_)
-        values = info.get("values", {})
-        record = {"dwell": int(dwell), **loc.sources_[0], "background_cps": float(loc.background_),
+        k = self._primary = _primary(loc)
+        cov = repair_covariance(_block(loc.covariance_, k))
+        params = {n: float(v) for n, v in info.get("values", {}).items() if n not in _BASE_PARAMS}
+        if k:  # the second source is the stronger: the record's source is it, its params name the other
+            params.update({f"second_source.{n}": float(v) for n, v in loc.sources_[0].items()})
+        record = {"dwell": int(dwell), **loc.sources_[k], "background_cps": float(loc.background_),
                   "covariance": cov.tolist(), "sigma_m": sigma_m(cov, converged),
-                  "effects": list(getattr(loc, "effects", ())),
-                  "params": {k: float(v) for k, v in values.items() if k not in _BASE_PARAMS},
+                  "effects": list(getattr(loc, "effects", ())), "params": params,
                   "converged": converged, "p_value": float(info.get("p_value", math.nan)),
-                  "drift_floor_m": drift_floor_m(getattr(loc, "crlb_pose_", None))}
+                  "drift_floor_m": drift_floor_m(_block(getattr(loc, "crlb_pose_", None), k))}
         self.estimates.append(record)
         return record
+
+    def _second_source(self, frames: Frames, settings: dict[str, Any], loc: Localizer,
+                       last: Mapping[str, Any] | None) -> Localizer:
+        """A one-source fit that fails its goodness of fit (or a last estimate that had two sources) is
+        refitted with ``second_source`` (warm-started from the last two-source estimate if any); the
+        two-source fit is kept when its likelihood-ratio test against one source passes at ``GOOD_FIT_P``
+        (2 delta log L > chi2_3 quantile: x, y, strength of the second source)."""
+        two = last is not None and "second_source" in last["effects"]
+        if not (two or _misfit(loc)):
+            return loc
+        init = dict(settings.get("init") or {})
+        if two:
+            init.update({n: v for n, v in last["params"].items() if n.startswith("second_source.")})
+        cand = self._fit(frames, {**settings, "effects": ("second_source",), "init": init or None,
+                                  "n_starts": max(settings.get("n_starts", 3), 5)})
+        if cand is not None and 2.0 * (loc.info_["nll"] - cand.info_["nll"]) > SECOND_SOURCE_LR:
+            return cand
+        return loc
 
     def finalize(self) -> dict[str, Any] | None:
         """The flight ended: add ``bound_m`` and ``ellipse_95`` to the final record (once) and return it."""
@@ -217,7 +246,8 @@ class InflightEstimator:
             return est
         # an estimate that is not trustworthy (sigma_m inf) has no finite ellipse either
         est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
-        hybrid = getattr(self.localizer, "crlb_pose_", None)  # the fit computed it for its covariance already
+        # the fit computed it for its covariance already
+        hybrid = _block(getattr(self.localizer, "crlb_pose_", None), self._primary)
         if hybrid is not None:
             est["bound_m"] = bound_m(hybrid)
         else:
@@ -240,6 +270,18 @@ class InflightEstimator:
         src = np.asarray(source, dtype=float)
         around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
         return bool(path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0)
+
+
+def _primary(loc: Localizer) -> int:
+    """Index of the strongest fitted source: the one the search locates."""
+    return int(np.argmax([src["cps_at_1m"] for src in loc.sources_]))
+
+
+def _block(matrix: Any, k: int) -> Any:
+    """Source ``k``'s (4, 4) block of a (4M, 4M) per-source matrix (None stays None)."""
+    if matrix is None:
+        return None
+    return np.asarray(matrix, dtype=float)[4 * k:4 * k + 4, 4 * k:4 * k + 4]
 
 
 def _misfit(loc: Localizer) -> bool:

@@ -80,10 +80,11 @@ def test_ellipse_axes_and_angle():
 
 
 def test_failed_goodness_of_fit_is_said_by_run(shared_datasets, tmp_path, capsys):
-    """Two sources, one-source model: summary.json and `radseek run`'s output say the model misses something."""
-    shutil.copytree(shared_datasets / "two-sources", tmp_path / "dataset")
+    """A spinning detector with an anisotropic response, isotropic model (the in-flight policy adds walls and a
+    second source, never anisotropy): summary.json and `radseek run`'s output say the model misses something."""
+    shutil.copytree(shared_datasets / "spin-anisotropy", tmp_path / "dataset")
     (tmp_path / "dataset" / "mission_summary.json").write_text(json.dumps(
-        {"reason": "lattice pattern flown", "dwell_points": 14, "mission_time_s": 200.0, "estimate": None}))
+        {"reason": "lattice pattern flown", "dwell_points": 10, "mission_time_s": 200.0, "estimate": None}))
     summary = write_report(tmp_path)
     assert summary["estimate_source"] == "post-flight"  # no in-flight estimate: the same policy, after the flight
     assert summary["p_value"] < GOOD_FIT_P
@@ -94,12 +95,12 @@ def test_failed_goodness_of_fit_is_said_by_run(shared_datasets, tmp_path, capsys
 
 
 def test_failed_goodness_of_fit_is_said_by_replay(shared_datasets):
-    ds = shared_datasets / "two-sources"
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "13"],
+    ds = shared_datasets / "spin-anisotropy"
+    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "8"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert "the model misses something here" in out.stdout and "radseek diagnose" in out.stdout
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "14", "--json"],
+    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "9", "--json"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)  # the JSON stays clean: the warning goes to stderr
