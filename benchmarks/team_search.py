@@ -8,10 +8,13 @@ vehicle's odometry drift its own). Same scene, same seeds, same search settings.
   ended otherwise (dwell budget, no frontier) counts as never found (+inf), so the median is honest;
 * ``found``: share of flights that ended "source found";
 * ``median_error_m``, ``p90_error_m``: x-y distance of the final estimate from the truth;
-* ``coverage_95``: share of flights whose reported 95 % ellipse holds the truth (``launch.campaign.coverage``);
+* ``coverage_95``: share of flights whose reported 95 % ellipse holds the truth (``launch.campaign.coverage``;
+  ``covered`` of ``judged`` flights);
+* ``median_dwells``: dwell points of the whole team;
 * ``min_separation_m``: the smallest true x-y distance between two vehicles over all flights (teams only).
 
-    python benchmarks/team_search.py [--seeds 20] [--vehicles 1 2] [--scene default] [--workers 2] [--json]
+    python benchmarks/team_search.py [--seeds 20] [--first-seed 0] [--vehicles 1 2] [--scene default]
+        [--workers 2] [--json]
 """
 
 from __future__ import annotations
@@ -36,18 +39,20 @@ def fly(spec: tuple[str, int, int]) -> dict:
         from launch.offline import fly_offline
 
         r = fly_offline(scene, seed=seed)
-        reason, min_sep = r.decisions[-1].reason, math.inf
+        reason, min_sep, dwells = r.decisions[-1].reason, math.inf, len(r.dwell_rates)
     else:
         from launch.offline_team import fly_team_offline
 
         r = fly_team_offline(scene, n, seed=seed)
         reason, min_sep = (r.brain.final.reason if r.brain.final else "stopped"), r.min_separation_m
+        dwells = len(r.brain.history)
     est = r.estimate
     src = r.dataset.truth.sources[0]
     _, covered = coverage(est, (src.x, src.y))
     return {"scene": scene_name, "vehicles": n, "seed": seed, "error_m": r.error_m,
             "mission_time_s": r.mission_time_s, "found": reason.startswith("source found"), "covered_95": covered,
-            "sigma_m": est["sigma_m"] if est else math.inf, "min_separation_m": min_sep, "reason": reason}
+            "sigma_m": est["sigma_m"] if est else math.inf, "min_separation_m": min_sep, "reason": reason,
+            "dwell_points": dwells}
 
 
 def summarize(rows: list[dict], n: int) -> dict:
@@ -58,19 +63,21 @@ def summarize(rows: list[dict], n: int) -> dict:
     return {"vehicles": n, "runs": len(rs), "median_found_s": float(np.median(t)),
             "found": float(np.mean([r["found"] for r in rs])),
             "median_error_m": float(np.median(err)), "p90_error_m": float(np.percentile(err, 90)),
-            "coverage_95": float(np.mean(cov)) if cov else math.nan,
+            "coverage_95": float(np.mean(cov)) if cov else math.nan, "covered": int(sum(cov)), "judged": len(cov),
+            "median_dwells": float(np.median([r["dwell_points"] for r in rs])),
             "min_separation_m": float(min(r["min_separation_m"] for r in rs))}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seeds", type=int, default=20)
+    p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--vehicles", type=int, nargs="+", default=[1, 2])
     p.add_argument("--scene", default="default")
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--json", action="store_true", help="one JSON object per team size instead of the table")
     args = p.parse_args(argv)
-    specs = [(args.scene, n, s) for n in args.vehicles for s in range(args.seeds)]
+    specs = [(args.scene, n, s) for n in args.vehicles for s in range(args.first_seed, args.first_seed + args.seeds)]
     if args.workers > 1:
         with ProcessPoolExecutor(args.workers) as ex:
             rows = list(ex.map(fly, specs))
@@ -82,13 +89,13 @@ def main(argv: list[str] | None = None) -> int:
         for o in out:
             print(json.dumps(o))
         return 0
-    print("| vehicles | runs | median time to source found (s) | x one vehicle | found | median error (m) "
-          "| p90 error (m) | 95 % coverage | min separation (m) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| vehicles | runs | median time to source found (s) | x one vehicle | found | median dwells (team) "
+          "| median error (m) | p90 error (m) | 95 % coverage | min true separation (m) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for o in out:
         print(f"| {o['vehicles']} | {o['runs']} | {o['median_found_s']:.1f} | {o['median_found_s'] / base:.2f} "
-              f"| {o['found']:.2f} | {o['median_error_m']:.3f} | {o['p90_error_m']:.3f} | {o['coverage_95']:.2f} "
-              f"| {o['min_separation_m']:.2f} |", flush=True)
+              f"| {o['found']:.2f} | {o['median_dwells']:.0f} | {o['median_error_m']:.3f} | {o['p90_error_m']:.3f} "
+              f"| {o['coverage_95']:.2f} ({o['covered']}/{o['judged']}) | {o['min_separation_m']:.2f} |", flush=True)
     for r in rows:
         if not r["found"]:
             print(f"not found: {r['vehicles']} vehicles seed {r['seed']}: {r['reason']}", file=sys.stderr)

@@ -19,7 +19,8 @@ from detector_fw_sim.scene import Scene
 from launch.offline import FRAME_S, _Flight
 from mission.search import SearchConfig, reproducible
 from mission.team import TeamBrain, TeamConfig, TeamDecision, home_positions, team_frames
-from planner.allocation import pairwise_min_distance
+from planner.allocation import Reservation, pairwise_min_distance
+from planner.belief import drift_density_from_poses
 from radseek.dataset import Dataset
 from vehicle_sim.odometry import OdometryParams
 
@@ -66,11 +67,21 @@ class _TeamFlight(_Flight):
     def hover(self) -> None:
         self.frame(dwell=-1)
 
-    def reservation(self) -> np.ndarray:
-        """Where it is, then the waypoints it still has to fly (its dwell point last)."""
-        if self.mode != "fly":
-            return self.est[None, :3].copy()
-        return np.vstack([self.est[:3]] + [w[:3] for w in self.waypoints])
+    def pose_var(self) -> tuple[float, float]:
+        """The x-y variance its pose reports now and its growth per metre flown, from its own frames (as the
+        mission process knows them: the reported variance, not the simulator's drift parameters)."""
+        f = self.frames() if self.records else None
+        density = float(drift_density_from_poses(f.positions, f.pose_variances, f.dwell)[0]) if f is not None else 0.0
+        return float(self.odo.var[0]), density
+
+    def reservation(self) -> Reservation:
+        """Where it is, then the waypoints it still has to fly (its dwell point last), with its pose variance
+        at the end of them."""
+        path = self.est[None, :3].copy() if self.mode != "fly" else \
+            np.vstack([self.est[:3]] + [w[:3] for w in self.waypoints])
+        var, density = self.pose_var()
+        length = float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum()) if len(path) > 1 else 0.0
+        return Reservation(path, var + density * length)
 
 
 @dataclass
@@ -121,7 +132,9 @@ def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | N
     log: list[str] = []
     min_sep = min_sep_est = math.inf
 
-    def reserved(exclude: int) -> dict[int, np.ndarray]:
+    def reserved(exclude: int) -> dict[int, Reservation]:
+        """The others' reservations; tells the brain ``exclude``'s own pose variance (it is about to decide)."""
+        brain.set_pose_variance(exclude, *flights[exclude].pose_var())
         return {f.index: f.reservation() for f in flights if f.index != exclude}
 
     def apply(f: _TeamFlight, d: TeamDecision) -> None:

@@ -272,6 +272,21 @@ def vehicle_track(frames) -> dict[str, Any]:
             "distance_m": float(step[moving & finite].sum())}
 
 
+def _dwells_ended(log: Path) -> int | None:
+    """How many dwells a mission ended, from its ``mission_log.jsonl`` (None without one)."""
+    try:
+        lines = log.read_text().splitlines()
+    except OSError:
+        return None
+    n = 0
+    for line in lines:
+        try:
+            n += json.loads(line).get("event") == "dwell"
+        except ValueError:  # a line cut by a kill
+            continue
+    return n
+
+
 def write_team_report(out: str | Path, names: list[str], decider: str | None, killed: dict[str, float] | None = None,
                       wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
     """The team's report (``radseek run --vehicles N``): every vehicle's path and dwells on one map, the joint
@@ -312,6 +327,9 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
         if n in data:
             f = data[n].frames
             row.update(vehicle_track(f))
+            ended = _dwells_ended(out / "dataset" / n / "mission_log.jsonl")
+            if ended is not None:  # a dwell counts once it ended (a killed mission's last may not have)
+                row["dwell_points"] = ended
             state = " (failed)" if row["failed"] else ""
             ax.plot(f.x, f.y, "-", color=colour, lw=0.9, alpha=0.8, label=f"{n}{state}: {row['dwell_points']} dwells, "
                                                                              f"{row['distance_m']:.1f} m")

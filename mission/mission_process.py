@@ -45,7 +45,8 @@ from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from mission.team import TeamBrain, TeamConfig, TeamDecision, team_frames
-from planner.allocation import path_clear
+from planner.allocation import Reservation, path_clear
+from planner.belief import drift_density_from_poses
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
@@ -277,6 +278,7 @@ class _Team:
         self.seq = 0
         self.state = "start"
         self.reservation = np.zeros((1, 3))
+        self.var_xy = 0.0
         self.stamp = 0.0
         self.dwells: list[dict[str, float]] = []
         self.flown = np.zeros((0, 3))
@@ -293,20 +295,22 @@ class _Team:
         msg = topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
                                 reservation=self.reservation.tolist(), dwells=self.dwells,
                                 flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
-                                stamp=self.stamp)
+                                stamp=self.stamp, var_xy=self.var_xy)
         self.seq += 1
         self._pub.put(msg.to_bytes())
         self._sent_wall, self._sent_t = time.monotonic(), self.t
 
-    def set(self, t: float, state: str, reservation: np.ndarray) -> None:
+    def set(self, t: float, state: str, reservation: np.ndarray, var_xy: float | None = None) -> None:
         self.t, self.state = float(t), state
         self.reservation = np.asarray(reservation, dtype=float).reshape(-1, 3)
+        if var_xy is not None:
+            self.var_xy = max(float(var_xy), 0.0)
         self._put()
 
-    def claim(self, t: float, path: np.ndarray) -> float:
+    def claim(self, t: float, path: np.ndarray, var_xy: float) -> float:
         """Announce the plan's path as this vehicle's reservation; returns the claim's stamp."""
         self.stamp = time.time()
-        self.set(t, "fly", path)
+        self.set(t, "fly", path, var_xy)
         return self.stamp
 
     def add_dwell(self, index: int, position: np.ndarray, mean_rate: float, t_first: float, t_last: float,
@@ -342,15 +346,17 @@ class _Team:
                     out[n] = m.status
         return out
 
-    def reserved(self) -> dict[int, np.ndarray]:
+    def reserved(self) -> dict[int, Reservation]:
         """Every teammate's last reservation by team index (a failed teammate's stays: where it was last)."""
-        return {self.names.index(n): np.asarray(st.reservation, dtype=float) for n, st in self._statuses().items()}
+        return {self.names.index(n): Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
+                for n, st in self._statuses().items()}
 
-    def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float) -> str | None:
+    def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float, var_xy: float) -> str | None:
         """A teammate whose reservation crosses ``path`` and was claimed before ``stamp`` (this claim yields)."""
         for n, st in self._statuses().items():
+            mate = Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
             if st.state == "fly" and (st.stamp, self.names.index(n)) < (stamp, self.index) and \
-                    not path_clear(path, [np.asarray(st.reservation, dtype=float)], separation):
+                    not path_clear(path, [mate], separation, var_xy):
                 return n
         return None
 
@@ -769,12 +775,15 @@ class MissionRunner:
         team = self.team
         for attempt in range(CLAIM_ATTEMPTS):
             self._ingest_team()
+            self._own_pose_variance(stream)
             decision = first if attempt == 0 and first is not None else decide()
             if decision.plan is None:
                 return decision
-            stamp = team.claim(self.t, decision.plan.path[:, :3])
+            path = decision.plan.path[:, :3]
+            var_end = self.brain.var_at_end(team.index, path)
+            stamp = team.claim(self.t, path, var_end)
             await asyncio.sleep(CLAIM_WALL_S)
-            crossing = team.earlier_crossing(decision.plan.path[:, :3], stamp, self.brain.team.separation_m)
+            crossing = team.earlier_crossing(path, stamp, self.brain.team.separation_m, var_end)
             if crossing is None:
                 return decision
             self._event(stream, "yield", to=crossing, attempt=attempt)
@@ -782,13 +791,25 @@ class MissionRunner:
         return TeamDecision(self.team.index, self.brain.phase, None, "hold: claims kept crossing",
                             self.brain.team.hold_s)
 
+    def _own_pose_variance(self, stream: _Stream) -> tuple[float, float]:
+        """This vehicle's reported x-y pose variance now and its growth per metre flown (from its frames),
+        handed to the team brain for the drift margin of its next path."""
+        assert self.team is not None and isinstance(self.brain, TeamBrain)
+        p = stream.pose_at(self.t) or stream.pose()
+        f = stream.frames()
+        var = float(p.var_x) if p is not None and math.isfinite(p.var_x) else 0.0
+        density = float(drift_density_from_poses(f.positions, f.pose_variances, f.dwell)[0]) if len(f) > 1 else 0.0
+        self.brain.set_pose_variance(self.team.index, var, density)
+        return var, density
+
     async def _fly_team(self, stream: _Stream, mission: MissionControl) -> Decision:
         """The team's search from this vehicle: plans from the team brain (every vehicle's dwells and frames),
         reservations claimed on ``team/status``; returns the final decision (the plan None)."""
         assert self.team is not None and isinstance(self.brain, TeamBrain)
         team, brain, me = self.team, self.brain, self.team.index
         current = self._current(stream)
-        team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :])
+        team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :],
+                 self._own_pose_variance(stream)[0])
         # no plan before every teammate has said where it is (airborne at its launch point), or is given up
         # on: the wait is in wall time, while lockstep holds sim time, so it costs no flight time
         waited = time.monotonic()
@@ -848,6 +869,7 @@ class MissionRunner:
                            max(times, default=self.t), flown)
             self._ingest_team()
             frames = team.frames(stream.frames())
+            self._own_pose_variance(stream)
             decision = brain.end_dwell(position, status, frames, self._current(stream), flown, me, team.reserved())
             if decision.plan is not None:  # claim it (and plan again if an earlier claim crosses it)
                 decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()),

@@ -14,6 +14,11 @@ its dwell ends:
   keeps ``separation_m`` from every teammate's reservation (``planner.allocation``);
 * if no path is free, the vehicle holds ``hold_s`` where it is and asks again (:meth:`TeamBrain.replan`).
 
+The separation is kept between *true* positions: the vehicles fly on drifting estimates, so the clearance
+asked of two estimated positions is ``separation_m`` plus ``planner.allocation.DRIFT_K`` times the standard
+deviation of the difference of their drifts (each vehicle's reported x-y pose variance at the end of its
+path: :meth:`TeamBrain.set_pose_variance`, the teammates' in their ``Reservation``).
+
 A vehicle that fails (link loss, battery, its mission process killed) just stops asking; its last
 reservation stays reserved, and the others finish the search.
 """
@@ -28,7 +33,7 @@ import numpy as np
 
 from estimator.mle import walk_starts
 from mission.search import Decision, Phase, SearchBrain, SearchConfig
-from planner.allocation import clearance, path_clear, sample_polyline
+from planner.allocation import Reservation, as_reservation, clearance, path_clear, required_clearance, sample_polyline
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
 from planner.dwell_controller import DwellController, DwellStatus
 from planner.dwell_tree import grow_tree, shortcut_path
@@ -131,6 +136,7 @@ class TeamBrain(SearchBrain):
         self.dwelled_by: list[int] = []  # the vehicle of each dwell of ``history``
         self.holds = 0
         self._belief: SourceBelief | None = None
+        self._pose_var = np.zeros((self.team.n_vehicles, 2))  # per vehicle: x-y variance now (m^2), growth (m^2/m)
         self._sigma = math.inf
         self.final: TeamDecision | None = None
 
@@ -145,7 +151,7 @@ class TeamBrain(SearchBrain):
     # ---------------------------------------------------------------------------- decisions
 
     def start(self, current: np.ndarray, vehicle: int = 0,  # type: ignore[override]
-              reserved: Mapping[int, np.ndarray] | None = None) -> TeamDecision:
+              reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
         current = np.asarray(current, dtype=float)
         current = np.r_[current[:2], self.config.altitude_m, current[3]]
         return self._team_explore(vehicle, current, reserved, "start: explore until three readings stand above "
@@ -153,7 +159,7 @@ class TeamBrain(SearchBrain):
 
     def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames,  # type: ignore[override]
                   current: np.ndarray, flown: np.ndarray | None = None, vehicle: int = 0,
-                  reserved: Mapping[int, np.ndarray] | None = None) -> TeamDecision:
+                  reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
         """Vehicle ``vehicle`` ended a dwell at ``position``; ``frames`` is the team's (:func:`team_frames`),
         ``reserved`` every other live vehicle's reservation (``planner.allocation.reservation``)."""
         if self.final is not None:
@@ -200,7 +206,19 @@ class TeamBrain(SearchBrain):
                                                               self.config.frontier):
             self.phase = Phase.SEARCH
 
-    def replan(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray] | None = None
+    def set_pose_variance(self, vehicle: int, var_xy: float, density: float = 0.0) -> None:
+        """The vehicle's reported x-y pose variance now (m^2 per axis) and how fast it grows per metre flown
+        (``planner.belief.drift_density_from_poses``): its drift margin at the end of a candidate path."""
+        self._pose_var[vehicle] = (max(float(var_xy), 0.0), max(float(density), 0.0))
+
+    def var_at_end(self, vehicle: int, path: np.ndarray) -> float:
+        """The vehicle's x-y pose variance once it has flown ``path`` (k, >=2)."""
+        p = np.asarray(path, dtype=float)[:, :2]
+        length = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
+        var, density = self._pose_var[vehicle]
+        return float(var + density * length)
+
+    def replan(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None = None
                ) -> TeamDecision:
         """Ask again after a hold (or after a teammate's reservation changed)."""
         if self.final is not None:
@@ -212,26 +230,29 @@ class TeamBrain(SearchBrain):
 
     # ---------------------------------------------------------------------------- allocation
 
-    def _others(self, vehicle: int, reserved: Mapping[int, np.ndarray] | None) -> list[np.ndarray]:
-        return [np.asarray(r, dtype=float).reshape(-1, 3) for v, r in (reserved or {}).items()
-                if v != vehicle and len(r)]
+    def _others(self, vehicle: int, reserved: Mapping[int, np.ndarray | Reservation] | None) -> list[Reservation]:
+        out = [as_reservation(r) for v, r in (reserved or {}).items() if v != vehicle]
+        return [r for r in out if len(r.path)]
+
+    def _clear(self, vehicle: int, path: np.ndarray, others: list[Reservation]) -> bool:
+        return path_clear(path, others, self.team.separation_m, self.var_at_end(vehicle, path))
 
     def _hold(self, vehicle: int, reason: str) -> TeamDecision:
         self.holds += 1
         return TeamDecision(vehicle, self.phase, None, f"hold {self.team.hold_s:g} s: {reason}", self.team.hold_s)
 
-    def _team_explore(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray] | None,
+    def _team_explore(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None,
                       reason: str) -> TeamDecision:
         """Paper 004 frontier exploration, the teammates' reservations pruned from the frontier."""
         cur = self._at_altitude(current)
         others = self._others(vehicle, reserved)
-        near = [sample_polyline(r if len(r) > 1 else np.vstack([r, r]), 0.25) for r in others]
+        near = [sample_polyline(r.path if len(r.path) > 1 else np.vstack([r.path, r.path]), 0.25) for r in others]
         pruned = np.vstack([self.visited] + [np.column_stack([xy, np.full(len(xy), cur[2])]) for xy in near])
         for _ in range(3):
             plan = plan_exploration(cur, self.history, self.occ, pruned, self.config.frontier, rng=self.rng)
             if not plan.ok:
                 break
-            if path_clear(plan.path[:, :3], others, self.team.separation_m):
+            if self._clear(vehicle, plan.path[:, :3], others):
                 return TeamDecision(vehicle, Phase.EXPLORE, plan, reason)
             # that frontier's way is taken by a teammate: prune it too and take the next one
             pruned = np.vstack([pruned, plan.dwell_points[:, :3]])
@@ -241,7 +262,7 @@ class TeamBrain(SearchBrain):
             return self._team_next(vehicle, current, reserved, reason)
         return self._hold(vehicle, "no frontier with a free path")
 
-    def _team_next(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray] | None,
+    def _team_next(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None,
                    reason: str) -> TeamDecision:
         """The next-best dwell point (paper 003 eq. 6) whose path keeps clear of the teammates."""
         assert self._belief is not None
@@ -249,7 +270,7 @@ class TeamBrain(SearchBrain):
         cur = self._at_altitude(current)
         others = self._others(vehicle, reserved)
         cfg = self.config.next_best
-        pending = np.array([r[-1] for r in others]).reshape(-1, 3)
+        pending = np.array([r.path[-1] for r in others]).reshape(-1, 3)
         # the teammates' pending dwell points count as taken for eq. 6's repulsion: the team spreads out
         history = DwellHistory(np.vstack([self.history.positions, pending]),
                                np.r_[self.history.rates, np.zeros(len(pending))])
@@ -259,14 +280,17 @@ class TeamBrain(SearchBrain):
         if not scores.valid.any():
             return self._team_explore(vehicle, current, reserved,
                                       f"no valid next-best dwell point (1-sigma {self._sigma:.3f} m): explore")
-        free = clearance(pos, others) >= self.team.separation_m
+        var_now = self._pose_var[vehicle][0]
+        free = np.ones(len(pos), dtype=bool)
+        for r in others:  # a node too close to a teammate's reservation even before any drift is added
+            free &= clearance(pos, [r]) >= required_clearance(self.team.separation_m, var_now, r.var_xy)
         candidates = np.flatnonzero(scores.valid & free)
         for node in candidates[np.argsort(-scores.gain[candidates], kind="stable")][:MAX_CANDIDATES]:
             tree_path = tree.path_to(int(node))
-            if not path_clear(shortcut_path(tree_path, self.occ), others, self.team.separation_m):
+            if not self._clear(vehicle, shortcut_path(tree_path, self.occ), others):
                 continue
             path = finish_path(tree_path, cur[3], belief.mean, self.occ, cfg, self.rng)
-            if path_clear(path[:, :3], others, self.team.separation_m):
+            if self._clear(vehicle, path[:, :3], others):
                 plan = DwellPlan(path[-1:], path, f"team_next_best_{cfg.gain_kind}",
                                  gains=scores.gain[node:node + 1], info={"nodes": len(tree), "node": int(node)})
                 return TeamDecision(vehicle, Phase.SEARCH, plan, reason)

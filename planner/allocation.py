@@ -18,11 +18,39 @@ reservation's segments), vectorised over all pairs.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 #: m between the samples of a path checked against the reservations (well below any separation used)
 SAMPLE_STEP_M = 0.05
+#: the drift margin in sigmas: the x-y distance between two vehicles' true positions differs from the distance
+#: between their estimates by the difference of their drifts, per axis N(0, var_a + var_b); its norm exceeds
+#: k sqrt(var_a + var_b) with probability exp(-k^2 / 2) (1.1 % at k = 3)
+DRIFT_K = 3.0
+
+
+@dataclass(frozen=True)
+class Reservation:
+    """A teammate's reservation: the polyline (k, 3) and the x-y pose variance (m^2 per axis) its odometry
+    reports at the reservation's end (its drift by then: the margin the separation needs on true positions)."""
+
+    path: np.ndarray
+    var_xy: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", np.asarray(self.path, dtype=float).reshape(-1, 3))
+        if not (np.isfinite(self.var_xy) and self.var_xy >= 0):
+            raise ValueError("var_xy must be finite and >= 0")
+
+
+def as_reservation(r: np.ndarray | Reservation) -> Reservation:
+    return r if isinstance(r, Reservation) else Reservation(np.asarray(r, dtype=float))
+
+
+def required_clearance(separation: float, var_a: float, var_b: float, k: float = DRIFT_K) -> float:
+    """m between two estimated positions so that the true ones keep ``separation`` (:data:`DRIFT_K`)."""
+    return separation + k * float(np.sqrt(max(var_a, 0.0) + max(var_b, 0.0)))
 
 
 def sample_polyline(path: np.ndarray, step: float = SAMPLE_STEP_M) -> np.ndarray:
@@ -54,12 +82,13 @@ def _segments(reservation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return r[:-1], r[1:]
 
 
-def clearance(points: np.ndarray, reservations: Iterable[np.ndarray]) -> np.ndarray:
+def clearance(points: np.ndarray, reservations: Iterable[np.ndarray | Reservation]) -> np.ndarray:
     """(P,) smallest x-y distance of each point (P, >=2) to any reservation (polylines (k, >=2), k >= 1);
     inf without reservations."""
     pts = np.asarray(points, dtype=float).reshape(-1, np.shape(points)[-1] if np.ndim(points) > 1 else 2)
     out = np.full(len(pts), np.inf)
     for r in reservations:
+        r = as_reservation(r).path
         if len(r) == 0:
             continue
         a, b = _segments(r)
@@ -67,11 +96,15 @@ def clearance(points: np.ndarray, reservations: Iterable[np.ndarray]) -> np.ndar
     return out
 
 
-def path_clear(path: np.ndarray, reservations: Sequence[np.ndarray], separation: float) -> bool:
-    """Does the whole path (k, >=2), end included, keep ``separation`` m from every reservation?"""
+def path_clear(path: np.ndarray, reservations: Sequence[np.ndarray | Reservation], separation: float,
+               var_xy: float = 0.0, k: float = DRIFT_K) -> bool:
+    """Does the whole path (k, >=2), end included, keep ``separation`` m from every reservation, widened by the
+    drift margin of both vehicles (``var_xy``: this vehicle's x-y pose variance at the path's end)?"""
     if not len(reservations):
         return True
-    return bool(clearance(sample_polyline(path), reservations).min() >= separation)
+    pts = sample_polyline(path)
+    return all(clearance(pts, [r]).min() >= required_clearance(separation, var_xy, r.var_xy, k)
+               for r in map(as_reservation, reservations))
 
 
 def reservation(path: np.ndarray | None, position: np.ndarray) -> np.ndarray:
@@ -95,5 +128,5 @@ def pairwise_min_distance(positions: np.ndarray) -> float:
     return float(d[np.triu_indices(len(p), 1)].min())
 
 
-__all__ = ["clearance", "pairwise_min_distance", "path_clear", "point_segment_distance", "reservation",
-           "sample_polyline"]
+__all__ = ["DRIFT_K", "Reservation", "as_reservation", "clearance", "pairwise_min_distance", "path_clear",
+           "point_segment_distance", "required_clearance", "reservation", "sample_polyline"]

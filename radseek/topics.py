@@ -426,7 +426,9 @@ class TeamStatus(_Payload):
     z, mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in
     cps, the sim times of its first and last frames). ``flown`` samples the path it has flown (x, y, z),
     for the team's explored area. ``reason`` says why the search ended (state ``done``), ``decided``
-    whether this vehicle's estimate ended it (the whole team then ends its search). ``stamp`` (wall
+    whether this vehicle's estimate ended it (the whole team then ends its search). ``var_xy`` is the drift
+    the vehicle expects by its reservation's end (its reported pose variance plus its growth over the path):
+    teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (wall
     seconds since the epoch) orders two claims made at once: of two crossing reservations the later
     claim yields and plans again."""
 
@@ -441,12 +443,14 @@ class TeamStatus(_Payload):
     reason: str = ""
     decided: bool = False
     stamp: float = 0.0  # wall s since the epoch when this reservation was claimed
+    var_xy: float = 0.0  # m^2, >= 0: the x-y pose variance (per axis) the vehicle expects at its reservation's end
 
     def validate(self) -> None:
         super().validate()
         if self.state not in TEAM_STATES:
             raise PayloadError(f"{self.TOPIC}: field 'state' must be one of {TEAM_STATES}, got {_short(self.state)}")
         _check_int(self.TOPIC, "seq", self.seq, 0)
+        _check_range(self.TOPIC, "var_xy", self.var_xy, 0.0, 1e6)
         if not isinstance(self.decided, bool):
             raise PayloadError(f"{self.TOPIC}: field 'decided' must be true or false, got {_short(self.decided)}")
         for name in ("reservation", "flown"):

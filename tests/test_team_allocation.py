@@ -109,3 +109,18 @@ def test_no_free_path_means_hold_then_plan_again():
     assert d.plan is None and d.hold_s == brain.team.hold_s and not d.done
     d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), {})
     assert d.plan is not None
+
+
+def test_the_separation_widens_with_both_vehicles_drift():
+    from planner.allocation import DRIFT_K, Reservation, required_clearance
+
+    theirs = Reservation(np.array([[0.0, 0.0, 1.5]]), var_xy=0.01)
+    path = np.array([[1.2, -1.0, 1.5], [1.2, 1.0, 1.5]])  # passes 1.2 m from the teammate
+    assert path_clear(path, [theirs.path], SEP)  # estimated positions only: clear
+    need = required_clearance(SEP, 0.01, 0.01)
+    assert need == pytest.approx(SEP + DRIFT_K * np.sqrt(0.02))  # 1.42 m: 3 sigma of the drifts' difference
+    assert not path_clear(path, [theirs], SEP, var_xy=0.01)
+    assert path_clear(path + [0.3, 0.0, 0.0], [theirs], SEP, var_xy=0.01)  # 1.5 m: clear of the drift margin too
+    brain = _searching_brain()
+    brain.set_pose_variance(1, 0.01, 0.001)
+    assert brain.var_at_end(1, path) == pytest.approx(0.01 + 0.001 * 2.0)  # grows with the 2 m flown
