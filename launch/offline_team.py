@@ -142,6 +142,8 @@ def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | N
         if d.plan is not None:
             f.mode = "fly"
             f.waypoints = [p for p in d.plan.path[1:]] + [d.plan.dwell_points[0]]
+        elif d.retire:
+            f.mode = "retired"
         elif d.hold_s > 0:
             f.mode, f.hold_until = "hold", f.t + d.hold_s
         else:
@@ -186,7 +188,7 @@ def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | N
                 f.hover()
                 if f.t >= f.hold_until - 1e-9:
                     apply(f, brain.replan(f.index, f.est.copy(), reserved(f.index)))
-            elif f.mode in ("failed", "done"):
+            elif f.mode in ("failed", "done", "retired"):
                 f.t = t  # the clock goes on; a failed vehicle records nothing more
         min_sep = min(min_sep, pairwise_min_distance(np.array([f.true_pose()[:3] for f in flights])))
         min_sep_est = min(min_sep_est, pairwise_min_distance(np.array([f.est[:3] for f in flights])))

@@ -828,6 +828,9 @@ class MissionRunner:
             if decision.done:
                 team.finish(self.t, decision.reason, decided=True)
                 return decision.as_decision()
+            if decision.retire:  # boxed in by the teammates for long: this vehicle leaves, the team goes on
+                team.finish(self.t, decision.reason, decided=False)
+                return decision.as_decision()
             if decision.plan is None:  # hold where it is, then ask again
                 here = self._current(stream)
                 team.set(self.t, "hold", here[None, :3])

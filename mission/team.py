@@ -46,6 +46,8 @@ from radseek.dataset import Frames, Scenario
 MAX_VEHICLES = 4
 #: candidate dwell points tried, best gain first, before a vehicle holds
 MAX_CANDIDATES = 40
+#: holds in a row before a boxed-in vehicle retires from the search (the others go on)
+MAX_HOLDS_IN_ROW = 30
 
 
 @dataclass(frozen=True)
@@ -113,10 +115,12 @@ class TeamDecision:
     plan: DwellPlan | None
     reason: str
     hold_s: float = 0.0
+    retire: bool = False  # this vehicle leaves the search (no free path for long); the team's goes on
 
     @property
     def done(self) -> bool:
-        return self.plan is None and self.hold_s <= 0
+        """The team's search is over (``retire``: this vehicle's part is)."""
+        return self.plan is None and self.hold_s <= 0 and not self.retire
 
     def as_decision(self) -> Decision:
         return Decision(self.phase, self.plan, self.reason)
@@ -136,6 +140,7 @@ class TeamBrain(SearchBrain):
         self.dwelled_by: list[int] = []  # the vehicle of each dwell of ``history``
         self.holds = 0
         self._belief: SourceBelief | None = None
+        self._in_row = [0] * self.team.n_vehicles  # holds in a row, per vehicle
         self._pose_var = np.zeros((self.team.n_vehicles, 2))  # per vehicle: x-y variance now (m^2), growth (m^2/m)
         self._sigma = math.inf
         self.final: TeamDecision | None = None
@@ -239,6 +244,10 @@ class TeamBrain(SearchBrain):
 
     def _hold(self, vehicle: int, reason: str) -> TeamDecision:
         self.holds += 1
+        self._in_row[vehicle] += 1
+        if self._in_row[vehicle] > MAX_HOLDS_IN_ROW:
+            return TeamDecision(vehicle, self.phase, None, f"search aborted: no free path for {MAX_HOLDS_IN_ROW} "
+                                                           f"holds in a row ({reason})", retire=True)
         return TeamDecision(vehicle, self.phase, None, f"hold {self.team.hold_s:g} s: {reason}", self.team.hold_s)
 
     def _team_explore(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None,
@@ -253,6 +262,7 @@ class TeamBrain(SearchBrain):
             if not plan.ok:
                 break
             if self._clear(vehicle, plan.path[:, :3], others):
+                self._in_row[vehicle] = 0
                 return TeamDecision(vehicle, Phase.EXPLORE, plan, reason)
             # that frontier's way is taken by a teammate: prune it too and take the next one
             pruned = np.vstack([pruned, plan.dwell_points[:, :3]])
@@ -293,6 +303,7 @@ class TeamBrain(SearchBrain):
             if self._clear(vehicle, path[:, :3], others):
                 plan = DwellPlan(path[-1:], path, f"team_next_best_{cfg.gain_kind}",
                                  gains=scores.gain[node:node + 1], info={"nodes": len(tree), "node": int(node)})
+                self._in_row[vehicle] = 0
                 return TeamDecision(vehicle, Phase.SEARCH, plan, reason)
         return self._hold(vehicle, "every good dwell point's path crosses a teammate's reservation")
 

@@ -124,3 +124,17 @@ def test_the_separation_widens_with_both_vehicles_drift():
     brain = _searching_brain()
     brain.set_pose_variance(1, 0.01, 0.001)
     assert brain.var_at_end(1, path) == pytest.approx(0.01 + 0.001 * 2.0)  # grows with the 2 m flown
+
+
+def test_a_vehicle_boxed_in_for_long_retires_and_the_search_goes_on():
+    from mission.team import MAX_HOLDS_IN_ROW
+
+    brain = _searching_brain()
+    ring = {u + 2: np.array([[2.0 + 1.2 * np.cos(a), 2.0 + 1.2 * np.sin(a), 1.5]])
+            for u, a in enumerate(np.linspace(0, 2 * np.pi, 13))}
+    for _ in range(MAX_HOLDS_IN_ROW):
+        d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), ring)
+        assert d.hold_s > 0
+    d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), ring)
+    assert d.retire and not d.done and d.reason.startswith("search aborted")
+    assert brain.final is None  # the team's search is not over
