@@ -30,7 +30,8 @@ PUBLISHERS: dict[str, str] = {
     topics.DETECTOR_STATUS: "detector",
     topics.MISSION_STATE: "mission",
     topics.MISSION_LOCKSTEP: "mission (read by the vehicle with `--lockstep`)",
-    topics.ESTIMATE: "mission",
+    topics.ESTIMATE: "mission (a team's joint estimate under the vehicle name `team`)",
+    topics.TEAM_STATUS: "mission, in a team (`radseek run --vehicles N`)",
     topics.PLAN: "mission",
 }
 RATES: dict[str, str] = {
