@@ -97,6 +97,16 @@ def flown_estimate(ds: Dataset, mission: dict[str, Any]) -> tuple[dict[str, Any]
     return est, source
 
 
+def _map_frame(ax, scenario) -> None:
+    """A map's frame: the scenario's bounds with half a metre around, equal scales, east and north labelled."""
+    lo, hi = scenario.bounds_min, scenario.bounds_max
+    ax.set_xlim(lo[0] - 0.5, hi[0] + 0.5)
+    ax.set_ylim(lo[1] - 0.5, hi[1] + 0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+
+
 def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: dict[str, Any], truth) -> None:
     """An inset zoomed on the estimate: its 1-sigma and 95 % ellipses (centimetres, invisible at map
     scale under the marker) and the truth if it is near."""
@@ -162,12 +172,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     if truth:
         for s in truth.all_sources():
             ax.plot(s.x, s.y, "r*", ms=14, label="truth" if s is truth.sources[0] else None)
-    lo, hi = ds.scenario.bounds_min, ds.scenario.bounds_max
-    ax.set_xlim(lo[0] - 0.5, hi[0] + 0.5)
-    ax.set_ylim(lo[1] - 0.5, hi[1] + 0.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x east (m)")
-    ax.set_ylabel("y north (m)")
+    _map_frame(ax, ds.scenario)
     ax.set_title(f"map: {len(dwells)} dwell points (size ~ rate), error {err:.3f} m")
     ax.legend(fontsize=8, loc="upper right")
     _zoom_inset(ax, ds, src, cov, est, truth)
@@ -344,12 +349,7 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
         _ellipse(ax, (est["x"], est["y"]), cov, N_SIGMA_95, color="k", lw=1.0, ls="--")
     if truth:
         ax.plot(truth.sources[0].x, truth.sources[0].y, "r*", ms=14, label="truth")
-    lo, hi = any_ds.scenario.bounds_min, any_ds.scenario.bounds_max
-    ax.set_xlim(lo[0] - 0.5, hi[0] + 0.5)
-    ax.set_ylim(lo[1] - 0.5, hi[1] + 0.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x east (m)")
-    ax.set_ylabel("y north (m)")
+    _map_frame(ax, any_ds.scenario)
     ax.set_title(f"{len(names)} vehicles: error {err:.3f} m; {mission.get('reason', '')}"[:110], fontsize=9)
     ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
