@@ -26,16 +26,12 @@ from vehicle_sim.odometry import Odometry, OdometryParams
 FRAME_S = 0.1
 
 
-@dataclass
-class OfflineResult:
-    dataset: Dataset
+class EstimateAndError:
+    """The brain's final estimate and its x-y distance to the first true source (inf without either), for a
+    flight's result that has ``brain`` and ``dataset`` (``OfflineResult``, ``launch.offline_team.TeamResult``)."""
+
     brain: SearchBrain
-    decisions: list[Decision]
-    mission_time_s: float
-    dwell_positions: np.ndarray  # (K, 3) estimated
-    dwell_rates: np.ndarray
-    true_path: np.ndarray  # (N, 4) true poses at frame mid-times
-    log: list[str] = field(default_factory=list)
+    dataset: Dataset
 
     @property
     def estimate(self) -> dict | None:
@@ -49,6 +45,18 @@ class OfflineResult:
             return math.inf
         s = truth.sources[0]
         return float(math.hypot(est["x"] - s.x, est["y"] - s.y))
+
+
+@dataclass
+class OfflineResult(EstimateAndError):
+    dataset: Dataset
+    brain: SearchBrain
+    decisions: list[Decision]
+    mission_time_s: float
+    dwell_positions: np.ndarray  # (K, 3) estimated
+    dwell_rates: np.ndarray
+    true_path: np.ndarray  # (N, 4) true poses at frame mid-times
+    log: list[str] = field(default_factory=list)
 
 
 class _Flight:
@@ -88,24 +96,29 @@ class _Flight:
     def fly_to(self, target: np.ndarray) -> np.ndarray:
         """Fly (estimated frame) to target (x, y, z, yaw), recording transit frames; returns visited xyz."""
         visited = []
-        while True:
-            d = target[:3] - self.est[:3]
-            dist = float(np.linalg.norm(d))
-            dyaw = math.remainder(target[3] - self.est[3], 2 * math.pi)
-            if dist < 1e-6 and abs(dyaw) < 1e-6:
-                break
-            step = min(dist, self.speed * FRAME_S)
-            turn = float(np.clip(dyaw, -self.yaw_rate_max * FRAME_S, self.yaw_rate_max * FRAME_S))
-            # the mid-frame pose is what the frame integrates: move half, record, move the other half
-            self.est[:3] += d / max(dist, 1e-12) * step / 2
-            self.est[3] += turn / 2
-            self.odo.advance(step / 2)
-            self.frame(dwell=-1)
-            self.est[:3] += d / max(dist, 1e-12) * step / 2
-            self.est[3] = math.remainder(self.est[3] + turn / 2, 2 * math.pi)
-            self.odo.advance(step / 2)
+        while self.step(target) is not None:
             visited.append(self.est[:3].copy())
         return np.array(visited).reshape(-1, 3)
+
+    def step(self, target: np.ndarray) -> float | None:
+        """One transit frame toward target (x, y, z, yaw) at most speed and yaw rate; the distance it moved,
+        None once there (no frame is recorded then)."""
+        d = target[:3] - self.est[:3]
+        dist = float(np.linalg.norm(d))
+        dyaw = math.remainder(target[3] - self.est[3], 2 * math.pi)
+        if dist < 1e-6 and abs(dyaw) < 1e-6:
+            return None
+        step = min(dist, self.speed * FRAME_S)
+        turn = float(np.clip(dyaw, -self.yaw_rate_max * FRAME_S, self.yaw_rate_max * FRAME_S))
+        # the mid-frame pose is what the frame integrates: move half, record, move the other half
+        self.est[:3] += d / max(dist, 1e-12) * step / 2
+        self.est[3] += turn / 2
+        self.odo.advance(step / 2)
+        self.frame(dwell=-1)
+        self.est[:3] += d / max(dist, 1e-12) * step / 2
+        self.est[3] = math.remainder(self.est[3] + turn / 2, 2 * math.pi)
+        self.odo.advance(step / 2)
+        return step
 
     def frames(self) -> Frames:
         return Frames.from_records(self.records)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from detector_fw_sim.scene import Scene
-from launch.offline import FRAME_S, _Flight
+from launch.offline import FRAME_S, EstimateAndError, _Flight
 from mission.search import SearchConfig, reproducible
 from mission.team import TeamBrain, TeamConfig, TeamDecision, home_positions, team_frames
 from planner.allocation import Reservation, pairwise_min_distance
@@ -44,22 +44,11 @@ class _TeamFlight(_Flight):
         self.distance_m = 0.0
 
     def step_to(self, target: np.ndarray) -> bool:
-        """One frame toward ``target`` (x, y, z, yaw), as ``_Flight.fly_to`` flies it; True once there
-        (no frame is recorded then)."""
-        d = target[:3] - self.est[:3]
-        dist = float(np.linalg.norm(d))
-        dyaw = math.remainder(target[3] - self.est[3], 2 * math.pi)
-        if dist < 1e-6 and abs(dyaw) < 1e-6:
+        """One frame toward ``target`` (x, y, z, yaw), as ``_Flight.fly_to`` flies it (``_Flight.step``); True
+        once there (no frame is recorded then)."""
+        step = self.step(target)
+        if step is None:
             return True
-        step = min(dist, self.speed * FRAME_S)
-        turn = float(np.clip(dyaw, -self.yaw_rate_max * FRAME_S, self.yaw_rate_max * FRAME_S))
-        self.est[:3] += d / max(dist, 1e-12) * step / 2
-        self.est[3] += turn / 2
-        self.odo.advance(step / 2)
-        self.frame(dwell=-1)
-        self.est[:3] += d / max(dist, 1e-12) * step / 2
-        self.est[3] = math.remainder(self.est[3] + turn / 2, 2 * math.pi)
-        self.odo.advance(step / 2)
         self.distance_m += step
         self.visited.append(self.est[:3].copy())
         return False
@@ -85,7 +74,7 @@ class _TeamFlight(_Flight):
 
 
 @dataclass
-class TeamResult:
+class TeamResult(EstimateAndError):
     dataset: Dataset  # the team's frames (vehicle by vehicle, team dwell indices) with the truth
     brain: TeamBrain
     decisions: list[TeamDecision]
@@ -94,19 +83,6 @@ class TeamResult:
     min_separation_m: float  # the smallest true x-y distance between two vehicles over the flight
     min_separation_est_m: float  # the same on the vehicles' estimated poses (what the allocation holds)
     log: list[str] = field(default_factory=list)
-
-    @property
-    def estimate(self) -> dict | None:
-        return self.brain.estimate
-
-    @property
-    def error_m(self) -> float:
-        est = self.estimate
-        truth = self.dataset.truth
-        if est is None or truth is None:
-            return math.inf
-        s = truth.sources[0]
-        return float(math.hypot(est["x"] - s.x, est["y"] - s.y))
 
 
 def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | None = None, seed: int = 0,
