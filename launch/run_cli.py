@@ -41,6 +41,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -214,6 +215,53 @@ class Progress:
             s.undeclare()
 
 
+class StackRun:
+    """``with StackRun(stack, out) as run:`` the processes' flight. A stack failure (RuntimeError,
+    TimeoutError) or Ctrl-C is said on stderr and kept as ``run.exit_code`` (None: the flight went through);
+    the stack is stopped whatever happened."""
+
+    def __init__(self, stack: Stack, out: Path):
+        self.stack, self.out = stack, out
+        self.exit_code: int | None = None
+
+    def __enter__(self) -> StackRun:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            if exc_type is not None and issubclass(exc_type, (RuntimeError, TimeoutError)):
+                print(f"radseek run: {exc}", file=sys.stderr)
+                self.exit_code = EXIT_STACK
+                return True
+            if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+                print(f"radseek run: interrupted; the frames recorded so far are in {self.out / 'dataset'} "
+                      "(no summary)", file=sys.stderr)
+                self.exit_code = 128 + signal.SIGINT
+                return True
+            return False
+        finally:
+            self.stack.stop()
+
+
+def report_verdict(write_report: Callable[[], dict], out: Path, failure: str | None, recorded: str) -> int:
+    """Write the report (``write_report``: the summary) and print the summary, then the run's exit code from
+    the search's ``failure`` (None: found). A report that fails is said on stderr with where the ``recorded``
+    flight is; without a report a search that found the source is a stack failure."""
+    try:
+        summary = write_report()
+    except Exception as exc:  # noqa: BLE001 - a flight too short to fit still has a verdict and its data
+        print(f"radseek run: no report ({type(exc).__name__}: {exc}); the recorded {recorded} in {out / 'dataset'}",
+              file=sys.stderr)
+        if failure is None:
+            return EXIT_STACK
+    else:
+        print_summary(summary, out)
+    if failure is not None:
+        print(f"radseek run: search failed: {failure}", file=sys.stderr)
+        return EXIT_SEARCH_FAILED
+    return EXIT_FOUND
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek run", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -298,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
     print(f"radseek run: scene {scene.name!r}, speed-up {speedup:g}, output {out}", file=sys.stderr)
     t0 = time.monotonic()
-    try:
+    with StackRun(stack, out) as run:
         stack.start("router", _radseek("router", "--listen", endpoint))
         if args.mcap:  # (radseek record gives up if no router answers within 3 s)
             stack.wait_for_line("router", "listening", timeout_s=60.0)
@@ -361,15 +409,8 @@ def main(argv: list[str] | None = None) -> int:
                     progress.close()
             if recorder is not None:  # the mission has landed: finish the log before the summary
                 stop_recorder(stack, out)
-    except (RuntimeError, TimeoutError) as exc:
-        print(f"radseek run: {exc}", file=sys.stderr)
-        return EXIT_STACK
-    except KeyboardInterrupt:
-        print(f"radseek run: interrupted; the frames recorded so far are in {out / 'dataset'} (no summary)",
-              file=sys.stderr)
-        return 128 + signal.SIGINT
-    finally:
-        stack.stop()
+    if run.exit_code is not None:
+        return run.exit_code
     wall = time.monotonic() - t0
     if mission.returncode not in (EXIT_FOUND, EXIT_SEARCH_FAILED):  # the mission's own verdict is read below
         print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
@@ -386,16 +427,4 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_json(out / "dataset" / "truth.json", scene.truth().to_dict())
     from launch.report import write_report
 
-    try:
-        summary = write_report(out, wall_time_s=wall, speedup=speedup)
-    except Exception as exc:  # noqa: BLE001 - a flight too short to fit still has a verdict and its data
-        print(f"radseek run: no report ({type(exc).__name__}: {exc}); the recorded flight is in {out / 'dataset'}",
-              file=sys.stderr)
-        if failure is None:
-            return EXIT_STACK
-    else:
-        print_summary(summary, out)
-    if failure is not None:
-        print(f"radseek run: search failed: {failure}", file=sys.stderr)
-        return EXIT_SEARCH_FAILED
-    return EXIT_FOUND
+    return report_verdict(lambda: write_report(out, wall_time_s=wall, speedup=speedup), out, failure, "flight is")

@@ -34,9 +34,10 @@ from launch.run_cli import (
     EXIT_SEARCH_FAILED,
     EXIT_STACK,
     Stack,
+    StackRun,
     _radseek,
-    print_summary,
     recorder_ready,
+    report_verdict,
     start_recorder,
     stop_recorder,
 )
@@ -103,7 +104,7 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
     t0 = time.monotonic()
     missions: dict[str, object] = {}
     killed: dict[str, float] = {}
-    try:
+    with StackRun(stack, out) as run:
         stack.start("router", _radseek("router", "--listen", endpoint))
         if args.mcap:
             stack.wait_for_line("router", "listening", timeout_s=60.0)
@@ -167,15 +168,8 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
                 time.sleep(0.2 if kill is None else 0.01)  # a pending kill watches the clock closely
             if recorder is not None:
                 stop_recorder(stack, out)
-    except (RuntimeError, TimeoutError) as exc:
-        print(f"radseek run: {exc}", file=sys.stderr)
-        return EXIT_STACK
-    except KeyboardInterrupt:
-        print(f"radseek run: interrupted; the frames recorded so far are in {out / 'dataset'} (no summary)",
-              file=sys.stderr)
-        return 128 + signal.SIGINT
-    finally:
-        stack.stop()
+    if run.exit_code is not None:
+        return run.exit_code
     wall = time.monotonic() - t0
     summaries: dict[str, dict] = {}
     for name in names:
@@ -200,19 +194,8 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
             atomic_write_json(out / "dataset" / name / "truth.json", scene.truth().to_dict())
     from launch.report import write_team_report
 
-    try:
-        summary = write_team_report(out, names, decider, killed=killed, wall_time_s=wall, speedup=speedup)
-    except Exception as exc:  # noqa: BLE001 - the flights are recorded whatever the report does
-        print(f"radseek run: no report ({type(exc).__name__}: {exc}); the recorded flights are in {out / 'dataset'}",
-              file=sys.stderr)
-        if failure is None:
-            return EXIT_STACK
-    else:
-        print_summary(summary, out)
-    if failure is not None:
-        print(f"radseek run: search failed: {failure}", file=sys.stderr)
-        return EXIT_SEARCH_FAILED
-    return EXIT_FOUND
+    return report_verdict(lambda: write_team_report(out, names, decider, killed=killed, wall_time_s=wall,
+                                                    speedup=speedup), out, failure, "flights are")
 
 
 __all__ = ["MAX_VEHICLES", "parse_kill", "run_team", "team_verdict", "vehicle_names"]
