@@ -91,39 +91,32 @@ async def _in_air(tel: TelemetryWatch) -> bool:
     return False
 
 
-class _Stream:
-    """Thread-safe bridge from zenoh callbacks to the asyncio loop: poses into a history, histograms
-    into a queue (every one is also recorded at once, so nothing received is lost)."""
+class _PosedHistograms:
+    """Histograms recorded with the estimated pose at their mid-time, in order: each waits in ``_pending``
+    until a pose at or after its end time is in, or ``POSE_WAIT_WALL_S`` wall seconds (``_release``); what
+    becomes of a released one is the subclass's ``_record``."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, recorder: FlightRecorder):
-        self.loop = loop
-        self.recorder = recorder
+    def __init__(self, drops: DropCounter):
         self.poses = PoseHistory(keep_s=120.0)
-        self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
         self.lock = threading.Lock()
-        self.dwell_index = -1
-        self.records: list[FrameRecord] = []  # the usable ones, for the estimator
-        self.drops = DropCounter(log, "dropped invalid payload", first=10)
-        self.latest_pose: topics.Pose | None = None
+        self.records: list[FrameRecord] = []
         # histograms waiting for the pose at their end time (the pose is published before the clock that
         # makes the frame, but on another path): recorded in order once it is in, or after POSE_WAIT_WALL_S
         self._pending: list[tuple[topics.Histogram, float]] = []
-        # the lost-frame rule (MissionRunner._tick): the latest histogram time received, the latest
-        # detector/status time (every frame ending by then is handled), the wall time it last spoke
-        self.hist_t = -1.0
-        self.detector_t = -1.0
-        self.detector_wall: float | None = None
-        self.detector_hist_t = -1.0  # the latest histogram time the detector says it published
+        self.drops = drops
 
     def on_pose(self, sample: zenoh.Sample) -> None:
         pose = self.drops.decode(topics.Pose, sample)  # fails its schema or the board's limits: dropped
         if pose is None:
             return
         with self.lock:
-            if not self.poses.add(pose):
-                return  # out of order, or off the timeline until a second pose confirms it
-            self.latest_pose = pose
-            self._release(lambda h, _w: h.t <= pose.t + 1e-6)
+            if self._pose(pose):
+                self._release(lambda h, _w: h.t <= pose.t + 1e-6)
+
+    def _pose(self, pose: topics.Pose) -> bool:
+        """Called with the lock held: take ``pose`` into the history; True if it is on the timeline (the
+        histograms pending up to its time are released)."""
+        return self.poses.add(pose)
 
     def on_histogram(self, sample: zenoh.Sample) -> None:
         hist = self.drops.decode(topics.Histogram, sample)
@@ -131,11 +124,53 @@ class _Stream:
             return
         now = time.monotonic()
         with self.lock:
-            self.hist_t = max(self.hist_t, hist.t)
-            self.detector_wall = now
             self._pending.append((hist, now))
-            latest = self.latest_pose
-            self._release(lambda h, w: (latest is not None and h.t <= latest.t + 1e-6) or now - w > POSE_WAIT_WALL_S)
+            self._release(self._received(hist, now))
+
+    def _received(self, hist: topics.Histogram, now: float):
+        """Called with the lock held as ``hist`` comes in at wall time ``now``: which pending histograms are
+        ready now (``ready(hist, wall_received)``)."""
+        return lambda _h, w: now - w > POSE_WAIT_WALL_S
+
+    def _release(self, ready) -> None:
+        """Record the pending histograms, in order, up to the first that is not ``ready``."""
+        while self._pending and ready(*self._pending[0]):
+            hist, _ = self._pending.pop(0)
+            self._record(hist, self.poses.at(hist.t - hist.duration / 2))
+
+    def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
+        raise NotImplementedError
+
+
+class _Stream(_PosedHistograms):
+    """Thread-safe bridge from zenoh callbacks to the asyncio loop: poses into a history, histograms
+    into a queue (every one is also recorded at once, so nothing received is lost)."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, recorder: FlightRecorder):
+        super().__init__(DropCounter(log, "dropped invalid payload", first=10))  # records: the usable ones
+        self.loop = loop
+        self.recorder = recorder
+        self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
+        self.dwell_index = -1
+        self.latest_pose: topics.Pose | None = None
+        # the lost-frame rule (MissionRunner._tick): the latest histogram time received, the latest
+        # detector/status time (every frame ending by then is handled), the wall time it last spoke
+        self.hist_t = -1.0
+        self.detector_t = -1.0
+        self.detector_wall: float | None = None
+        self.detector_hist_t = -1.0  # the latest histogram time the detector says it published
+
+    def _pose(self, pose: topics.Pose) -> bool:
+        if not self.poses.add(pose):
+            return False  # out of order, or off the timeline until a second pose confirms it
+        self.latest_pose = pose
+        return True
+
+    def _received(self, hist: topics.Histogram, now: float):
+        self.hist_t = max(self.hist_t, hist.t)
+        self.detector_wall = now
+        latest = self.latest_pose
+        return lambda h, w: (latest is not None and h.t <= latest.t + 1e-6) or now - w > POSE_WAIT_WALL_S
 
     def on_status(self, sample: zenoh.Sample) -> None:
         status = self.drops.decode(topics.DetectorStatus, sample)
@@ -163,15 +198,12 @@ class _Stream:
                 fate = "not_sent"
             return fate, self.detector_wall
 
-    def _release(self, ready) -> None:
-        """Record and queue the pending histograms, in order, up to the first that is not ``ready``."""
-        while self._pending and ready(*self._pending[0]):
-            hist, _ = self._pending.pop(0)
-            pose = self.poses.at(hist.t - hist.duration / 2)
-            record = FrameRecord.from_histogram(hist, pose, self.dwell_index, self.recorder.channel_edges_keV)
-            if self.recorder.write(record):
-                self.records.append(record)
-            self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
+    def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
+        """Record and queue a released histogram."""
+        record = FrameRecord.from_histogram(hist, pose, self.dwell_index, self.recorder.channel_edges_keV)
+        if self.recorder.write(record):
+            self.records.append(record)
+        self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
 
     def flush(self) -> None:
         """Record whatever still waits for its pose (the subscriptions are closed)."""
@@ -192,41 +224,23 @@ class _Stream:
             return self.latest_pose
 
 
-class _MateStream:
+class _MateStream(_PosedHistograms):
     """A teammate's frames as its own mission records them: its histograms with its estimated pose at each
     frame's mid-time (``pose`` and ``detector/histogram`` under its name), the dwell index of each frame
     from the dwell intervals it announces (``team/status``)."""
 
     def __init__(self, name: str, channel_edges_keV: np.ndarray):
+        super().__init__(DropCounter(log, f"dropped invalid payload from teammate {name}", first=5))
         self.name = name
         self.edges = channel_edges_keV
-        self.poses = PoseHistory(keep_s=120.0)
-        self.lock = threading.Lock()
-        self._pending: list[tuple[topics.Histogram, float]] = []
-        self.records: list[FrameRecord] = []
         self.status: topics.TeamStatus | None = None
         self.heard_wall = time.monotonic()  # (a teammate never heard from is failed after the timeout too)
         self.silent = False
         self.pose_t = -1.0  # the latest sim time of its vehicle's pose
-        self.drops = DropCounter(log, f"dropped invalid payload from teammate {name}", first=5)
 
-    def on_pose(self, sample: zenoh.Sample) -> None:
-        pose = self.drops.decode(topics.Pose, sample)
-        if pose is None:
-            return
-        with self.lock:
-            self.pose_t = max(self.pose_t, pose.t)
-            if self.poses.add(pose):
-                self._release(lambda h, _w: h.t <= pose.t + 1e-6)
-
-    def on_histogram(self, sample: zenoh.Sample) -> None:
-        hist = self.drops.decode(topics.Histogram, sample)
-        if hist is None:
-            return
-        now = time.monotonic()
-        with self.lock:
-            self._pending.append((hist, now))
-            self._release(lambda _h, w: now - w > POSE_WAIT_WALL_S)
+    def _pose(self, pose: topics.Pose) -> bool:
+        self.pose_t = max(self.pose_t, pose.t)
+        return self.poses.add(pose)
 
     def on_status(self, sample: zenoh.Sample) -> None:
         msg = self.drops.decode(topics.TeamStatus, sample)
@@ -238,12 +252,10 @@ class _MateStream:
             self.heard_wall = time.monotonic()
             self.silent = False
 
-    def _release(self, ready) -> None:
-        while self._pending and ready(*self._pending[0]):
-            hist, _ = self._pending.pop(0)
-            record = FrameRecord.from_histogram(hist, self.poses.at(hist.t - hist.duration / 2), -1, self.edges)
-            if record.usable:
-                self.records.append(record)
+    def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
+        record = FrameRecord.from_histogram(hist, pose, -1, self.edges)
+        if record.usable:
+            self.records.append(record)
 
     def frames(self) -> Frames | None:
         """Its usable frames so far, each labelled with its dwell index (-1 in transit)."""
@@ -649,11 +661,7 @@ class MissionRunner:
             while decision.plan is not None and self.abort_reason is None:
                 self._publish_plan(stream, decision)
                 plan = decision.plan
-                points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
-                d = plan.dwell_points[0]
-                points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
-                await mission.replace_remaining(points)
-                await mission.start()  # (re)enter AUTO.MISSION at the new first item
+                d = await self._upload(mission, plan)
                 self.publish_state(stream, decision.phase.value,
                                    f"flying to dwell point {len(self.brain.history)}: {decision.reason}")
                 if not await self._arrive(stream, d, plan.path_length() + 0.5):
@@ -666,18 +674,9 @@ class MissionRunner:
                 status = await self._dwell(stream)
                 if status is None:
                     break
-                p = stream.pose_at(self.t)
-                position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
-                self._event(stream, "dwell", index=stream.dwell_index, position=position.tolist(),
-                            **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
+                position = self._dwelt(stream, d, stream.dwell_index, status)
                 decision = self.brain.end_dwell(position, status, stream.frames(), self._current(stream))
-                await mission.end_dwell()
-                with stream.lock:
-                    stream.dwell_index = -1
-                if self.brain.estimate is not None:
-                    self._publish_estimate(stream)
-                self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
-                            estimate=self.brain.estimate)
+                await self._end_dwell(stream, mission, decision)
             reason = decision.reason if self.abort_reason is None else f"search aborted: {self.abort_reason}"
             if self.abort_reason is not None:
                 self._event(stream, "abort", reason=self.abort_reason)
@@ -729,6 +728,36 @@ class MissionRunner:
                 self.team.close()
             self.lockstep.detach()
             recorder.close()
+
+    async def _upload(self, mission: MissionControl, plan) -> np.ndarray:
+        """Fly ``plan``: its path as pass-through waypoints, then its dwell point holding for the longest dwell
+        allowed, from the new first item; returns the dwell point."""
+        points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
+        d = plan.dwell_points[0]
+        points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
+        await mission.replace_remaining(points)
+        await mission.start()  # (re)enter AUTO.MISSION at the new first item
+        return d
+
+    def _dwelt(self, stream: _Stream, d: np.ndarray, index: int, status) -> np.ndarray:
+        """Where dwell ``index`` (at dwell point ``d``) was measured: the estimated pose now (else ``d``), logged
+        with the dwell's ``status``."""
+        p = stream.pose_at(self.t)
+        position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
+        self._event(stream, "dwell", index=index, position=position.tolist(),
+                    **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
+        return position
+
+    async def _end_dwell(self, stream: _Stream, mission: MissionControl, decision) -> None:
+        """End the hold at the dwell point; the frames from here are transit; publish the estimate and log the
+        ``decision``."""
+        await mission.end_dwell()
+        with stream.lock:
+            stream.dwell_index = -1
+        if self.brain.estimate is not None:
+            self._publish_estimate(stream)
+        self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
+                    estimate=self.brain.estimate)
 
     def _current(self, stream: _Stream) -> np.ndarray:
         p = stream.pose_at(self.t)
@@ -842,11 +871,7 @@ class MissionRunner:
                 continue
             self._publish_plan(stream, decision.as_decision())
             plan = decision.plan
-            points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
-            d = plan.dwell_points[0]
-            points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
-            await mission.replace_remaining(points)
-            await mission.start()
+            d = await self._upload(mission, plan)
             self.publish_state(stream, decision.phase.value, f"flying to dwell point {own_dwells}: {decision.reason}")
             first_frame = len(stream.records)
             if not await self._arrive(stream, d, plan.path_length() + 0.5):
@@ -860,10 +885,7 @@ class MissionRunner:
             status = await self._dwell(stream)
             if status is None:
                 continue
-            p = stream.pose_at(self.t)
-            position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
-            self._event(stream, "dwell", index=own_dwells, position=position.tolist(),
-                        **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
+            position = self._dwelt(stream, d, own_dwells, status)
             with stream.lock:
                 records = list(stream.records)
             times = [r.t for r in records if r.dwell == own_dwells]
@@ -877,14 +899,8 @@ class MissionRunner:
             if decision.plan is not None:  # claim it (and plan again if an earlier claim crosses it)
                 decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()),
                                              first=decision)
-            await mission.end_dwell()
+            await self._end_dwell(stream, mission, decision)
             own_dwells += 1
-            with stream.lock:
-                stream.dwell_index = -1
-            if self.brain.estimate is not None:
-                self._publish_estimate(stream)
-            self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
-                        estimate=self.brain.estimate)
         team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
         return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")
 
