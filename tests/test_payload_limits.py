@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from radseek import topics
 from radseek.dataset import read_dataset, write_json
@@ -92,8 +93,10 @@ def test_running_mission_drops_impossible_histograms_and_nested_json(router, tmp
                    "--url", f"udpin://127.0.0.1:{free_udp_port()}", "--connect-timeout", "3600")
     try:
         with open_session(connect=router) as s:
-            pose_pub = s.declare_publisher(topics.key(topics.POSE))
-            hist_pub = s.declare_publisher(topics.key(topics.HISTOGRAM))
+            # BLOCK: zenoh's default congestion control may drop a put, and each bad payload is sent once
+            block = zenoh.CongestionControl.BLOCK
+            pose_pub = s.declare_publisher(topics.key(topics.POSE), congestion_control=block)
+            hist_pub = s.declare_publisher(topics.key(topics.HISTOGRAM), congestion_control=block)
             seq = 0
 
             def send(payload: bytes | None = None) -> None:
