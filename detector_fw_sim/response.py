@@ -236,6 +236,8 @@ class ResponseEffects:
       log E from ``MULTIPLE_SCATTER_MIN_KEV`` to the line energy (the build-up continuum).
     - ``escape_scale`` multiplies the escape length of Compton-scattered photons (a crystal's shape and
       wrapping differ from the ideal cylinder).
+    - ``side_scatter_min_deg``: the smallest angle of the side scatter (default ``SIDE_SCATTER_DEG[0]``, 20 deg);
+      scatterers off the source-crystal line see no small angles (fitted by ``radseek calibrate``).
     """
 
     fwhm_exponent: float = 0.5
@@ -245,6 +247,7 @@ class ResponseEffects:
     scatter_side: float = 0.0
     scatter_multiple: float = 0.0
     escape_scale: float = 1.0
+    side_scatter_min_deg: float = 20.0  # = SIDE_SCATTER_DEG[0]
 
 
 SIDE_SCATTER_DEG = (20.0, 110.0)
@@ -450,7 +453,8 @@ def scatter_components(E_keV: float, backscatter_fraction: float, effects: Respo
     if backscatter_fraction > 0:
         out.append((backscatter_fraction, *backscatter_energies(E_keV)))
     if effects is not None and effects.scatter_side > 0:
-        out.append((effects.scatter_side, *scattered_energies(E_keV, *SIDE_SCATTER_DEG)))
+        out.append((effects.scatter_side, *scattered_energies(E_keV, effects.side_scatter_min_deg,
+                                                              SIDE_SCATTER_DEG[1])))
     if effects is not None and effects.scatter_multiple > 0:
         out.append((effects.scatter_multiple, *multiple_scatter_energies(E_keV)))
     return out

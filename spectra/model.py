@@ -83,6 +83,11 @@ DECLARED: dict[str, Effect] = {
     "side_scatter": Effect(
         "Klein-Nishina single scattering through 20-110 deg (response.scattered_energies)",
         Param("scatter_side", 0.0, 0.0, 0.6, "share of photons scattered 20-110 deg in holder and nearby objects")),
+    "side_scatter_angle": Effect(
+        "the smallest angle of the side scatter: Klein-Nishina through theta_min-110 deg; scatterers off the "
+        "source-crystal line see no small angles (response.scattered_energies)",
+        Param("side_scatter_min_deg", response.SIDE_SCATTER_DEG[0], 0.0, 100.0,
+              "smallest scattering angle of the side scatter", "deg")),
     "multiple_scatter": Effect(
         "build-up continuum of photons scattered several times, flat in log E",
         Param("scatter_multiple", 0.0, 0.0, 0.6, "share of photons multiply scattered (flat in log E)")),
@@ -120,7 +125,8 @@ def effects_of(params: dict[str, float]) -> response.ResponseEffects:
     return response.ResponseEffects(
         fwhm_exponent=params["fwhm_exponent"], k_escape=params["k_escape"] >= 0.5,
         absorber_g_cm2=params["absorber_g_cm2"], scatter_side=params["scatter_side"],
-        scatter_multiple=params["scatter_multiple"], escape_scale=params["escape_scale"])
+        scatter_multiple=params["scatter_multiple"], escape_scale=params["escape_scale"],
+        side_scatter_min_deg=params["side_scatter_min_deg"])
 
 
 def crystal_of(params: dict[str, float]) -> response.Crystal:
@@ -153,6 +159,15 @@ def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: flo
             np.stack(conts), nodes, D)
 
 
+@lru_cache(maxsize=256)
+def _side_nodes(nuclides: tuple[str, ...], theta_min_deg: float) -> np.ndarray:
+    """Side-scatter node vectors (lines, nodes) for scattering through theta_min_deg..110 deg."""
+    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    hi = response.SIDE_SCATTER_DEG[1]
+    return np.stack([response.node_weights(*response.scattered_energies(float(e), theta_min_deg, hi))
+                     for e, _ in lines])
+
+
 @lru_cache(maxsize=16)
 def _transmission_at(energies: tuple[float, ...], g_cm2: float) -> np.ndarray:
     return response.absorber_transmission(np.array(energies), response.ResponseEffects(absorber_g_cm2=g_cm2))
@@ -169,7 +184,11 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     t_lines = _transmission_at(tuple(energies), g)
     t_nodes = _transmission_at(tuple(response.INCIDENT_NODES_KEV), g)
     a = yields * direct * t_lines
-    node_vec = (yields[:, None] * (fb * nodes["back"] + fs * nodes["side"] + fm * nodes["multiple"])).sum(0)
+    side = nodes["side"]
+    theta_min = round(params["side_scatter_min_deg"], 3)
+    if fs > 0 and theta_min != response.SIDE_SCATTER_DEG[0]:
+        side = _side_nodes(nuclides, theta_min)
+    node_vec = (yields[:, None] * (fb * nodes["back"] + fs * side + fm * nodes["multiple"])).sum(0)
     cont = a @ conts + (node_vec * t_nodes) @ D
     grid = response.energy_grid()
     centres = 0.5 * (grid[1:] + grid[:-1])
