@@ -10,6 +10,12 @@ parameters, errors, missing, deviance_per_dof, total_variation_32, total_variati
 distances, and ``lines``: each strong photopeak's shift (keV) and FWHM ratio against the response (``fit.line_checks``),
 which shows what one Cs-137 photopeak cannot calibrate (the light yield and resolution at low energies). Dead time
 changes only the total rate, not the shape of one spectrum: it is reported as not identifiable.
+
+With ``--background`` and a fit, ``energy_law`` says what the background's natural lines (U-238 and Th-232 series,
+K-40; ``spectra.energy_law``) tell about the energy law's offset below the calibration line, and whether it was
+applied (only when they pin it within 1 keV). With ``--no-fit`` and ``--background``, ``background_scale_free``
+refits the background's scale with the response held: near 1 when the background is the spectrum's own, and the
+shape distances on that footing when it is a stand-in.
 """
 
 from __future__ import annotations
@@ -54,6 +60,8 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
 
     sp = read_spectrum(spectrum)
     bg = read_spectrum(background) if background else None
+    energy_law = None
+    background_scale = None
     problem = F.Problem(sp, tuple(nuclides), bg)
     start = M.baseline_params()
     det = None
@@ -72,11 +80,15 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
         res = F.evaluate(problem, start)
         res.effects = tuple(det.effects)
         missing = F.residual_regions(problem, res)
+        if bg is not None:  # is the background this spectrum's own? (its scale fitted, the response held)
+            background_scale = F.fit_background_scale(problem, start)
     else:
         res = F.forward_select(problem, start, tuple(effects) if effects else None, log=log)
         missing = [{"effect": s["added"], "source": M.EFFECT_SOURCES[s["added"]],
                     "deviance_drop": round(s["deviance_drop"], 1),
                     "total_variation_32_after": round(s["total_variation_32"], 4)} for s in res.steps[1:]]
+        if bg is not None:
+            res, energy_law = _energy_law_from_background(problem, res, bg, log)
     d = F.shape_distances(problem, res.shape)
     params_for_lines = dict(res.params)
     result = {
@@ -97,7 +109,10 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
                      "total_variation_32": round(base_d["total_variation_32"], 4),
                      "total_variation_native": round(base_d["total_variation_native"], 4)},
         "pileup_resolving_time_us": round(res.params["pileup"] / max(2 * rate, 1e-9) * 1e6, 3),
+        "energy_law": energy_law,
     }
+    if background_scale is not None:
+        result["background_scale_free"] = background_scale
     if out and not no_fit:
         tnucs = tuple(dict.fromkeys(list(nuclides) + list(TEMPLATE_NUCLIDES)))
         saved = dict(res.params, pileup_resolving_time_s=res.params["pileup"] / max(2 * rate, 1e-9))
@@ -118,6 +133,30 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
                  + (" - saved response, no refit" if no_fit else ""))
         result["plot"] = str(plot)
     return result
+
+
+def _energy_law_from_background(problem, res, bg, log=None):
+    """The energy law's offset from the background's natural lines (``spectra.energy_law``); applied (the gain
+    refitted with the offset held) only when the background pins it within ``MAX_OFFSET_ERROR_KEV``."""
+    from detector_fw_sim import response
+    from spectra import energy_law as EL
+    from spectra import fit as F
+
+    el = EL.fit_background_offset(bg, res.params, response.main_line_keV(problem.nuclides[0]))
+    out = el.as_dict()
+    if el.identified:
+        steps = res.steps
+        res = F.fit(problem, dict(res.params, offset_keV=el.offset_keV, gain=el.gain), res.effects)
+        res.steps = steps
+        out["applied"] = True
+    else:
+        out["applied"] = False
+        out["why"] = (f"the background's natural lines pin the offset to +-{el.offset_error_keV:.2g} keV only "
+                      f"(needed: <= {EL.MAX_OFFSET_ERROR_KEV} keV); the law stays gain-only")
+    if log:
+        log(f"energy law from the background lines: offset {el.offset_keV:+.2f} +- {el.offset_error_keV:.2g} keV"
+            f" ({'applied' if out['applied'] else 'not identified'})")
+    return res, out
 
 
 def _print_human(r: dict) -> None:
@@ -150,6 +189,14 @@ def _print_human(r: dict) -> None:
             print(f"    {ln['line_keV']:>8.1f} keV: shift {ln['shift_keV']:+.2f} +- {ln['shift_error_keV']:.2g} keV "
                   f"({100 * ln['shift_relative']:+.2f} %), "
                   f"FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
+    bs = r.get("background_scale_free")
+    if bs and bs.get("scale") is not None:
+        print(f"  background scale refitted (response held): {bs['scale']:.3f} +- {bs['scale_error']:.2g}, "
+              f"TV32 {bs['total_variation_32']:.4f}, native {bs['total_variation_native']:.4f}")
+    el = r.get("energy_law")
+    if el:
+        print(f"  energy law from the background's natural lines: offset {el['offset_keV']:+.2f} +- "
+              f"{el['offset_error_keV']:.2g} keV, " + ("applied" if el["applied"] else el["why"]))
     for k in ("out", "plot"):
         if k in r:
             print(f"  wrote {r[k]}")
