@@ -196,7 +196,7 @@ def _print_human(r: dict) -> None:
     el = r.get("energy_law")
     if el:
         print(f"  energy law from the background's natural lines: offset {el['offset_keV']:+.2f} +- "
-              f"{el['offset_error_keV']:.2g} keV, " + ("applied" if el["applied"] else el["why"]))
+              f"{el['offset_error_keV']:.2g} keV, " + ("applied" if el["applied"] else "not applied"))
     for k in ("out", "plot"):
         if k in r:
             print(f"  wrote {r[k]}")
