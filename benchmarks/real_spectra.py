@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{ln['shift_error_keV']:<5.2g} keV  FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
     el = cs.get("energy_law") or {}
     if el:
-        print(f"energy law from bg.xml's natural lines: offset {el['offset_keV']:+.2f} +- {el['offset_error_keV']:.3g} "
+        print(f"energy law from bg.xml's natural lines: offset {el['offset_keV']:+.2f} +- {el['offset_error_keV']} "
               f"keV ({'applied' if el['applied'] else 'not identified'}); series (decays +- error): "
               + "; ".join(f"{k} {v['decays']:.3g} +- {v['error']:.2g}" for k, v in el["series"].items()))
     print("background scale refitted with the response held (1 = the spectrum's own background):")

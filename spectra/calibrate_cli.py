@@ -195,8 +195,9 @@ def _print_human(r: dict) -> None:
               f"TV32 {bs['total_variation_32']:.4f}, native {bs['total_variation_native']:.4f}")
     el = r.get("energy_law")
     if el:
-        print(f"  energy law from the background's natural lines: offset {el['offset_keV']:+.2f} +- "
-              f"{el['offset_error_keV']:.2g} keV, " + ("applied" if el["applied"] else "not applied"))
+        err = f"{el['offset_error_keV']:.2g}" if el["offset_error_keV"] is not None else "inf"
+        print(f"  energy law from the background's natural lines: offset {el['offset_keV']:+.2f} +- {err} keV, "
+              + ("applied" if el["applied"] else "not applied"))
     for k in ("out", "plot"):
         if k in r:
             print(f"  wrote {r[k]}")

@@ -122,12 +122,13 @@ class EnergyLawResult:
         return math.isfinite(self.offset_error_keV) and self.offset_error_keV <= MAX_OFFSET_ERROR_KEV
 
     def as_dict(self) -> dict:
-        return {"offset_keV": round(self.offset_keV, 3), "offset_error_keV": float(f"{self.offset_error_keV:.3g}"),
+        err = float(f"{self.offset_error_keV:.3g}") if math.isfinite(self.offset_error_keV) else None  # strict JSON
+        return {"offset_keV": round(self.offset_keV, 3), "offset_error_keV": err,
                 "gain": round(self.gain, 6), "reference_keV": self.reference_keV,
                 "reference_file_keV": round(self.reference_file_keV, 3),
                 "identified": self.identified, "max_offset_error_keV": MAX_OFFSET_ERROR_KEV,
                 "background_counts_fitted": int(self.counts),
-                "deviance_per_dof": round(self.deviance_per_dof, 3),
+                "deviance_per_dof": round(self.deviance_per_dof, 3) if math.isfinite(self.deviance_per_dof) else None,
                 "series": {k: {kk: float(f"{vv:.3g}") for kk, vv in v.items()} for k, v in self.series.items()}}
 
 
@@ -168,10 +169,15 @@ def fit_background_offset(background, params: dict[str, float], reference_keV: f
     b_all = background.edges_keV()
     centre = 0.5 * (b_all[1:] + b_all[:-1])
     sel = np.flatnonzero((centre >= fit_range_keV[0]) & (centre < fit_range_keV[1]))
-    b = b_all[sel[0]:sel[-1] + 2]
-    n = np.asarray(background.counts, dtype=float)[sel]
     ref_file = params["offset_keV"] + params["gain"] * reference_keV * (1 + params["quadratic_per_MeV"]
                                                                          * reference_keV / 1000.0)
+    n_free = 1 + len(SERIES_HEADS) + CONTINUUM_DEGREE + 1
+    if len(sel) < 4 * n_free or np.asarray(background.counts, dtype=float)[sel].sum() <= 0:
+        # no channels (or no counts) in the fitted range: nothing to say about the law
+        return EnergyLawResult(0.0, float("inf"), (ref_file - 0.0) / reference_keV, reference_keV, ref_file,
+                               counts=float(np.asarray(background.counts, dtype=float)[sel].sum()) if len(sel) else 0.0)
+    b = b_all[sel[0]:sel[-1] + 2]
+    n = np.asarray(background.counts, dtype=float)[sel]
     names = list(SERIES_HEADS)
     # start: continuum from a straight line in ln(counts / width) against ln E, lines at zero
     w = np.diff(b)

@@ -4,6 +4,7 @@ reported as too weak to identify it (so calibrate keeps the gain-only law)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,19 @@ def test_real_background_is_too_weak_for_the_offset():
     assert not r.identified
     for s in r.series.values():
         assert s["decays"] < 3 * s["error"]
+
+
+def test_background_outside_the_fitted_range_says_nothing():
+    """A background calibrated to 0-120 keV (or empty) has no natural line in 150-2800 keV: not identified, no error."""
+    p = _response()
+    low = sf.Spectrum(np.full(1024, 5.0), 1800.0, calibration=(0.0, 0.117))
+    empty = sf.Spectrum(np.zeros(1024), 1800.0, calibration=CAL)
+    for bg in (low, empty):
+        r = EL.fit_background_offset(bg, p, REF)
+        assert not r.identified and not np.isfinite(r.offset_error_keV)
+        d = r.as_dict()
+        assert d["identified"] is False and d["offset_error_keV"] is None
+        json.dumps(d, allow_nan=False)  # strict JSON
 
 
 def test_calibrate_reports_the_energy_law(tmp_path):
