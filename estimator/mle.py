@@ -23,7 +23,9 @@ model's free parameters: the Fisher information of Poisson counts is sum_i grad(
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -177,16 +179,21 @@ class PoseGroups:
         """Solve (F + Sigma^-1) x = rhs with F (G, 3, 3) the data information of each group's offset and
         rhs (G, 3) or (G, 3, m); inactive axes get x = 0. The random-walk system is banded (bandwidth 3 in
         the stacked (group, axis) order), so this is O(G)."""
-        from scipy.linalg import solveh_banded
+        return self.solver(fisher)(rhs)
+
+    def solver(self, fisher: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        """:meth:`solve` with (F + Sigma^-1) factored once, for several right-hand sides."""
+        from scipy.linalg import cho_solve_banded, cholesky_banded
 
         a = self.active
         g = self.n_groups
-        squeeze = rhs.ndim == 2
-        r = rhs[..., None] if squeeze else rhs
         f = fisher * (a[:, None] & a[None, :])
         if self.increments is None:
             inv = np.where(a, 1.0 / np.maximum(self.variance, _NO_VARIANCE), 1.0)
-            x = np.linalg.solve(f + inv[:, :, None] * np.eye(3), r * a[None, :, None])
+            lhs_inv = np.linalg.inv(f + inv[:, :, None] * np.eye(3))  # (G, 3, 3)
+
+            def _solve(r: np.ndarray) -> np.ndarray:
+                return lhs_inv @ (r * a[None, :, None])
         else:
             w = np.where(a, 1.0 / self.increments, 0.0)  # (G, 3)
             link = w.copy()  # precision coupling group g to g - 1 (none where a new walk starts)
@@ -204,31 +211,57 @@ class PoseGroups:
             up3 = np.zeros((g, 3))
             up3[1:] = -link[1:]  # A[3(g-1)+j, 3g+j] couples consecutive groups of one walk
             ab[0] = up3.ravel()
-            x = solveh_banded(ab, (r * a[None, :, None]).reshape(3 * g, -1)).reshape(g, 3, -1)
-        x = x * a[None, :, None]
-        return x[..., 0] if squeeze else x
+            chol = cholesky_banded(ab, check_finite=False)
 
+            def _solve(r: np.ndarray) -> np.ndarray:
+                x = cho_solve_banded((chol, False), (r * a[None, :, None]).reshape(3 * g, -1), check_finite=False)
+                return x.reshape(g, 3, -1)
 
-def _group_sum(index: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
-    """Sum (N, ...) values into (G, ...) by group."""
-    out = np.zeros((n_groups,) + values.shape[1:])
-    np.add.at(out, index, values)
-    return out
+        def solve(rhs: np.ndarray) -> np.ndarray:
+            squeeze = rhs.ndim == 2
+            x = _solve(rhs[..., None] if squeeze else rhs) * a[None, :, None]
+            return x[..., 0] if squeeze else x
+
+        return solve
+
+    def group_sum(self, values: np.ndarray) -> np.ndarray:
+        """Sum (N, ...) per-frame values into (G, ...) by group (one matrix product)."""
+        return (self._summer @ values.reshape(len(self.index), -1)).reshape((self.n_groups,) + values.shape[1:])
+
+    @cached_property
+    def _summer(self) -> np.ndarray:
+        m = np.zeros((self.n_groups, len(self.index)))
+        m[self.index, np.arange(len(self.index))] = 1.0
+        return m
 
 
 def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Frames, mu0: np.ndarray,
                     central: bool = False) -> np.ndarray:
-    """d mu_i / d offset (N, 3): how each frame's expected counts move with its position offset."""
-    jac = np.empty((len(frames), 3))
-    for j in range(3):
-        shift = np.zeros((len(frames), 3))
-        shift[:, j] = OFFSET_STEP_M
-        up = model.expected_counts(theta, frames, offsets=shift)
-        if central:
-            jac[:, j] = (up - model.expected_counts(theta, frames, offsets=-shift)) / (2 * OFFSET_STEP_M)
-        else:
-            jac[:, j] = (up - mu0) / OFFSET_STEP_M
-    return jac
+    """d mu_i / d offset (N, 3): how each frame's expected counts move with its position offset.
+
+    All shifted copies of the frames go through the model in one evaluation (every effect is per frame)."""
+    n = len(frames)
+    steps = (OFFSET_STEP_M, -OFFSET_STEP_M) if central else (OFFSET_STEP_M,)
+    k = 3 * len(steps)
+    shift = np.zeros((k, n, 3))
+    for i in range(k):
+        shift[i, :, i % 3] = steps[i // 3]
+    mu = model.expected_counts(theta, _tiled(frames, k), offsets=shift.reshape(k * n, 3)).reshape(k, n)
+    if central:
+        return ((mu[:3] - mu[3:]) / (2 * OFFSET_STEP_M)).T
+    return ((mu - mu0) / OFFSET_STEP_M).T
+
+
+_TILED: list[tuple[Frames, int, Frames]] = []
+
+
+def _tiled(frames: Frames, k: int) -> Frames:
+    """``frames`` repeated ``k`` times (the last one is kept: a fit asks for the same frames thousands of times)."""
+    if _TILED and _TILED[0][0] is frames and _TILED[0][1] == k:
+        return _TILED[0][2]
+    tiled = frames.select(np.tile(np.arange(len(frames)), k))
+    _TILED[:] = [(frames, k, tiled)]
+    return tiled
 
 
 def profile_offsets(
@@ -246,14 +279,15 @@ def profile_offsets(
     jac = offset_jacobian(model, theta, frames, mu0)
     jac[:, ~active] = 0.0
     mu_safe = np.maximum(mu0, 1e-12)
-    fisher = _group_sum(groups.index, jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None], groups.n_groups)
+    fisher = groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None])
+    solve = groups.solver(fisher)
     delta = np.zeros((groups.n_groups, 3))
     sd = np.sqrt(groups.variance)
     mu = mu0
     for _ in range(newton_steps):
         resid = n / np.maximum(mu, 1e-12) - 1.0
-        grad = _group_sum(groups.index, resid[:, None] * jac, groups.n_groups) - groups.prior_times(delta)
-        delta = delta + groups.solve(fisher, grad)
+        grad = groups.group_sum(resid[:, None] * jac) - groups.prior_times(delta)
+        delta = delta + solve(grad)
         delta = np.where(active, np.clip(delta, -5 * sd, 5 * sd), 0.0)
         mu = model.expected_counts(theta, frames, offsets=delta[groups.index])
     return delta, mu, groups.penalty(delta)
@@ -540,6 +574,14 @@ def fit(
         best.tol = 0.1
         best.migrad(ncall=4000)
     best.hesse()  # the full Hessian at the best minimum (MIGRAD's strategy 0 only estimates it)
+    if not best.valid and best.fmin.is_above_max_edm:
+        # with the full Hessian the distance to the minimum (EDM) is above tolerance: strategy 0's estimated
+        # Hessian had stopped MIGRAD short (common where a wall's shadow edge kinks the likelihood); go on
+        # from there with the full Hessian rather than calling the fit unconverged
+        best.strategy = 1
+        best.tol = 0.1
+        best.migrad(ncall=4000)
+        best.hesse()
     values = {**fixed, **dict(zip(names, (float(v) for v in best.values), strict=True))}
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)
     n = model.observed_counts(frames)

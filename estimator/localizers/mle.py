@@ -72,7 +72,7 @@ def pose_aware_crlb(model, theta: dict[str, float], frames: Frames, landmarks: b
     0.09 m against a 0.02 m landmark bound, 0.004 m with the true poses). For translation-invariant
     models (no walls) the two are the same.
     """
-    from estimator.mle import PoseGroups, _group_sum, declared_pose_error, expected_count_gradient, offset_jacobian
+    from estimator.mle import PoseGroups, declared_pose_error, expected_count_gradient, offset_jacobian
 
     full = {**model.defaults(), **theta}
     mu = np.maximum(model.expected_counts(full, frames), 1e-12)
@@ -86,8 +86,8 @@ def pose_aware_crlb(model, theta: dict[str, float], frames: Frames, landmarks: b
     else:
         gd = -translation_gradient(model, full, frames)
     gd[:, ~groups.active] = 0.0
-    jdd = _group_sum(groups.index, gd[:, :, None] * gd[:, None, :] / mu[:, None, None], groups.n_groups)
-    jdt = _group_sum(groups.index, gd[:, :, None] * (gt / mu[:, None])[:, None, :], groups.n_groups)  # (G, 3, k)
+    jdd = groups.group_sum(gd[:, :, None] * gd[:, None, :] / mu[:, None, None])
+    jdt = groups.group_sum(gd[:, :, None] * (gt / mu[:, None])[:, None, :])  # (G, 3, k)
     x = groups.solve(jdd, jdt)  # (J_dd + Sigma^-1)^-1 J_dt
     j = j - np.einsum("gak,gal->kl", jdt, x)
     return np.linalg.pinv(j)
