@@ -15,7 +15,8 @@ warm-starts from. The policy, in order:
    fit that fails its goodness of fit is refitted with the walls too, even unshadowed (a source behind a wall
    reads weak and the wall-free optimum flees the shadow), and the walled fit kept if its likelihood is higher. Once the
    last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted,
-   from that estimate (``WARM_WALLED_STARTS`` starts): each refit stays well under a second;
+   from that estimate alone, and from ``WARM_WALLED_STARTS`` starts only when that fit fails to converge or
+   to fit (:meth:`InflightEstimator._fit_warm`): each refit stays well under a second;
 5. second source: a one-source fit that fails its goodness of fit (or a last estimate with two sources) is
    refitted with ``second_source`` and that fit kept when its likelihood-ratio test passes
    (:data:`SECOND_SOURCE_LR`); the record is the strongest source's, the other's position in ``params``;
@@ -181,7 +182,7 @@ class InflightEstimator:
             # the walls mattered at the last estimate and still do: refit the walled model straight from it
             # (warm start plus the best grid cells), without the wall-free fit and the full start set that
             # finding the walls took: the refit's cost is its model evaluations
-            loc = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "n_starts": WARM_WALLED_STARTS})
+            loc = self._fit_warm(frames, {**settings, "effects": ("wall_attenuation",), "n_starts": WARM_WALLED_STARTS})
         if loc is None:
             loc = self._fit(frames, {**settings, "effects": settings.get("effects", ())})
             if loc is None:
@@ -263,6 +264,17 @@ class InflightEstimator:
         except _FIT_ERRORS:
             return None
         return loc
+
+    def _fit_warm(self, frames: Frames, settings: dict[str, Any]) -> Localizer | None:
+        """:meth:`_fit` from the warm start alone, and with all ``n_starts`` only if that fit fails (no
+        result, or its goodness of fit fails): between dwells the optimum moves by decimetres, and the grid
+        starts only find a better minimum when the warm one no longer explains the counts. A fit that explains
+        them but did not converge (a flat direction: no line of sight crosses a wall, so mu is free) does
+        not converge from the grid starts either."""
+        loc = self._fit(frames, {**settings, "n_starts": 1})
+        if loc is not None and not _misfit(loc):
+            return loc
+        return self._fit(frames, settings)
 
     def _shadowed(self, frames: Frames, source: Any) -> bool:
         """Does a recorded line of sight cross a mapped wall? Asked of every point within 1 m of the
