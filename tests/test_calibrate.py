@@ -164,6 +164,15 @@ def test_detector_file_drives_the_emulator(detector_file):
     scene = validate_scene(data, "test")
     assert scene.detector.fwhm_at_662 == pytest.approx(det.parameters["fwhm_at_662"])
     assert scene.detector.crystal.effects is not None
+    # a fitted side-scatter angle in the file reaches the crystal; a file without one keeps the emulator's 20 deg
+    raw = json.loads(Path(detector_file).read_text())
+    for name, angle in (("angled.json", 33.0), ("older.json", None)):
+        raw["parameters"].pop("side_scatter_min_deg", None)
+        if angle is not None:
+            raw["parameters"]["side_scatter_min_deg"] = angle
+        (Path(detector_file).parent / name).write_text(json.dumps(raw))
+        crystal = validate_scene({**data, "detector": str(Path(detector_file).parent / name)}, "test").detector.crystal
+        assert crystal.effects.side_scatter_min_deg == (20.0 if angle is None else angle)
     em = DetectorEmulator(scene, seed=0)
     plain = DetectorEmulator(load_scene(), seed=0)
     pose = np.array([[scene.sources[0].position[0] + 1.0, scene.sources[0].position[1], 1.0, 0.0]])
