@@ -34,6 +34,7 @@ exit codes:
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
 import signal
@@ -74,8 +75,28 @@ def _radseek(*args: str) -> list[str]:
     return [PY, "-m", "radseek.cli", *args]
 
 
+#: libc loaded in the parent: the child only makes one foreign call between fork and exec
+_LIBC = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith("linux") else None
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int):
+    """A ``preexec_fn`` that asks Linux to SIGTERM the child when ``parent`` dies (prctl PR_SET_PDEATHSIG):
+    a ``radseek run`` killed with SIGKILL cannot stop its stack itself, and its processes would fly on."""
+
+    def hook() -> None:
+        if _LIBC is None:
+            return
+        _LIBC.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # the parent died before the request took effect
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return hook
+
+
 class Stack:
-    """The processes of one run; each logs to its own file and is stopped on exit."""
+    """The processes of one run; each logs to its own file and is stopped on exit (and, on Linux, when the
+    run itself is killed: :func:`_die_with_parent`)."""
 
     def __init__(self, logs: Path):
         self.logs = logs
@@ -85,7 +106,8 @@ class Stack:
     def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
         fh = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 (closed with the process)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                                preexec_fn=_die_with_parent(os.getpid()))
         self.procs[name] = proc
         return proc
 
