@@ -58,6 +58,19 @@ MIN_LINE_YIELD = 1e-3
 # ------------------------------------------------------------------------------------ gamma lines
 
 
+def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:
+    """Add ``weight`` x the photons per decay of ``nuclide`` (pydecay's ICRP-107 emissions, >= ``MIN_LINE_KEV``)
+    to ``lines`` (energy keV rounded to 1 eV -> photons); a nuclide pydecay has no emissions for adds none."""
+    try:
+        rows = pydecay.emissions(nuclide)
+    except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
+        rows = []
+    for r in rows:
+        if r.get("is_photon") and r["E_MeV"] * 1000.0 >= MIN_LINE_KEV:
+            e = round(r["E_MeV"] * 1000.0, 3)
+            lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
+
+
 @lru_cache(maxsize=64)
 def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[float, float], ...]:
     """(energy keV, photons per decay of ``nuclide``) from pydecay's ICRP-107 tables.
@@ -72,14 +85,7 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
     lines: dict[float, float] = {}
 
     def add(name: str, weight: float, depth: int) -> None:
-        try:
-            rows = pydecay.emissions(name)
-        except Exception:
-            rows = []
-        for r in rows:
-            if r.get("is_photon") and r["E_MeV"] * 1000.0 >= MIN_LINE_KEV:
-                e = round(r["E_MeV"] * 1000.0, 3)
-                lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
+        add_photon_lines(lines, name, weight)
         if depth > 3:
             return
         try:

@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-import pydecay
 from iminuit import Minuit
 from pydecay.nuclide import Nuclide
 from scipy.special import ndtr
@@ -69,14 +68,7 @@ def series_lines(head: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[fl
     lines: dict[float, float] = {}
 
     def walk(name: str, weight: float, depth: int) -> None:
-        try:
-            rows = pydecay.emissions(name)
-        except Exception:
-            rows = []
-        for r in rows:
-            if r.get("is_photon") and r["E_MeV"] * 1000.0 >= response.MIN_LINE_KEV:
-                e = round(r["E_MeV"] * 1000.0, 3)
-                lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
+        response.add_photon_lines(lines, name, weight)
         nuc = Nuclide.load(name)
         if nuc.is_stable or depth > 25:
             return
