@@ -16,7 +16,10 @@ topic; MAVLink of uav0), ``logs/``.
 
 ``--kill-mission-at uav1:T`` (fault injection): SIGKILL that vehicle's mission process when its clock passes
 T sim seconds; its vehicle's own failsafes take over (lockstep released, link loss: hold, then RTL), the
-others finish the search.
+others finish the search. That vehicle alone releases lockstep after ``KILLED_LOCKSTEP_TIMEOUT_S`` of silence
+instead of the vehicle's default 5 s, so the team learns of the loss while it still searches; the live
+missions' vehicles keep the default (a shorter one released a live but busy mission's vehicle on a loaded
+machine).
 """
 
 from __future__ import annotations
@@ -44,6 +47,9 @@ from launch.run_cli import (
 from mission.search import search_failure
 from mission.team import MAX_VEHICLES, TeamConfig, home_positions
 from radseek import topics
+
+#: wall s of lockstep silence after which the vehicle of a mission killed by ``--kill-mission-at`` runs free
+KILLED_LOCKSTEP_TIMEOUT_S = 1.0
 
 
 def vehicle_names(n: int) -> list[str]:
@@ -144,7 +150,8 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
                     "--api-port", str(args.mavlink_port + v), "--gcs-port", str(args.gcs_port + v),
                     "--api-local-port", str(api_local + v), "--gcs-local-port", str(gcs_local + v),
                     f"--start={homes[v][0]:g},{homes[v][1]:g}", "--max-speed", "1.0",
-                    "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg))
+                    "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg,
+                    *(("--lockstep-timeout", str(KILLED_LOCKSTEP_TIMEOUT_S)) if kill and kill[0] == name else ())))
             clocks = {name: ZenohClock(session, name) for name in names}
             while any(m.poll() is None for m in missions.values()):
                 if kill is not None and clocks[kill[0]].now() >= kill[1]:
