@@ -32,8 +32,10 @@ spectrum at (possibly gain-shifted) edges, so gain drift costs one interpolation
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 import pydecay
@@ -71,6 +73,35 @@ def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> 
             lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
 
 
+def chain_photon_lines(head: str, follow: Callable[[Any, float], bool], max_depth: int) -> dict[float, float]:
+    """Photons per decay of ``head`` (energy keV -> photons, :func:`add_photon_lines`) with those of the
+    progeny its decay chain reaches: a radioactive daughter is walked, weighted by pydecay's branching
+    ratios, when ``follow(daughter Nuclide, weight)`` says so, down to ``max_depth`` generations."""
+    lines: dict[float, float] = {}
+
+    def walk(name: str, weight: float, depth: int) -> None:
+        add_photon_lines(lines, name, weight)
+        if depth > max_depth:
+            return
+        try:
+            nuc = Nuclide.load(name)
+        except Exception:  # pydecay's own errors: a name it cannot load has no progeny to follow
+            return
+        if nuc.is_stable:
+            return
+        for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
+            try:
+                d = Nuclide.load(daughter)
+            except Exception:
+                continue
+            w = weight * float(branch)
+            if not d.is_stable and follow(d, w):
+                walk(daughter, w, depth + 1)
+
+    walk(head, 1.0, 0)
+    return lines
+
+
 @lru_cache(maxsize=64)
 def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[float, float], ...]:
     """(energy keV, photons per decay of ``nuclide``) from pydecay's ICRP-107 tables.
@@ -82,25 +113,9 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
         parent = Nuclide.load(nuclide)
     except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
         raise ValueError(f"unknown nuclide {nuclide!r} ({exc})") from None
-    lines: dict[float, float] = {}
-
-    def add(name: str, weight: float, depth: int) -> None:
-        add_photon_lines(lines, name, weight)
-        if depth > 3:
-            return
-        try:
-            nuc = Nuclide.load(name)
-        except Exception:
-            return
-        for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
-            try:
-                d = Nuclide.load(daughter)
-            except Exception:
-                continue
-            if not d.is_stable and d.half_life_s < 1e-3 * parent.half_life_s and d.half_life_s < 30 * 86400:
-                add(daughter, weight * float(branch), depth + 1)
-
-    add(parent.name, 1.0, 0)
+    lines = chain_photon_lines(
+        parent.name, max_depth=3,
+        follow=lambda d, _w: d.half_life_s < 1e-3 * parent.half_life_s and d.half_life_s < 30 * 86400)
     out = tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
     if not out:
         raise ValueError(f"nuclide {nuclide!r} emits no gamma line above {MIN_LINE_KEV} keV in pydecay's tables")

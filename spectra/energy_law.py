@@ -35,7 +35,6 @@ from functools import lru_cache
 
 import numpy as np
 from iminuit import Minuit
-from pydecay.nuclide import Nuclide
 from scipy.special import ndtr
 
 from detector_fw_sim import response
@@ -65,23 +64,8 @@ def series_lines(head: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[fl
     The chain is walked with pydecay's branching ratios; a member with a half-life above
     ``EQUILIBRIUM_BREAK_S`` (other than the head) ends it.
     """
-    lines: dict[float, float] = {}
-
-    def walk(name: str, weight: float, depth: int) -> None:
-        response.add_photon_lines(lines, name, weight)
-        nuc = Nuclide.load(name)
-        if nuc.is_stable or depth > 25:
-            return
-        for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
-            try:
-                d = Nuclide.load(daughter)
-            except Exception:
-                continue
-            if d.is_stable or d.half_life_s > EQUILIBRIUM_BREAK_S or weight * branch < 1e-6:
-                continue
-            walk(daughter, weight * float(branch), depth + 1)
-
-    walk(head, 1.0, 0)
+    lines = response.chain_photon_lines(
+        head, max_depth=25, follow=lambda d, w: d.half_life_s <= EQUILIBRIUM_BREAK_S and w >= 1e-6)
     return tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
 
 
