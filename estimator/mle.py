@@ -246,22 +246,11 @@ def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Fr
     shift = np.zeros((k, n, 3))
     for i in range(k):
         shift[i, :, i % 3] = steps[i // 3]
-    mu = model.expected_counts(theta, _tiled(frames, k), offsets=shift.reshape(k * n, 3)).reshape(k, n)
+    tiled = frames.select(np.tile(np.arange(n), k))
+    mu = model.expected_counts(theta, tiled, offsets=shift.reshape(k * n, 3)).reshape(k, n)
     if central:
         return ((mu[:3] - mu[3:]) / (2 * OFFSET_STEP_M)).T
     return ((mu - mu0) / OFFSET_STEP_M).T
-
-
-_TILED: list[tuple[Frames, int, Frames]] = []
-
-
-def _tiled(frames: Frames, k: int) -> Frames:
-    """``frames`` repeated ``k`` times (the last one is kept: a fit asks for the same frames thousands of times)."""
-    if _TILED and _TILED[0][0] is frames and _TILED[0][1] == k:
-        return _TILED[0][2]
-    tiled = frames.select(np.tile(np.arange(len(frames)), k))
-    _TILED[:] = [(frames, k, tiled)]
-    return tiled
 
 
 def profile_offsets(
