@@ -503,6 +503,13 @@ def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed:
     return nll
 
 
+def _polish(m: Minuit) -> None:
+    """Go on from ``m``'s minimum with full-strategy MIGRAD and iminuit's default tolerance."""
+    m.strategy = 1
+    m.tol = 0.1
+    m.migrad(ncall=4000)
+
+
 def fit(
     model: MeasurementModel,
     frames: Frames,
@@ -558,18 +565,14 @@ def fit(
     assert best is not None
     if not best.valid:
         # the cheap search stopped short (call limit, EDM above tolerance; a wall's shadow edge makes the
-        # likelihood kinked): polish the best minimum with full-strategy MIGRAD before calling it failed
-        best.strategy = 1
-        best.tol = 0.1
-        best.migrad(ncall=4000)
+        # likelihood kinked): polish the best minimum before calling it failed
+        _polish(best)
     best.hesse()  # the full Hessian at the best minimum (MIGRAD's strategy 0 only estimates it)
     if not best.valid and best.fmin.is_above_max_edm:
         # with the full Hessian the distance to the minimum (EDM) is above tolerance: strategy 0's estimated
         # Hessian had stopped MIGRAD short (common where a wall's shadow edge kinks the likelihood); go on
-        # from there with the full Hessian rather than calling the fit unconverged
-        best.strategy = 1
-        best.tol = 0.1
-        best.migrad(ncall=4000)
+        # from there rather than calling the fit unconverged
+        _polish(best)
         best.hesse()
     values = {**fixed, **dict(zip(names, (float(v) for v in best.values), strict=True))}
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)
