@@ -1,9 +1,12 @@
 """Poisson MLE, pose-uncertainty profiling, deviance calibration and the Cramér-Rao bound."""
 
+from types import SimpleNamespace
+
 import numpy as np
+from iminuit import Minuit
 from scipy import stats
 
-from estimator.mle import PoseGroups, crlb, deviance_moments, fit, poisson_deviance
+from estimator.mle import NEAR_MINIMUM_EDM, PoseGroups, _converged, crlb, deviance_moments, fit, poisson_deviance
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames, Scenario
 
@@ -109,3 +112,28 @@ def test_groups_split_transit_runs_and_merge_revisited_dwells():
     assert idx[2] == idx[3] == idx[8]  # dwell 0, revisited
     assert len({idx[0], idx[4], idx[7]}) == 3  # three separate transit runs
     assert g.n_groups == 5
+
+
+def _fmin(edm, valid=False, above=True, call_limit=False, hesse_failed=False):
+    """The state Minuit reports (its FMin flags): the faults below are injected, the rule is real."""
+    return SimpleNamespace(fmin=SimpleNamespace(edm=edm, is_valid=valid, is_above_max_edm=above,
+                                                has_reached_call_limit=call_limit, hesse_failed=hesse_failed))
+
+
+def test_a_minimum_only_just_above_the_edm_tolerance_counts_as_converged():
+    # a real quadratic -log L: MIGRAD's valid minimum converges; stopped by its call limit it does not
+    m = Minuit(lambda x, y: 0.5 * ((x - 1) ** 2 + (y + 2) ** 2) / 0.01, 0.0, 0.0)
+    m.errordef = Minuit.LIKELIHOOD
+    m.migrad()
+    assert _converged(m)
+    m = Minuit(lambda x, y: 0.5 * ((x - 1) ** 2 + (y + 2) ** 2) / 0.01, 30.0, 30.0)
+    m.errordef = Minuit.LIKELIHOOD
+    m.migrad(ncall=3)
+    assert not _converged(m)
+    # lattice-wall's kinked minima: HESSE's full Hessian leaves EDM at 0.006-0.04 (a tenth of a sigma in
+    # -log L or less): converged; far from the minimum, at the call limit or with HESSE failed: not
+    assert _converged(_fmin(0.006)) and _converged(_fmin(0.04))
+    assert not _converged(_fmin(2 * NEAR_MINIMUM_EDM))
+    assert not _converged(_fmin(0.006, call_limit=True))
+    assert not _converged(_fmin(0.006, hesse_failed=True))
+    assert not _converged(SimpleNamespace(fmin=None))
