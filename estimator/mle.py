@@ -36,6 +36,7 @@ from estimator.model import MeasurementModel
 from radseek.count_model import expected_rate
 from radseek.dataset import Frames
 from radseek.frame_record import COUNT_DTYPE
+from radseek.geometry import path_lengths
 
 OFFSET_STEP_M = 1e-3
 #: MIGRAD tolerance of the multi-start search: stop at an estimated distance to the minimum of
@@ -364,23 +365,17 @@ def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
     )
 
 
-def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:
-    """Starting points for the source from a grid over the bounds: for each cell, the Poisson-optimal
-    cps_at_1m and background of the baseline model (vectorised IRLS) on pooled frames, best cells
-    first, kept apart."""
-    frames = pooled(frames)
-    sc = model.scenario
-    gx = np.linspace(sc.bounds_min[0], sc.bounds_max[0], n_grid)
-    gy = np.linspace(sc.bounds_min[1], sc.bounds_max[1], n_grid)
-    xx, yy = (a.ravel() for a in np.meshgrid(gx, gy))
-    z = model.param("z").value
-    n = model.observed_counts(frames).astype(float)
-    tdur = frames.duration
-    d2 = ((frames.positions[None, :, :] - np.stack([xx, yy, np.full_like(xx, z)], 1)[:, None, :]) ** 2).sum(-1)
-    u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
-    s = np.full(len(xx), 100.0)
-    b = np.full(len(xx), max(sc.background_cps, 1.0))
-    for _ in range(25):  # Newton on the 2-parameter Poisson likelihood, kept positive
+#: wall attenuation coefficients (1/m) the start grid of a walled model tries per cell: brick-like rubble
+#: to concrete (Cs-137: cinder block ~3, concrete ~17 per m), so a start sits in its shadow's mode
+GRID_WALL_MU = (1.0, 3.0, 10.0, 30.0)
+
+
+def _grid_fit(u: np.ndarray, n: np.ndarray, tdur: np.ndarray, b0: float) -> tuple[np.ndarray, ...]:
+    """Per cell (rows of ``u``, counts per unit cps_at_1m), the Poisson-optimal source strength and
+    background (Newton on the 2-parameter likelihood, kept positive) and the -log L there."""
+    s = np.full(len(u), 100.0)
+    b = np.full(len(u), b0)
+    for _ in range(25):
         mu = s[:, None] * u + b[:, None] * tdur
         r = n / mu - 1.0
         g1, g2 = (r * u).sum(1), (r * tdur).sum(1)
@@ -392,13 +387,43 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
         s = np.clip(s + ds, 1e-3, 1e7)
         b = np.clip(b + db, 1e-3, 1e5)
     mu = s[:, None] * u + b[:, None] * tdur
-    nll = (mu - n * np.log(mu)).sum(1)
+    return s, b, (mu - n * np.log(mu)).sum(1)
+
+
+def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:
+    """Starting points for the source from a grid over the bounds: for each cell, the Poisson-optimal
+    cps_at_1m and background of the baseline model (vectorised IRLS) on pooled frames, best cells
+    first, kept apart. A walled model's likelihood has a narrow mode per shadow, so its cells are ranked
+    through the mapped walls at the best of :data:`GRID_WALL_MU`, which the start then carries."""
+    frames = pooled(frames)
+    sc = model.scenario
+    gx = np.linspace(sc.bounds_min[0], sc.bounds_max[0], n_grid)
+    gy = np.linspace(sc.bounds_min[1], sc.bounds_max[1], n_grid)
+    xx, yy = (a.ravel() for a in np.meshgrid(gx, gy))
+    z = model.param("z").value
+    n = model.observed_counts(frames).astype(float)
+    tdur = frames.duration
+    cells = np.stack([xx, yy, np.full_like(xx, z)], 1)
+    d2 = ((frames.positions[None, :, :] - cells[:, None, :]) ** 2).sum(-1)
+    u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
+    b0 = max(sc.background_cps, 1.0)
+    walled = "wall_attenuation" in model.effects and bool(sc.walls)
+    if walled:
+        lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls)
+        fits = [_grid_fit(u * np.exp(-m * lengths), n, tdur, b0) for m in GRID_WALL_MU]
+        k = np.argmin(np.stack([f[2] for f in fits]), axis=0)
+        s, b, nll = (np.choose(k, [f[i] for f in fits]) for i in range(3))
+    else:
+        s, b, nll = _grid_fit(u, n, tdur, b0)
     order = np.argsort(nll)
     cell = max(gx[1] - gx[0], gy[1] - gy[0])
     starts: list[dict[str, float]] = []
     for i in order:
         if all(np.hypot(xx[i] - st["x"], yy[i] - st["y"]) > 3 * cell for st in starts):
-            starts.append({"x": xx[i], "y": yy[i], "cps_at_1m": s[i], "background_cps": b[i]})
+            st = {"x": xx[i], "y": yy[i], "cps_at_1m": s[i], "background_cps": b[i]}
+            if walled:
+                st["wall_attenuation.mu_per_m"] = GRID_WALL_MU[k[i]]
+            starts.append(st)
         if len(starts) >= n_best:
             break
     return starts

@@ -36,3 +36,22 @@ def test_without_mapped_walls_the_misfit_stays_and_is_reported(lattice_wall):
     scenario = dataclasses.replace(lattice_wall.scenario, walls=())
     rec = InflightEstimator(scenario).update(lattice_wall.frames, dwell=9)
     assert "wall_attenuation" not in rec["effects"] and rec["p_value"] < GOOD_FIT_P
+
+
+def test_a_walled_model_starts_in_the_shadows_mode(lattice_wall):
+    """The walled likelihood's mode around the source is a few decimetres wide (the walls' shadow edges):
+    the start grid ranks its cells through the mapped walls, so the best start is the cell at the source
+    (the wall-free ranking put it 0.53 m away, on the far side of the shadow edge)."""
+    import numpy as np
+
+    from estimator.mle import GRID_WALL_MU, grid_starts, pooled
+    from estimator.model import MeasurementModel
+
+    ds = lattice_wall
+    sc = ds.scenario
+    cell = max((sc.bounds_max[:2] - sc.bounds_min[:2]) / 24)  # the 25 x 25 grid's spacing
+    model = MeasurementModel(sc, effects=("wall_attenuation",))
+    best = grid_starts(model, pooled(ds.frames, 10, dwells_only=True))[0]
+    truth = ds.truth.sources[0]
+    assert np.hypot(best["x"] - truth.x, best["y"] - truth.y) < cell
+    assert best["wall_attenuation.mu_per_m"] in GRID_WALL_MU
