@@ -391,6 +391,10 @@ class Scene(_Model):
             walls=tuple(w.to_wall() for w in self.walls),
             nuclide=self.nuclide,
             axis=self.detector.axis,
+            # a scene flown through air tells the operator so, with the library's (NIST XCOM) dry air at the
+            # main line: what an operator can look up, not the scene's own value (the effect may override it)
+            air_mu_per_m=round(response.mu_per_m("air", self.main_line_keV()), 6)
+            if self.effects.air_attenuation.enabled else 0.0,
         )
 
     def truth(self) -> Truth:

@@ -335,7 +335,10 @@ class MeasurementModel:
             if name not in EFFECT_PARTS:
                 raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECT_PARTS))}")
         self.scenario = scenario
-        self.effects: tuple[str, ...] = tuple(dict.fromkeys(effects))
+        # the operator's air (scenario ``air_mu_per_m``) is known physics, not an effect to fit: every
+        # model of the scenario attenuates by it, fixed, unless the caller fits air_attenuation itself
+        known_air = scenario.air_mu_per_m > 0 and "air_attenuation" not in effects
+        self.effects: tuple[str, ...] = tuple(dict.fromkeys((*effects, "air_attenuation") if known_air else effects))
         if channels is not None:
             channels = tuple(sorted({int(k) for k in channels}))
             if not channels or channels[0] < 0 or channels[-1] >= len(scenario.channel_edges_keV) - 1:
@@ -353,6 +356,9 @@ class MeasurementModel:
             Param("background_cps", max(scenario.background_cps, 1.0), 0.0, 1e5, unit="cps", step=2.0),
         ]
         self.params: list[Param] = base + [p for part in self._parts for p in part.params(scenario)]
+        if known_air:
+            self.params = [replace(p, value=scenario.air_mu_per_m, fixed=True) if p.name == "air_attenuation.mu_per_m"
+                           else p for p in self.params]
 
     def __repr__(self) -> str:
         window = "" if self.channels is None else f", channels={list(self.channels)}"

@@ -88,6 +88,10 @@ class Scenario:
     walls: tuple[Wall, ...] = ()
     nuclide: str = "Cs-137"
     axis: str = "body +x"
+    #: the operator's attenuation coefficient of the air flown through at the nuclide's main line (1/m; NIST
+    #: XCOM dry air is 0.0093 at 662 keV): every model of the scenario then attenuates by exp(-mu d). 0: the
+    #: baseline model (no air), as in every dataset without the key
+    air_mu_per_m: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)  # keys this reader does not know
 
     def to_dict(self) -> dict[str, Any]:
@@ -103,6 +107,8 @@ class Scenario:
                 "walls": [w.to_dict() for w in self.walls],
             }
         )
+        if self.air_mu_per_m > 0:
+            d["air_mu_per_m"] = self.air_mu_per_m
         return d
 
 
@@ -224,6 +230,8 @@ _FORMAT_RE = re.compile(r"radseek-dataset/1(?:\.\d+)*")
 #: drone searches at most a few hundred metres; anything beyond is a units error (mm, degrees), and
 #: +-1e6 m bounds make grid-based estimators and planners run without limit.
 MAX_EXTENT_M = 2000.0
+#: the largest air attenuation coefficient scenario.json may declare (1/m): dense gas at 100x dry air's 0.0093
+MAX_AIR_MU_PER_M = 1.0
 MAX_COORD_M = 10_000.0
 #: Largest count of one channel in one frame: the board's u16 field is 65535 per 0.1 s frame; this leaves
 #: room for other hardware and longer frames, and keeps sums over a million frames inside int64.
@@ -371,7 +379,10 @@ def read_scenario(file: Path) -> Scenario:
     axis = detector.get("axis", "body +x")
     if not isinstance(axis, str):
         raise _err(file, f"key 'detector.axis' must be a string, got {axis!r}")
-    known = {"format", "nuclide", "detector", "background_cps", "source_z", "bounds", "walls"}
+    air = _number(d["air_mu_per_m"], "air_mu_per_m", file) if "air_mu_per_m" in d else 0.0
+    if not 0 <= air <= MAX_AIR_MU_PER_M:
+        raise _err(file, f"key 'air_mu_per_m' must be in [0, {MAX_AIR_MU_PER_M:g}] 1/m (air is ~0.01), got {air}")
+    known = {"format", "nuclide", "detector", "background_cps", "source_z", "bounds", "walls", "air_mu_per_m"}
     return Scenario(
         channel_edges_keV=edges,
         background_cps=background,
@@ -381,6 +392,7 @@ def read_scenario(file: Path) -> Scenario:
         walls=tuple(walls),
         nuclide=str(d.get("nuclide", "Cs-137")),
         axis=axis,
+        air_mu_per_m=air,
         extra={k: v for k, v in d.items() if k not in known},
     )
 

@@ -74,3 +74,28 @@ def test_bad_scenario_names_the_key(shared_datasets, tmp_path):
     (dst / "scenario.json").write_text(text)
     with pytest.raises(DatasetError, match=r"scenario.json: key 'background_cps' must be a number"):
         read_dataset(dst)
+
+
+@pytest.mark.parametrize("value, match", [("-0.01", r"key 'air_mu_per_m' must be in \[0, 1\]"),
+                                          ("5", r"key 'air_mu_per_m' must be in \[0, 1\]"),
+                                          ('"thin"', r"key 'air_mu_per_m' must be a number")])
+def test_bad_air_coefficient_names_the_key(shared_datasets, tmp_path, value, match):
+    import json
+
+    dst = tmp_path / "bad"
+    shutil.copytree(shared_datasets / "lattice-clean", dst)
+    text = (dst / "scenario.json").read_text()
+    (dst / "scenario.json").write_text(text.rstrip().rstrip("}") + f', "air_mu_per_m": {value}}}')
+    json.loads((dst / "scenario.json").read_text())  # the file itself is valid JSON
+    with pytest.raises(DatasetError, match=match):
+        read_dataset(dst)
+
+
+def test_air_coefficient_round_trips_and_is_absent_by_default(shared_datasets, tmp_path):
+    import dataclasses
+
+    ds = read_dataset(shared_datasets / "outdoor-air")
+    assert ds.scenario.air_mu_per_m == 0.0 and "air_mu_per_m" not in ds.scenario.to_dict()
+    write_dataset(tmp_path / "air", ds.frames, dataclasses.replace(ds.scenario, air_mu_per_m=0.0093), ds.truth)
+    back = read_dataset(tmp_path / "air")
+    assert back.scenario.air_mu_per_m == 0.0093 and "air_mu_per_m" not in back.scenario.extra

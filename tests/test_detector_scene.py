@@ -130,3 +130,13 @@ def test_comparator_ladder_round_trips_and_drifts():
     assert e[1] == pytest.approx(e[0] / 1.2)
     with pytest.raises(ValueError, match="33"):
         ComparatorLadder((1.0,) * 10)
+
+
+def test_a_scene_flown_in_air_tells_the_operator_the_librarys_coefficient():
+    """outdoor switches air_attenuation on: its scenario carries NIST XCOM dry air at 662 keV (0.0093 /m
+    to two figures), whatever the scene's own override; scenes without air carry none."""
+    outdoor = load_scene("outdoor")
+    assert outdoor.scenario().air_mu_per_m == pytest.approx(0.0093, abs=5e-5)
+    assert outdoor.with_effect("air_attenuation", mu_per_m=0.02).scenario().air_mu_per_m == \
+        outdoor.scenario().air_mu_per_m
+    assert load_scene("default").scenario().air_mu_per_m == 0.0

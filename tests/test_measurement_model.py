@@ -125,3 +125,17 @@ def test_photopeak_window_uses_only_its_channels(shared_datasets):
     assert 0.1 < peak.sources_[0]["cps_at_1m"] / total.sources_[0]["cps_at_1m"] < 0.6
     with pytest.raises(ValueError, match="no channel"):
         MeasurementModel.window_channels(ds.scenario, 5000, 6000)
+
+
+def test_the_operators_air_is_fixed_physics_in_every_model():
+    """scenario ``air_mu_per_m``: the baseline times exp(-mu d), mu fixed (not fitted); a caller that fits
+    air_attenuation itself gets it free."""
+    import dataclasses
+
+    f = frames([[5, 5, 1], [5, 5, 2], [8, 9, 0]])
+    d = np.array([1.0, 2.0, 5.0])
+    air = dataclasses.replace(scenario(), air_mu_per_m=0.0093)
+    m = MeasurementModel(air)
+    assert m.free_names == MeasurementModel(scenario()).free_names
+    assert np.allclose(m.expected_counts(SRC, f), 0.1 * (1000 / d**2 * np.exp(-0.0093 * d) + 30))
+    assert "air_attenuation.mu_per_m" in MeasurementModel(air, effects=("air_attenuation",)).free_names
