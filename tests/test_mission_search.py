@@ -98,6 +98,11 @@ def test_no_valid_next_best_point_explores_instead_of_giving_up(monkeypatch):
     ((math.inf, 0.157), 0.157, (6, 7), False),  # the previous estimate was untrustworthy
     ((0.159, 0.157), math.nan, (6, 7), False),  # no drift bound (another localizer)
     ((0.157,), 0.157, (7,), False),  # one estimate says nothing about falling
+    ((0.152, 0.182, 0.159), 0.142, (7, 8, 9), True),  # real stack outdoor: scatter at the floor, not falling
+    ((0.182, 0.152, 0.150), 0.142, (7, 8, 9), True),  # fell, then stopped falling
+    ((0.200, 0.182, 0.159), 0.142, (7, 8, 9), False),  # falling by 13 % on the best before it
+    ((math.inf, 0.182, 0.159), 0.142, (7, 8, 9), False),  # an untrustworthy estimate among the two before
+    ((0.152, 0.182, 0.159), 0.142, (5, 8, 9), False),  # dwell 5 is too old: against 8 alone it fell 13 %
 ])
 def test_drift_limited_rule(sigmas, floor, dwells, limited):
     from estimator.inflight import InflightEstimator
