@@ -48,7 +48,7 @@ from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, semi_major_axis
 
 __all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "GOOD_FIT_P", "MIN_SIGMA_M", "InflightEstimator", "bound_m",
-           "drift_floor_m", "ellipse", "gof_warning", "repair_covariance", "sigma_m"]
+           "drift_floor_m", "ellipse", "gof_warning", "pose_sd_m", "repair_covariance", "sigma_m"]
 
 DEFAULT_LOCALIZER = "mle"
 #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
@@ -121,6 +121,15 @@ def drift_floor_m(crlb_pose: Any) -> float:
     return semi_major_axis(c) if np.isfinite(c).all() else math.nan
 
 
+def pose_sd_m(frames: Frames) -> float:
+    """The largest horizontal pose standard deviation the vehicle reported over ``frames`` (m): the size of
+    the odometry drift so far, which a drift floor (:func:`drift_floor_m`) cannot much exceed; one that does
+    is a floor of the geometry (counts), not of the drift."""
+    if len(frames) == 0:
+        return math.nan
+    return float(math.sqrt(max(float(np.max(frames.var_x)), float(np.max(frames.var_y)), 0.0)))
+
+
 def bound_m(crlb_xy: Any) -> float:
     """The bound as a distance: the rms horizontal error an unbiased estimate can reach, sqrt(trace) of the
     x-y block of a Cramér-Rao bound (as ``radseek localize`` reports it)."""
@@ -146,8 +155,8 @@ class InflightEstimator:
     ``x``, ``y``, ``z`` (m), ``cps_at_1m``, ``background_cps`` (cps), ``covariance`` ((3, 3) position
     covariance in m^2, repaired, as nested lists), ``sigma_m`` (:func:`sigma_m`), ``effects`` (the fitted
     model's), ``params`` (the fitted effects' parameters, e.g. ``wall_attenuation.mu_per_m``), ``converged``
-    ``p_value`` (goodness of fit, nan if the localizer reports none) and ``drift_floor_m``
-    (:func:`drift_floor_m`). :meth:`finalize` adds ``bound_m``
+    ``p_value`` (goodness of fit, nan if the localizer reports none), ``drift_floor_m``
+    (:func:`drift_floor_m`) and ``pose_sd_m`` (:func:`pose_sd_m`). :meth:`finalize` adds ``bound_m``
     and ``ellipse_95`` to the last record.
     """
 
@@ -218,7 +227,8 @@ class InflightEstimator:
                   "covariance": cov.tolist(), "sigma_m": sigma_m(cov, converged),
                   "effects": list(getattr(loc, "effects", ())), "params": params,
                   "converged": converged, "p_value": float(info.get("p_value", math.nan)),
-                  "drift_floor_m": drift_floor_m(_block(getattr(loc, "crlb_pose_", None), k))}
+                  "drift_floor_m": drift_floor_m(_block(getattr(loc, "crlb_pose_", None), k)),
+                  "pose_sd_m": pose_sd_m(frames)}
         self.estimates.append(record)
         return record
 

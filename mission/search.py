@@ -207,7 +207,8 @@ class SearchBrain:
         """The drift floor (m) when the estimate is drift-limited, else 0: its 1-sigma is less than ``1 -
         PLATEAU`` below the best of the (up to two) estimates of the dwells just before it, and within
         ``AT_FLOOR`` of the floor odometry drift alone allows (``drift_floor_m``: the drift-aware bound's
-        semi-major axis). More dwells then buy nothing: each adds metres, so drift, about as fast as counts.
+        semi-major axis), a floor itself within ``AT_FLOOR`` of the drift so far (``pose_sd_m``). More
+        dwells then buy nothing: each adds metres, so drift, about as fast as counts.
         The best of two, not the last alone: at the floor the 1-sigma scatters by a few centimetres from dwell
         to dwell (real stack, outdoor: 0.152, 0.182, 0.159 m at a 0.14-0.15 m floor, and the search spent its
         budget because each dwell compared only with a worse or a better neighbour)."""
@@ -219,6 +220,10 @@ class SearchBrain:
         s_before = min(e["sigma_m"] for e in before)
         floor = float(now.get("drift_floor_m", math.nan))
         if not (np.isfinite([s_before, now["sigma_m"]]).all() and math.isfinite(floor) and floor > 0):
+            return 0.0
+        # a floor far above the drift itself is the geometry's (few counts, one side), not the drift's: no
+        # stop there (outdoor: "found, drift-limited" at 1-sigma 1-20 m in 8 of 200 searches without this)
+        if not floor <= AT_FLOOR * float(now.get("pose_sd_m", math.nan)):
             return 0.0
         return floor if now["sigma_m"] >= PLATEAU * s_before and now["sigma_m"] <= AT_FLOOR * floor else 0.0
 

@@ -90,26 +90,28 @@ def test_no_valid_next_best_point_explores_instead_of_giving_up(monkeypatch):
     assert r.brain.estimate is not None
 
 
-@pytest.mark.parametrize(("sigmas", "floor", "dwells", "limited"), [
-    ((0.137, 0.137), 0.137, (8, 9), True),  # outdoor seed 13: at the floor, no longer falling
-    ((0.149, 0.137), 0.137, (8, 9), False),  # still falling by 8 % a dwell
-    ((0.159, 0.157), 0.100, (6, 7), False),  # plateau well above the drift floor: something else limits it
-    ((0.159, 0.157), 0.157, (5, 7), False),  # a dwell without an estimate in between
-    ((math.inf, 0.157), 0.157, (6, 7), False),  # the previous estimate was untrustworthy
-    ((0.159, 0.157), math.nan, (6, 7), False),  # no drift bound (another localizer)
-    ((0.157,), 0.157, (7,), False),  # one estimate says nothing about falling
-    ((0.152, 0.182, 0.159), 0.142, (7, 8, 9), True),  # real stack outdoor: scatter at the floor, not falling
-    ((0.182, 0.152, 0.150), 0.142, (7, 8, 9), True),  # fell, then stopped falling
-    ((0.200, 0.182, 0.159), 0.142, (7, 8, 9), False),  # falling by 13 % on the best before it
-    ((math.inf, 0.182, 0.159), 0.142, (7, 8, 9), False),  # an untrustworthy estimate among the two before
-    ((0.152, 0.182, 0.159), 0.142, (5, 8, 9), False),  # dwell 5 is too old: against 8 alone it fell 13 %
+@pytest.mark.parametrize(("sigmas", "floor", "dwells", "limited", "pose_sd"), [
+    ((0.137, 0.137), 0.137, (8, 9), True, 0.15),  # outdoor seed 13: at the floor, no longer falling
+    ((0.149, 0.137), 0.137, (8, 9), False, 0.15),  # still falling by 8 % a dwell
+    ((0.159, 0.157), 0.100, (6, 7), False, 0.15),  # plateau well above the drift floor: something else limits it
+    ((0.159, 0.157), 0.157, (5, 7), False, 0.15),  # a dwell without an estimate in between
+    ((math.inf, 0.157), 0.157, (6, 7), False, 0.15),  # the previous estimate was untrustworthy
+    ((0.159, 0.157), math.nan, (6, 7), False, 0.15),  # no drift bound (another localizer)
+    ((0.157,), 0.157, (7,), False, 0.15),  # one estimate says nothing about falling
+    ((0.152, 0.182, 0.159), 0.142, (7, 8, 9), True, 0.15),  # real stack outdoor: scatter at the floor, not falling
+    ((0.182, 0.152, 0.150), 0.142, (7, 8, 9), True, 0.15),  # fell, then stopped falling
+    ((0.200, 0.182, 0.159), 0.142, (7, 8, 9), False, 0.15),  # falling by 13 % on the best before it
+    ((math.inf, 0.182, 0.159), 0.142, (7, 8, 9), False, 0.15),  # an untrustworthy estimate among the two before
+    ((0.152, 0.182, 0.159), 0.142, (5, 8, 9), False, 0.15),  # dwell 5 is too old: against 8 alone it fell 13 %
+    ((6.95, 6.95), 6.95, (4, 5), False, 0.15),  # outdoor: a geometry floor 46x the drift is no drift floor
+    ((0.137, 0.137), 0.137, (8, 9), False, math.nan),  # no reported pose variance: no drift floor either
 ])
-def test_drift_limited_rule(sigmas, floor, dwells, limited):
+def test_drift_limited_rule(sigmas, floor, dwells, limited, pose_sd):
     from estimator.inflight import InflightEstimator
     from mission.search import SearchBrain
 
     brain = SearchBrain(load_scene("outdoor").scenario())
     brain.estimator = InflightEstimator(brain.scenario)
-    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor}
+    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor, "pose_sd_m": pose_sd}
                                  for d, s in zip(dwells, sigmas, strict=True)]
     assert brain._drift_limited() == (floor if limited else 0.0)
