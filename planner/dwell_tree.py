@@ -31,17 +31,19 @@ from planner.occupancy import OccupancyMap
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)
 
-_SEEDED = False
+def seed_ompl(seed: int) -> None:
+    """Restart OMPL's seed sequence at ``seed``: every random generator created after this (each tree's
+    sampler) follows it, so a flight is the same whatever was planned before it in the process.
 
-
-def seed_ompl(seed: int) -> bool:
-    """Seed OMPL's global RNG; OMPL only allows this before its first random generator exists."""
-    global _SEEDED
-    if _SEEDED:
-        return False
-    ou.RNG.setSeed(int(seed))
-    _SEEDED = True
-    return True
+    OMPL logs an error when the sequence is restarted after generators exist (generators made before keep
+    their state); the restart itself works (checked in tests/test_dwell_tree.py), and each ``grow_tree``
+    makes fresh generators, so the message is silenced here."""
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    try:
+        ou.RNG.setSeed(int(seed))
+    finally:
+        ou.setLogLevel(level)
 
 
 @dataclass(frozen=True)

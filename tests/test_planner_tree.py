@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planner.belief import DwellHistory, SourceBelief
-from planner.dwell_tree import TreeConfig, grow_tree, shortcut_path
+from planner.dwell_tree import TreeConfig, grow_tree, seed_ompl, shortcut_path
 from planner.next_best import NextBestConfig, plan_next_dwell, score_nodes
 from planner.occupancy import OccupancyMap
 from planner.yaw_sampling import bearing_score, sample_yaw
@@ -109,6 +109,24 @@ def test_tree_crosses_the_wall_only_through_the_door(tree):
     t = (5.0 - a[crossing, 0]) / (b[crossing, 0] - a[crossing, 0])
     y = a[crossing, 1] + t * (b[crossing, 1] - a[crossing, 1])
     assert np.all((y >= 3.4 + OCC.radius - 1e-9) & (y <= 4.6 - OCC.radius + 1e-9))  # grown wall ends
+
+
+def test_reseeding_ompl_repeats_the_tree_whatever_was_grown_before():
+    # a node-count-bounded tree depends on OMPL's random generators only: after seed_ompl(s) the same tree
+    # grows again even though other trees (other generators) were grown in between; another seed differs
+    cfg = TreeConfig(n_min=60, n_max=60, time_budget=60.0, time_limit=60.0)
+    start = np.array([1.0, 1.0, 1.5, 0.0])
+    seed_ompl(21)
+    first = grow_tree(start, OCC, cfg)
+    grow_tree(start, OCC, cfg)
+    seed_ompl(21)
+    again = grow_tree(start, OCC, cfg)
+    seed_ompl(22)
+    other = grow_tree(start, OCC, cfg)
+    assert len(first) == len(again) == 60
+    np.testing.assert_array_equal(first.states, again.states)
+    np.testing.assert_array_equal(first.parent, again.parent)
+    assert len(other) != len(first) or not np.array_equal(other.states, first.states)
 
 
 def test_start_inside_a_wall_is_refused():
