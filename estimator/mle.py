@@ -7,11 +7,10 @@ recorded poses are uncertain (paper 003: the GPS-denied pose estimate drifts, an
 offset with a Gaussian prior from the dataset's variance columns. When the reported variance grows along
 the flight the error is odometry drift, one random walk in distance flown, correlated across all dwells
 (so a common shift of every pose, which moves the source with it, is as uncertain as the drift itself);
-otherwise the offsets are independent per dwell. The offsets are profiled out for each theta by Fisher
-scoring of the penalised likelihood to convergence (:func:`profile_offsets`: the Jacobian of mu with respect
-to the offsets re-evaluated at each iterate, warm-started from MIGRAD's previous point; the random walk's
-system is banded), so the objective is the profile likelihood itself, smooth in theta, and its Hessian (the
-reported covariance) includes the pose error.
+otherwise the offsets are independent per dwell. The offsets are profiled out for each theta by two
+Newton steps of the penalised likelihood (the Jacobian of mu with respect to the offset is taken once,
+at zero offset; the random walk's system is banded), so the objective stays smooth in theta, its Hessian
+(the reported covariance) includes the pose error, and it costs six model evaluations.
 
 Goodness of fit: the Poisson deviance D = 2 sum [n log(n/mu) - (n - mu)] plus the offsets' penalty
 sum delta^T Sigma^-1 delta. At low counts E[D] per frame is not 1 (about 1 + 1/(6 mu)), so the
@@ -40,10 +39,6 @@ from radseek.frame_record import COUNT_DTYPE
 from radseek.geometry import path_lengths
 
 OFFSET_STEP_M = 1e-3
-#: profile_offsets: Fisher-scoring steps at most, and the Newton decrement (2 x the predicted gain in log L)
-#: below which the offsets count as converged (MIGRAD's tolerance on the profile is ~1e-3 in -log L)
-PROFILE_MAX_STEPS = 8
-PROFILE_TOL = 1e-6
 #: MIGRAD tolerance of the multi-start search: stop at an estimated distance to the minimum of
 #: 0.002 * tol * errordef = 1e-3 in -log L, far below the 0.5 of a 1-sigma step. With strategy 0 it halves
 #: the model evaluations of a fit (walled lattice-wall refit 2,500 -> 1,150) for the same minima within
@@ -249,9 +244,8 @@ class PoseGroups:
 
 
 def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Frames, mu0: np.ndarray,
-                    central: bool = False, at: np.ndarray | None = None) -> np.ndarray:
-    """d mu_i / d offset (N, 3): how each frame's expected counts move with its position offset, at the
-    offsets ``at`` (N, 3; default zero; ``mu0`` the expected counts there).
+                    central: bool = False) -> np.ndarray:
+    """d mu_i / d offset (N, 3): how each frame's expected counts move with its position offset.
 
     All shifted copies of the frames go through the model in one evaluation (every effect is per frame)."""
     n = len(frames)
@@ -260,8 +254,6 @@ def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Fr
     shift = np.zeros((k, n, 3))
     for i in range(k):
         shift[i, :, i % 3] = steps[i // 3]
-    if at is not None:
-        shift += at[None]
     tiled = frames.select(np.tile(np.arange(n), k))
     mu = model.expected_counts(theta, tiled, offsets=shift.reshape(k * n, 3)).reshape(k, n)
     if central:
@@ -270,74 +262,32 @@ def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Fr
 
 
 def profile_offsets(
-    model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups,
-    start: np.ndarray | None = None, max_steps: int = PROFILE_MAX_STEPS, tol: float = PROFILE_TOL,
-    converge: bool = True,
+    model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups, newton_steps: int = 2
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Per-group offsets maximising the penalised likelihood at ``theta`` (independent or random-walk prior).
-
-    Fisher scoring with the Jacobian re-evaluated at every iterate, from ``start`` (the offsets of a nearby
-    ``theta``, or zero), until the Newton decrement grad^T step (twice the predicted gain in log L) is below
-    ``tol``: the profile likelihood is then a smooth, well-defined function of ``theta``. With a fixed number
-    of steps from zero and the Jacobian at zero (before 2026-11-23) it was not: near the source, where a
-    centimetre of offset changes the counts by percent, the iteration had not converged, and the truncated
-    profile curved 40x too much along the common translation (its Hessian claimed the drift was known: outdoor
-    sd 0.07 m for a 0.14 m drift) and changed curvature by 60 % over 6 cm (MIGRAD needed ~1000 calls).
-
-    ``converge=False`` keeps that old profile (two chord steps from zero, the Jacobian at zero) for models with
-    mapped walls: at a shadow edge the Jacobian jumps and Fisher scoring cycles instead of converging (the
-    shared lattice-wall flight: 4000+ MIGRAD calls at the step cap against 116 with the chord steps).
 
     Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty delta^T Sigma^-1 delta).
     """
     n = model.observed_counts(frames)
+    mu0 = model.expected_counts(theta, frames)
     active = groups.active
     if not active.any():
-        return np.zeros((groups.n_groups, 3)), model.expected_counts(theta, frames), 0.0
-    if not converge:
-        return _chord_offsets(model, theta, frames, groups, n)
-    sd = np.sqrt(groups.variance)
-    delta = np.zeros((groups.n_groups, 3)) if start is None else np.where(active, start, 0.0)
-    mu = model.expected_counts(theta, frames, offsets=delta[groups.index] if start is not None else None)
-    for _ in range(max_steps):
-        jac = offset_jacobian(model, theta, frames, mu, at=delta[groups.index])
-        jac[:, ~active] = 0.0
-        mu_safe = np.maximum(mu, 1e-12)
-        fisher = groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None])
-        grad = groups.group_sum((n / mu_safe - 1.0)[:, None] * jac) - groups.prior_times(delta)
-        step = groups.solve(fisher, grad)
-        decrement = float(np.sum(grad[:, active] * step[:, active]))
-        delta = np.where(active, np.clip(delta + step, -5 * sd, 5 * sd), 0.0)
-        mu = model.expected_counts(theta, frames, offsets=delta[groups.index])
-        if decrement < tol:
-            break
-    return delta, mu, groups.penalty(delta)
-
-
-def _chord_offsets(model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups,
-                   n: np.ndarray, steps: int = 2) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`profile_offsets` with ``converge=False``: ``steps`` Newton steps from zero offsets with the
-    Jacobian taken once, at zero."""
-    active = groups.active
-    mu0 = model.expected_counts(theta, frames)
+        return np.zeros((groups.n_groups, 3)), mu0, 0.0
     jac = offset_jacobian(model, theta, frames, mu0)
     jac[:, ~active] = 0.0
     mu_safe = np.maximum(mu0, 1e-12)
-    solve = groups.solver(groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None]))
+    fisher = groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None])
+    solve = groups.solver(fisher)
     delta = np.zeros((groups.n_groups, 3))
     sd = np.sqrt(groups.variance)
     mu = mu0
-    for _ in range(steps):
-        grad = groups.group_sum((n / np.maximum(mu, 1e-12) - 1.0)[:, None] * jac) - groups.prior_times(delta)
-        delta = np.where(active, np.clip(delta + solve(grad), -5 * sd, 5 * sd), 0.0)
+    for _ in range(newton_steps):
+        resid = n / np.maximum(mu, 1e-12) - 1.0
+        grad = groups.group_sum(resid[:, None] * jac) - groups.prior_times(delta)
+        delta = delta + solve(grad)
+        delta = np.where(active, np.clip(delta, -5 * sd, 5 * sd), 0.0)
         mu = model.expected_counts(theta, frames, offsets=delta[groups.index])
     return delta, mu, groups.penalty(delta)
-
-
-def smooth_profile(model: MeasurementModel) -> bool:
-    """Is the profile over the pose offsets converged for this model (:func:`profile_offsets`)? Not with
-    mapped walls in the model (kinks at shadow edges)."""
-    return not ("wall_attenuation" in model.effects and len(model.scenario.walls))
 
 
 # ----------------------------------------------------------------------------------- statistics
@@ -575,16 +525,11 @@ def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed:
                groups: PoseGroups | None):
     n = model.observed_counts(frames)
 
-    warm: list[np.ndarray] = []  # the offsets of the last call: MIGRAD's next point is close to it
-    smooth = smooth_profile(model)
-
     def nll(*values: float) -> float:
         theta = {**fixed, **dict(zip(names, values, strict=True))}
         if groups is None:
             return poisson_nll(n, model.expected_counts(theta, frames))
-        delta, mu, penalty = profile_offsets(model, theta, frames, groups, start=warm[0] if warm else None,
-                                             converge=smooth)
-        warm[:] = [delta]
+        _, mu, penalty = profile_offsets(model, theta, frames, groups)
         return poisson_nll(n, mu) + 0.5 * penalty
 
     return nll
@@ -677,7 +622,7 @@ def fit(
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)
     n = model.observed_counts(frames)
     if groups is not None:
-        offsets, mu, penalty = profile_offsets(model, values, frames, groups, converge=smooth_profile(model))
+        offsets, mu, penalty = profile_offsets(model, values, frames, groups)
         pose_offsets = offsets
     else:
         mu, penalty, pose_offsets = model.expected_counts(values, frames), 0.0, np.zeros((0, 3))
