@@ -286,16 +286,12 @@ def profile_offsets(
     if not active.any():
         return np.zeros((groups.n_groups, 3)), mu0, 0.0
     scoring = not ("wall_attenuation" in model.effects and len(model.scenario.walls))
-    jac = offset_jacobian(model, theta, frames, mu0)
-    jac[:, ~active] = 0.0
-    mu_safe = np.maximum(mu0, 1e-12)
-    solve = groups.solver(groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None]))
     delta = np.zeros((groups.n_groups, 3))
     sd = np.sqrt(groups.variance)
     mu = mu0
     for k in range(PROFILE_STEPS if scoring else newton_steps):
-        if scoring and k:
-            jac = offset_jacobian(model, theta, frames, mu, at=delta[groups.index])
+        if k == 0 or scoring:  # chord steps keep the Jacobian (and its factored system) from zero offsets
+            jac = offset_jacobian(model, theta, frames, mu, at=delta[groups.index] if k else None)
             jac[:, ~active] = 0.0
             mu_safe = np.maximum(mu, 1e-12)
             solve = groups.solver(groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None]))
