@@ -3,7 +3,7 @@ source behind two cinder-block walls, mu = 3 /m)."""
 
 import pytest
 
-from estimator.inflight import GOOD_FIT_P, InflightEstimator
+from estimator.inflight import GOOD_FIT_P, WARM_WALLED_STARTS, InflightEstimator
 from radseek.dataset import read_dataset
 
 
@@ -55,3 +55,31 @@ def test_a_walled_model_starts_in_the_shadows_mode(lattice_wall):
     truth = ds.truth.sources[0]
     assert np.hypot(best["x"] - truth.x, best["y"] - truth.y) < cell
     assert best["wall_attenuation.mu_per_m"] in GRID_WALL_MU
+
+
+def test_a_misfit_that_persists_does_not_search_the_starts_again(lattice_wall, monkeypatch):
+    """The injected fault: every fit after the first misfits (p = 1e-6, a physical effect the model lacks).
+    The warm walled refit after a record that fit well escalates to all its starts; once the last record itself
+    misfit (its starts were searched), the next warm refit keeps its misfit instead of searching them again."""
+    real_fit = InflightEstimator._fit
+    calls = []
+    misfit = {"on": False}
+
+    def fit(self, frames, settings):
+        loc = real_fit(self, frames, settings)
+        calls.append(settings.get("n_starts"))
+        if misfit["on"] and loc is not None:
+            loc.info_["p_value"] = 1e-6
+        return loc
+
+    monkeypatch.setattr(InflightEstimator, "_fit", fit)
+    est = InflightEstimator(lattice_wall.scenario)
+    first = est.update(lattice_wall.frames, dwell=9)
+    assert first["effects"] == ["wall_attenuation"] and first["p_value"] >= GOOD_FIT_P
+    misfit["on"] = True
+    calls.clear()
+    second = est.update(lattice_wall.frames, dwell=10)
+    assert calls == [1, WARM_WALLED_STARTS] and second["p_value"] < GOOD_FIT_P
+    calls.clear()
+    third = est.update(lattice_wall.frames, dwell=11)
+    assert calls == [1] and third["effects"] == ["wall_attenuation"] and third["p_value"] < GOOD_FIT_P
