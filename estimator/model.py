@@ -28,7 +28,7 @@ import numpy as np
 
 from radseek.count_model import MIN_DISTANCE_M, dead_time, expected_rate
 from radseek.dataset import EFFECTS, Frames, Scenario
-from radseek.geometry import path_lengths, wall_arrays
+from radseek.geometry import wall_arrays
 
 #: effects that change only the spectrum, not the total counts (see estimator.spectral)
 SPECTRAL_ONLY = ("gain_drift",)
@@ -126,6 +126,8 @@ class WallAttenuation(Effect):
     #: fewer frames than this skip the near-wall mask: on an in-flight fit's few hundred (pooled) frames the
     #: mask's own evaluation costs more than the lengths it saves
     NEAR_MIN_FRAMES = 2000
+    #: m: the walls' edges are ramps this wide (:meth:`_SlabFrame._soft_lengths`), 0 for hard edges
+    EDGE_M = float(__import__("os").environ.get("EDGE_M", "0.01"))
 
     def __init__(self) -> None:
         self._near: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
@@ -151,7 +153,7 @@ class WallAttenuation(Effect):
         """
         s = np.asarray(src, dtype=float)
         if s.size != 3 or pos.ndim != 2:
-            return path_lengths(pos, src, walls)
+            return self._slabs(walls)[0].lengths(pos, s)  # hypotheses (P, 1, 3) or poses (P, N, 3)
         s = s.reshape(3)
         if len(pos) < self.NEAR_MIN_FRAMES:
             return self._slabs(walls)[0].lengths(pos, s)
@@ -182,7 +184,7 @@ class WallAttenuation(Effect):
             grown[:, 2:4] += m * u
             grown[:, 4] += 2 * m
             grown[:, 5] += m
-            self._frame = (key, (_SlabFrame(walls), _SlabFrame(grown)))
+            self._frame = (key, (_SlabFrame(walls, self.EDGE_M), _SlabFrame(grown)))
         return self._frame[1]
 
 
@@ -192,7 +194,8 @@ class _SlabFrame:
     local coordinates from one matrix product: the same lengths (to rounding) at a fraction of the
     numpy calls, which is what a fit's thousands of model evaluations on a few hundred frames pay for."""
 
-    def __init__(self, walls: np.ndarray):
+    def __init__(self, walls: np.ndarray, edge_m: float = 0.0):
+        self.edge_m = edge_m
         s0, s1 = walls[:, 0:2], walls[:, 2:4]
         self.length = np.linalg.norm(s1 - s0, axis=1)
         u = (s1 - s0) / np.where(self.length > 0, self.length, 1.0)[:, None]
@@ -205,27 +208,49 @@ class _SlabFrame:
         self.solid = self.length > 0  # a zero-length wall has no volume
 
     def lengths(self, pos: np.ndarray, src: np.ndarray) -> np.ndarray:
-        """pos (N, 3), src (3,): (N,) total length inside the slabs."""
+        """pos (..., N, 3), src (3,) or broadcasting (e.g. (P, 1, 3) hypotheses): (..., N) total length
+        inside the slabs."""
         w = self.n
-        a = pos[:, :2] @ self.to_local - self.origin  # (N, 2W)
-        d = (src[:2] @ self.to_local - self.origin) - a
-        az = pos[:, 2:3]
-        dz = src[2] - az  # (N, 1)
-        enter = np.full(a.shape[:1] + (w,), -np.inf)
+        a = pos[..., :2] @ self.to_local - self.origin  # (..., N, 2W)
+        d = (src[..., :2] @ self.to_local - self.origin) - a
+        az = pos[..., 2:3]
+        dz = src[..., 2:3] - az  # (..., N, 1)
+        enter = np.full(d.shape[:-1] + (w,), -np.inf)
         exit_ = np.full_like(enter, np.inf)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             # a direction with no component along an axis: a huge inverse step keeps it in (or out of) that
             # slab as the explicit parallel case of path_lengths does
-            axes = ((a[:, :w], d[:, :w], 0.0, self.length), (a[:, w:], d[:, w:], -self.half, self.half),
+            axes = ((a[..., :w], d[..., :w], 0.0, self.length), (a[..., w:], d[..., w:], -self.half, self.half),
                     (az, dz, 0.0, self.height))
+            entries, exits = [], []
             for a_k, d_k, lo, hi in axes:
                 inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
                 t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
-                enter = np.maximum(enter, np.minimum(t1, t2))
-                exit_ = np.minimum(exit_, np.maximum(t1, t2))
+                entries.append(np.broadcast_to(np.minimum(t1, t2), enter.shape))
+                exits.append(np.broadcast_to(np.maximum(t1, t2), enter.shape))
+            if self.edge_m > 0:
+                return self._soft_lengths(entries, exits, d, dz, w)
+            for e_k, x_k in zip(entries, exits, strict=True):
+                enter = np.maximum(enter, e_k)
+                exit_ = np.minimum(exit_, x_k)
         span = np.clip(np.minimum(exit_, 1.0) - np.maximum(enter, 0.0), 0.0, None)
-        seg = np.sqrt(d[:, :w] ** 2 + d[:, w:] ** 2 + dz**2)  # |src - pos| (the rotation keeps lengths)
-        return (np.where(self.solid, span, 0.0) * seg).sum(1)
+        seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)  # |src - pos| (the rotation keeps lengths)
+        return (np.where(self.solid, span, 0.0) * seg).sum(-1)
+
+    def _soft_lengths(self, entries: list[np.ndarray], exits: list[np.ndarray], d: np.ndarray, dz: np.ndarray,
+                      w: int) -> np.ndarray:
+        """The path lengths with every max and min of the slab method made smooth over ``edge_m`` of
+        path (log-sum-exp; a segment's parameter t runs over its length, so the scale in t is edge_m / |d|):
+        the length is then differentiable in the detector's position, and a shadow edge is a ramp of about
+        ``edge_m`` instead of a kink."""
+        seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)
+        eps = self.edge_m / np.maximum(seg, 1e-9)
+        zero = np.zeros_like(seg)
+        enter = eps * np.logaddexp.reduce(np.stack([zero, *entries]) / eps, axis=0)
+        exit_ = -eps * np.logaddexp.reduce(np.stack([-np.ones_like(seg), *(-x for x in exits)]) / eps, axis=0)
+        with np.errstate(over="ignore"):
+            span = eps * np.logaddexp(0.0, (exit_ - enter) / eps)
+        return (np.where(self.solid, span, 0.0) * seg).sum(-1)
 
 
 class Anisotropy(Effect):
