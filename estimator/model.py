@@ -127,7 +127,7 @@ class WallAttenuation(Effect):
     #: mask's own evaluation costs more than the lengths it saves
     NEAR_MIN_FRAMES = 2000
     #: m: the walls' edges are ramps this wide (:meth:`_SlabFrame._soft_lengths`), 0 for hard edges
-    EDGE_M = float(__import__("os").environ.get("EDGE_M", "0.01"))
+    EDGE_M = 0.01
 
     def __init__(self) -> None:
         self._near: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
