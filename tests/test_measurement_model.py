@@ -139,3 +139,43 @@ def test_the_operators_air_is_fixed_physics_in_every_model():
     assert m.free_names == MeasurementModel(scenario()).free_names
     assert np.allclose(m.expected_counts(SRC, f), 0.1 * (1000 / d**2 * np.exp(-0.0093 * d) + 30))
     assert "air_attenuation.mu_per_m" in MeasurementModel(air, effects=("air_attenuation",)).free_names
+
+
+def test_wall_edges_are_ramps_of_the_crystals_size():
+    """The model's walls have edges ``EDGE_M`` (1 cm) wide: far from an edge the path length is the hard slab's
+    (radseek.geometry.path_lengths, the emulator's), within a few EDGE_M of one it differs by at most EDGE_M,
+    and across a shadow edge it is a smooth ramp: its slope along the detector's path changes over centimetres,
+    where the hard slab's jumps between two 0.5 mm steps (the jump that made the walled fits crawl)."""
+    from estimator.model import WallAttenuation, _SlabFrame
+    from radseek.geometry import path_lengths, wall_arrays
+
+    wall = Wall((4.0, 3.0), (6.0, 3.0), 0.2, 3.0)
+    arr = wall_arrays([wall])
+    src = np.array([5.0, 5.0, 0.0])
+    rng = np.random.default_rng(3)
+    pos = np.column_stack([rng.uniform(0, 10, 4000), rng.uniform(0, 10, 4000), rng.uniform(0.5, 2.5, 4000)])
+    soft = _SlabFrame(arr, WallAttenuation.EDGE_M).lengths(pos, src)
+    hard = path_lengths(pos, src, [wall])
+    assert np.abs(soft - hard).max() < WallAttenuation.EDGE_M
+    assert np.median(np.abs(soft - hard)[hard > 0.05]) < 1e-4  # far inside the shadow: the same length
+
+    # the detector at 1.5 m height walks east along y = 0 across the shadow edge of the wall's east end
+    xs = np.arange(7.2, 7.9, 5e-4)  # the shadow of the east end (x = 6) falls at x = 7.4-7.6 on y = 0
+    walk = np.column_stack([xs, np.zeros_like(xs), np.full_like(xs, 1.5)])
+    for length, jumps in ((_SlabFrame(arr, WallAttenuation.EDGE_M).lengths(walk, src), False),
+                          (path_lengths(walk, src, [wall]), True)):
+        slope = np.diff(length) / 5e-4
+        assert slope.min() < -0.1  # the shadow does end along this walk
+        assert (np.abs(np.diff(slope)).max() > 0.05) == jumps
+
+
+def test_a_walled_model_evaluates_hypotheses_and_poses_alike():
+    """Many source hypotheses at once (grid starts, particle filters) take the same smooth walls as one."""
+    wall = Wall((0.0, 3.0), (10.0, 3.0), 0.2, 3.0)
+    rng = np.random.default_rng(4)
+    f = frames(rng.uniform([0, 0, 1], [10, 10, 2], size=(60, 3)))
+    m = MeasurementModel(scenario([wall]), ["wall_attenuation"])
+    ys = np.linspace(2.5, 3.5, 11)  # sources on both sides of the wall and inside it
+    many = m.expected_counts({**SRC, "y": ys, "wall_attenuation.mu_per_m": 5.0}, f)
+    one = np.array([m.expected_counts({**SRC, "y": y, "wall_attenuation.mu_per_m": 5.0}, f) for y in ys])
+    np.testing.assert_allclose(many, one, rtol=1e-12)
