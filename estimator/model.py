@@ -242,15 +242,35 @@ class _SlabFrame:
         """The path lengths with every max and min of the slab method made smooth over ``edge_m`` of
         path (log-sum-exp; a segment's parameter t runs over its length, so the scale in t is edge_m / |d|):
         the length is then differentiable in the detector's position, and a shadow edge is a ramp of about
-        ``edge_m`` instead of a kink."""
+        ``edge_m`` instead of a kink. Segments that pass more than ``_FAR`` ramp widths from a slab get 0 (the
+        soft length there is below 1e-13 edge_m)."""
         seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)
         eps = self.edge_m / np.maximum(seg, 1e-9)
-        zero = np.zeros_like(seg)
-        enter = eps * np.logaddexp.reduce(np.stack([zero, *entries]) / eps, axis=0)
-        exit_ = -eps * np.logaddexp.reduce(np.stack([-np.ones_like(seg), *(-x for x in exits)]) / eps, axis=0)
-        with np.errstate(over="ignore"):
-            span = eps * np.logaddexp(0.0, (exit_ - enter) / eps)
-        return (np.where(self.solid, span, 0.0) * seg).sum(-1)
+        # beyond the segment's ends only the order matters: keep the huge steps of parallel axes finite
+        entries = [np.clip(e, -1e3, 1e3) for e in entries]
+        exits = [np.clip(x, -1e3, 1e3) for x in exits]
+        hard_in = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
+        hard_out = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
+        near = ((hard_out - hard_in) > -self._FAR * eps) & self.solid
+        span = np.zeros_like(seg)
+        if near.any():
+            e = eps[near]
+            enter = _soft_max([x[near] for x in entries] + [np.zeros_like(e)], hard_in[near], e)
+            exit_ = -_soft_max([-x[near] for x in exits] + [-np.ones_like(e)], -hard_out[near], e)
+            z = (exit_ - enter) / e
+            span[near] = e * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
+        return (span * seg).sum(-1)
+
+    #: ramp widths beyond which a segment's soft length through a slab is taken as 0
+    _FAR = 30.0
+
+
+def _soft_max(values: list[np.ndarray], top: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """eps log sum exp(v / eps), computed from the largest value ``top`` (no overflow)."""
+    acc = np.zeros_like(top)
+    for v in values:
+        acc += np.exp((v - top) / eps)
+    return top + eps * np.log(acc)
 
 
 class Anisotropy(Effect):
