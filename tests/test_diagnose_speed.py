@@ -11,21 +11,27 @@ from radseek.geometry import path_lengths
 
 
 def test_cached_wall_path_lengths_are_exact(shared_datasets):
+    """The near-wall cache returns the model's (soft-edged) slab lengths to rounding, and those stay within a
+    ramp width or two of the hard slabs (radseek.geometry.path_lengths)."""
+    from estimator.model import WallAttenuation, _SlabFrame
+
     ds = read_dataset(shared_datasets / "lattice-wall")
     m = MeasurementModel(ds.scenario, ("wall_attenuation",))
     part = m._parts[0]
+    exact = _SlabFrame(m._walls, WallAttenuation.EDGE_M)
     rng = np.random.default_rng(1)
     pos = ds.frames.positions
     for _ in range(30):
         src = np.array([rng.uniform(3, 7), rng.uniform(2, 6), 0.0])
         for sd in (0.0, 0.001, 0.05, 0.4):  # recorded, Jacobian step, pose offsets, beyond the cache margin
             p = pos + rng.normal(0, sd, pos.shape)
-            # the same slab method, set up once per wall set: equal to rounding
-            np.testing.assert_allclose(part._lengths(p, src, m._walls), path_lengths(p, src, m._walls), rtol=1e-12,
-                                       atol=1e-12)
+            cached = part._lengths(p, src, m._walls)
+            np.testing.assert_allclose(cached, exact.lengths(p, src), rtol=1e-12, atol=1e-12)
+            # two walls meet at a corner here: each may add its ramp
+            assert np.abs(cached - path_lengths(p, src, m._walls)).max() < 2 * WallAttenuation.EDGE_M
     # vectorised hypotheses (P sources) bypass the cache
     srcs = np.array([[4.0, 4.0, 0.0], [6.0, 3.0, 0.0]])[:, None, :]
-    np.testing.assert_allclose(part._lengths(pos, srcs, m._walls), path_lengths(pos, srcs, m._walls), atol=1e-12)
+    np.testing.assert_allclose(part._lengths(pos, srcs, m._walls), exact.lengths(pos, srcs), atol=1e-12)
 
 
 def test_parallel_candidate_fits_equal_serial_ones(shared_datasets):
