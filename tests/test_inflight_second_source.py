@@ -35,3 +35,26 @@ def _counting(fit, tried):
         tried.append(settings)
         return fit(self, frames, settings)
     return wrapped
+
+
+def test_a_doubtful_fit_is_tried_against_two_sources_and_the_test_keeps_one(shared_datasets, monkeypatch):
+    """The injected fault: the one-source fit of lattice-clean reports p = 0.005, doubtful but not failed (a weak
+    second source read as background looks like this). Below SECOND_SOURCE_TRY_P a two-source fit is tried; the
+    likelihood-ratio test, not the doubt, decides, and on one true source it keeps one."""
+    from estimator.inflight import SECOND_SOURCE_TRY_P
+
+    ds = read_dataset(shared_datasets / "lattice-clean")
+    tried = []
+    real = _counting(InflightEstimator._fit, tried)
+
+    def doubtful(self, frames, settings):
+        loc = real(self, frames, settings)
+        if loc is not None and "second_source" not in settings.get("effects", ()):
+            loc.info_["p_value"] = 0.005
+        return loc
+
+    assert GOOD_FIT_P < 0.005 < SECOND_SOURCE_TRY_P
+    monkeypatch.setattr(InflightEstimator, "_fit", doubtful)
+    rec = InflightEstimator(ds.scenario).update(ds.frames, dwell=9)
+    assert any("second_source" in s.get("effects", ()) for s in tried)
+    assert rec["effects"] == []
