@@ -118,7 +118,7 @@ class DeadTime(Effect):
 
 class WallAttenuation(Effect):
     """Beer-Lambert through the mapped walls: exp(-mu L), L the 3-D path length inside the slabs
-    (paper 004 eq. 5.19 with one effective mu for the mapped walls)."""
+    (paper 004 eq. 5.19 with one effective mu for the mapped walls), their edges ramps ``EDGE_M`` wide."""
 
     name = "wall_attenuation"
     #: path-length cache margin (m): see ``_lengths``
@@ -126,7 +126,7 @@ class WallAttenuation(Effect):
     #: fewer frames than this skip the near-wall mask: on an in-flight fit's few hundred (pooled) frames the
     #: mask's own evaluation costs more than the lengths it saves
     NEAR_MIN_FRAMES = 2000
-    #: m: the walls' edges are ramps this wide (:meth:`_SlabFrame._soft_lengths`), 0 for hard edges
+    #: m: the walls' edges are ramps this wide (:meth:`_SlabFrame._soft_span`), 0 for hard edges
     EDGE_M = 0.01
 
     def __init__(self) -> None:
@@ -142,7 +142,8 @@ class WallAttenuation(Effect):
         return np.exp(-th["wall_attenuation.mu_per_m"] * self._lengths(ctx.pos, src, ctx.walls))
 
     def _lengths(self, pos: np.ndarray, src: np.ndarray, walls: np.ndarray) -> np.ndarray:
-        """Path lengths (..., N), exact, computed only where they can be non-zero (on ``NEAR_MIN_FRAMES`` or
+        """Path lengths (..., N) through the walls with their ramped edges (:meth:`_SlabFrame._soft_span`), computed
+        only where they can be non-zero (on ``NEAR_MIN_FRAMES`` or
         more frames; fewer all go through the walls' frames set up once, :class:`_SlabFrame`).
 
         A fit evaluates one source position at poses that differ by pose offsets and Jacobian steps (a few cm):
@@ -215,8 +216,7 @@ class _SlabFrame:
         d = (src[..., :2] @ self.to_local - self.origin) - a
         az = pos[..., 2:3]
         dz = src[..., 2:3] - az  # (..., N, 1)
-        enter = np.full(d.shape[:-1] + (w,), -np.inf)
-        exit_ = np.full_like(enter, np.inf)
+        shape = d.shape[:-1] + (w,)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             # a direction with no component along an axis: a huge inverse step keeps it in (or out of) that
             # slab as the explicit parallel case of path_lengths does
@@ -226,40 +226,34 @@ class _SlabFrame:
             for a_k, d_k, lo, hi in axes:
                 inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
                 t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
-                entries.append(np.broadcast_to(np.minimum(t1, t2), enter.shape))
-                exits.append(np.broadcast_to(np.maximum(t1, t2), enter.shape))
+                entries.append(np.broadcast_to(np.minimum(t1, t2), shape))
+                exits.append(np.broadcast_to(np.maximum(t1, t2), shape))
+            enter = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
+            exit_ = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
+            seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)  # |src - pos| (the rotation keeps lengths)
             if self.edge_m > 0:
-                return self._soft_lengths(entries, exits, d, dz, w)
-            for e_k, x_k in zip(entries, exits, strict=True):
-                enter = np.maximum(enter, e_k)
-                exit_ = np.minimum(exit_, x_k)
-        span = np.clip(np.minimum(exit_, 1.0) - np.maximum(enter, 0.0), 0.0, None)
-        seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)  # |src - pos| (the rotation keeps lengths)
-        return (np.where(self.solid, span, 0.0) * seg).sum(-1)
+                span = self._soft_span(entries, exits, enter, exit_, seg)
+            else:
+                span = np.where(self.solid, np.clip(exit_ - enter, 0.0, None), 0.0)
+        return (span * seg).sum(-1)
 
-    def _soft_lengths(self, entries: list[np.ndarray], exits: list[np.ndarray], d: np.ndarray, dz: np.ndarray,
-                      w: int) -> np.ndarray:
-        """The path lengths with every max and min of the slab method made smooth over ``edge_m`` of
-        path (log-sum-exp; a segment's parameter t runs over its length, so the scale in t is edge_m / |d|):
-        the length is then differentiable in the detector's position, and a shadow edge is a ramp of about
-        ``edge_m`` instead of a kink. Segments that pass more than ``_FAR`` ramp widths from a slab get 0 (the
-        soft length there is below 1e-13 edge_m)."""
-        seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)
+    def _soft_span(self, entries: list[np.ndarray], exits: list[np.ndarray], enter: np.ndarray, exit_: np.ndarray,
+                   seg: np.ndarray) -> np.ndarray:
+        """The segment fractions inside the slabs with every max and min of the slab method (``enter``,
+        ``exit_`` are the hard ones) made smooth over ``edge_m`` of path (log-sum-exp; a segment's parameter t
+        runs over its length, so the scale in t is edge_m / |d|): the length is then differentiable in the
+        detector's position, and a shadow edge is a ramp of about ``edge_m`` instead of a kink. Segments that
+        pass more than ``_FAR`` ramp widths from a slab get 0 (the soft length there is below 1e-13 edge_m)."""
         eps = self.edge_m / np.maximum(seg, 1e-9)
-        # beyond the segment's ends only the order matters: keep the huge steps of parallel axes finite
-        entries = [np.clip(e, -1e3, 1e3) for e in entries]
-        exits = [np.clip(x, -1e3, 1e3) for x in exits]
-        hard_in = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
-        hard_out = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
-        near = ((hard_out - hard_in) > -self._FAR * eps) & self.solid
+        near = ((exit_ - enter) > -self._FAR * eps) & self.solid
         span = np.zeros_like(seg)
         if near.any():
             e = eps[near]
-            enter = _soft_max([x[near] for x in entries] + [np.zeros_like(e)], hard_in[near], e)
-            exit_ = -_soft_max([-x[near] for x in exits] + [-np.ones_like(e)], -hard_out[near], e)
-            z = (exit_ - enter) / e
+            soft_in = _soft_max([x[near] for x in entries] + [np.zeros_like(e)], enter[near], e)
+            soft_out = -_soft_max([-x[near] for x in exits] + [-np.ones_like(e)], -exit_[near], e)
+            z = (soft_out - soft_in) / e
             span[near] = e * (np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z))))
-        return (span * seg).sum(-1)
+        return span
 
     #: ramp widths beyond which a segment's soft length through a slab is taken as 0
     _FAR = 30.0
