@@ -54,9 +54,10 @@ SEARCH_TOL = 1.0
 #: a profiled multi-start fit first runs every start without the pose offsets (:func:`_screen`) and goes on
 #: from the best SCREEN_KEEP minima found that lie SCREEN_APART_M apart and within SCREEN_MARGIN in -log L of
 #: the best. The offsets narrow the gap between basins by about a quarter (outdoor, a first walled fit: 92 ->
-#: 69 and 1483 -> 715); the margin keeps any basin the offsets could plausibly bring level
+#: 69 and 1483 -> 715); the margin keeps any basin the offsets could plausibly bring level. Minima closer than
+#: SCREEN_APART_M are one basin to the profiled search (a wall's shadow edges separate modes by ~0.5 m)
 SCREEN_KEEP = 2
-SCREEN_APART_M = 0.05
+SCREEN_APART_M = 0.25
 SCREEN_MARGIN = 30.0
 _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
 #: a minimum whose only fault is an EDM (expected distance to the minimum in -log L, with HESSE's full

@@ -129,9 +129,14 @@ class WallAttenuation(Effect):
     #: m: the walls' edges are ramps this wide (:meth:`_SlabFrame._soft_span`), 0 for hard edges
     EDGE_M = 0.01
 
+    #: path lengths kept for the last few (source, poses) pairs: MIGRAD's gradient steps in the strength,
+    #: background and mu (and a profile's first evaluations) ask again for lengths it just computed
+    MEMO_SIZE = 8
+
     def __init__(self) -> None:
         self._near: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
         self._frame: tuple[bytes, tuple[_SlabFrame, _SlabFrame]] | None = None
+        self._memo: dict[tuple[bytes, bytes], np.ndarray] = {}  # (source and walls, poses) -> lengths
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [Param("wall_attenuation.mu_per_m", 1.0, 0.0, 100.0, unit="1/m", step=0.5)]
@@ -150,12 +155,23 @@ class WallAttenuation(Effect):
         the frames whose line of sight misses every wall grown by ``NEAR_M`` (ends, thickness, top) are found
         once per source position, and while the poses stay within ``NEAR_M / 2`` of those they cannot reach a
         wall (every point of the new segment is within NEAR_M / 2 of the old one), so only the others are
-        computed.
+        computed. The last :data:`MEMO_SIZE` results are kept (read-only) for the same source, walls and poses.
         """
         s = np.asarray(src, dtype=float)
         if s.size != 3 or pos.ndim != 2:
             return self._slabs(walls)[0].lengths(pos, s)  # hypotheses (P, 1, 3) or poses (P, N, 3)
         s = s.reshape(3)
+        key = (s.tobytes() + walls.tobytes(), np.ascontiguousarray(pos).tobytes())
+        out = self._memo.get(key)
+        if out is None:
+            out = self._near_lengths(pos, s, walls)
+            out.flags.writeable = False  # shared by every caller that asks again
+            if len(self._memo) >= self.MEMO_SIZE:
+                del self._memo[next(iter(self._memo))]
+            self._memo[key] = out
+        return out
+
+    def _near_lengths(self, pos: np.ndarray, s: np.ndarray, walls: np.ndarray) -> np.ndarray:
         if len(pos) < self.NEAR_MIN_FRAMES:
             return self._slabs(walls)[0].lengths(pos, s)
         key = s.tobytes()

@@ -179,3 +179,24 @@ def test_a_walled_model_evaluates_hypotheses_and_poses_alike():
     many = m.expected_counts({**SRC, "y": ys, "wall_attenuation.mu_per_m": 5.0}, f)
     one = np.array([m.expected_counts({**SRC, "y": y, "wall_attenuation.mu_per_m": 5.0}, f) for y in ys])
     np.testing.assert_allclose(many, one, rtol=1e-12)
+
+
+def test_wall_lengths_asked_again_are_kept_and_never_stale():
+    """A fit asks again for the lengths of the same source and poses (MIGRAD steps in strength, background and
+    mu): those come back identical and read-only; another source, other poses or more sources than the memo holds
+    are computed afresh (checked against the slab lengths computed directly)."""
+    from estimator.model import WallAttenuation, _SlabFrame
+    from radseek.geometry import wall_arrays
+
+    walls = wall_arrays([Wall((0.0, 3.0), (10.0, 3.0), 0.2, 3.0)])
+    rng = np.random.default_rng(6)
+    pos = rng.uniform([0, 0, 1], [10, 10, 2], size=(300, 3))
+    eff = WallAttenuation()
+    direct = _SlabFrame(walls, WallAttenuation.EDGE_M)
+    sources = [np.array([x, 5.0, 0.0]) for x in np.linspace(1, 9, WallAttenuation.MEMO_SIZE + 3)]
+    for src in sources + sources[:2]:  # the first two were evicted by then
+        for p in (pos, pos + 0.01):
+            got = eff._lengths(p, src, walls)
+            np.testing.assert_array_equal(got, direct.lengths(p, src))
+            assert eff._lengths(p.copy(), src.copy(), walls) is got  # equal inputs: the kept array
+            assert not got.flags.writeable
