@@ -172,6 +172,7 @@ class WallAttenuation(Effect):
         return out
 
     def _near_lengths(self, pos: np.ndarray, s: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """:meth:`_lengths` computed: all of them, or on many frames only those near a wall."""
         if len(pos) < self.NEAR_MIN_FRAMES:
             return self._slabs(walls)[0].lengths(pos, s)
         key = s.tobytes()

@@ -57,3 +57,24 @@ def router():
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@pytest.fixture
+def counted_fits(monkeypatch):
+    """Count the in-flight estimator's fits by their ``n_starts`` (``calls``), and, while ``misfit["on"]``,
+    inject the fault of a failed goodness of fit (p = 1e-6) into each fit's result."""
+    from estimator.inflight import InflightEstimator
+
+    real_fit = InflightEstimator._fit
+    calls: list[int | None] = []
+    misfit = {"on": False}
+
+    def fit(self, frames, settings):
+        loc = real_fit(self, frames, settings)
+        calls.append(settings.get("n_starts"))
+        if misfit["on"] and loc is not None:
+            loc.info_["p_value"] = 1e-6
+        return loc
+
+    monkeypatch.setattr(InflightEstimator, "_fit", fit)
+    return calls, misfit

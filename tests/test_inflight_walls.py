@@ -57,22 +57,11 @@ def test_a_walled_model_starts_in_the_shadows_mode(lattice_wall):
     assert best["wall_attenuation.mu_per_m"] in GRID_WALL_MU
 
 
-def test_a_misfit_that_persists_does_not_search_the_starts_again(lattice_wall, monkeypatch):
+def test_a_misfit_that_persists_does_not_search_the_starts_again(lattice_wall, counted_fits):
     """The injected fault: every fit after the first misfits (p = 1e-6, a physical effect the model lacks).
     The warm walled refit after a record that fit well escalates to all its starts; once the last record itself
     misfit (its starts were searched), the next warm refit keeps its misfit instead of searching them again."""
-    real_fit = InflightEstimator._fit
-    calls = []
-    misfit = {"on": False}
-
-    def fit(self, frames, settings):
-        loc = real_fit(self, frames, settings)
-        calls.append(settings.get("n_starts"))
-        if misfit["on"] and loc is not None:
-            loc.info_["p_value"] = 1e-6
-        return loc
-
-    monkeypatch.setattr(InflightEstimator, "_fit", fit)
+    calls, misfit = counted_fits
     est = InflightEstimator(lattice_wall.scenario)
     first = est.update(lattice_wall.frames, dwell=9)
     assert first["effects"] == ["wall_attenuation"] and first["p_value"] >= GOOD_FIT_P

@@ -14,26 +14,10 @@ def lattice_clean(shared_datasets):
     return read_dataset(shared_datasets / "lattice-clean")
 
 
-def _counting(monkeypatch, misfit):
-    real_fit = InflightEstimator._fit
-    calls = []
-
-    def fit(self, frames, settings):
-        loc = real_fit(self, frames, settings)
-        calls.append(settings.get("n_starts"))
-        if misfit["on"] and loc is not None:
-            loc.info_["p_value"] = 1e-6
-        return loc
-
-    monkeypatch.setattr(InflightEstimator, "_fit", fit)
-    return calls
-
-
 @pytest.mark.parametrize("injected_misfit", [False, True])
-def test_a_confident_estimate_is_refitted_from_itself(lattice_clean, monkeypatch, injected_misfit):
+def test_a_confident_estimate_is_refitted_from_itself(lattice_clean, counted_fits, injected_misfit):
     ds = lattice_clean
-    misfit = {"on": False}
-    calls = _counting(monkeypatch, misfit)
+    calls, misfit = counted_fits
     est = InflightEstimator(ds.scenario)
     dwells = np.unique(ds.frames.dwell[ds.frames.dwell >= 0])
     first = est.update(ds.frames.select(ds.frames.dwell <= dwells[-2]), dwell=len(dwells) - 1)
