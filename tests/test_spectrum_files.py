@@ -41,6 +41,12 @@ def test_background_and_ba133_read():
     assert sf.read_spectrum(DATA / "Ba133_a.xml").counts.sum() == 207680
 
 
+@pytest.mark.parametrize("name,total", [("Co60_a.xml", 61243), ("Eu152_b.xml", 144169)])
+def test_the_same_devices_other_nuclides_read(name, total):
+    sp = sf.read_spectrum(DATA / name)
+    assert sp.live_time_s == 300.0 and sp.counts.sum() == total and sp.serial == "RC-102-001272"
+
+
 @pytest.mark.parametrize("writer,suffix", [(sf.write_spe, ".spe"), (sf.write_chn, ".chn"), (sf.write_csv, ".csv")])
 def test_ortec_and_csv_round_trip(tmp_path, writer, suffix):
     sp = sf.read_spectrum(DATA / "Cs137_b.xml")
