@@ -165,7 +165,12 @@ class MaximumLikelihood(Localizer):
         hybrid = None
         if self.pose_uncertainty and np.any(frames.pose_variances > 0) and list(res.free_names) == model.free_names:
             hybrid = pose_aware_crlb(model, res.values, frames)
-            cov = covering_covariance(cov, hybrid)
+            # a walled likelihood is not quadratic at its optimum (the walls' shadow-edge ramps), and its
+            # numerical Hessian errs both ways: alone it covered 74 % of lattice-wall searches, as the cover of
+            # the bound it reported 0.1-0.4 m on flights 0.01-0.05 m off and 16 % never stopped. The expected
+            # information (the average curvature) alone covers 95.5 % and every search stops found
+            walled = "wall_attenuation" in model.effects and bool(scenario.walls)
+            cov = hybrid if walled and np.isfinite(cov).all() else covering_covariance(cov, hybrid)
         self.covariance_ = _embed(cov, res.free_names, per_source)
         self.background_ = float(res.values["background_cps"])
         self.crlb_ = None
