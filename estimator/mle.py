@@ -706,7 +706,8 @@ def fit(
     fcn = _objective(model, frames, names, fixed, groups)
     # MIGRAD minimises half the deviance (small terms, summed without cancellation); -log L is that plus
     # the saturated model's -log L
-    saturated = poisson_nll(model.observed_counts(frames), model.observed_counts(frames))
+    n = model.observed_counts(frames)
+    saturated = poisson_nll(n, n)
     if groups is not None:
         starts = _screen(model, frames, names, fixed, starts)
     best: Minuit | None = None
@@ -730,7 +731,6 @@ def fit(
         best.hesse()
     values = {**fixed, **dict(zip(names, (float(v) for v in best.values), strict=True))}
     cov = np.array(best.covariance) if best.covariance is not None else np.full((len(names),) * 2, np.nan)
-    n = model.observed_counts(frames)
     nll = float(best.fval) + saturated
     if groups is not None:
         pose_offsets, mu, penalty = converged_profile(model, values, frames, groups)

@@ -5,7 +5,8 @@ effect vocabulary except ``gain_drift``): per-frame total counts n_i ~ Poisson(m
 multi-start and bounded (MIGRAD), with the per-dwell pose offsets profiled out when
 ``pose_uncertainty``. ``covariance_`` is the inverse Hessian of the negative log-likelihood (observed
 information, HESSE), widened where needed to cover the drift-aware expected-information bound
-(:func:`covering_covariance`, :func:`pose_aware_crlb`); ``crlb_`` is the Cramér-Rao bound for the flown
+(:func:`covering_covariance`, :func:`pose_aware_crlb`); with mapped walls in the model it is that bound alone;
+``crlb_`` is the Cramér-Rao bound for the flown
 poses at the estimate: paper 004
 eq. 5.3-5.7 generalised to the Poisson likelihood and the model's free parameters (J = sum_i grad mu_i
 grad mu_i^T / mu_i), inverted over all free parameters and then restricted to (x, y, z, cps_at_1m) per
@@ -109,11 +110,11 @@ def covering_covariance(observed: np.ndarray, expected: np.ndarray) -> np.ndarra
 
     ``observed`` is the inverse Hessian of the fit (HESSE, observed information); ``expected`` the inverse
     expected information with the pose offsets as nuisances under their drift prior (:func:`pose_aware_crlb`).
-    Where the likelihood has a kink (a wall's shadow edge sweeping over a frame: a hard edge in the
-    source position) the numerical Hessian sees an almost infinite curvature and the observed ellipse
-    collapses (± 0.000 m); the expected information caps what one pose group can tell by its drift
-    prior, so the reported uncertainty never claims more than the drift allows. A non-finite ``observed``
-    (a fit that did not converge) stays non-finite: no ellipse is claimed for it."""
+    The expected information caps what one pose group can tell by its drift prior, so the reported uncertainty
+    never claims more than the drift allows. Wall-free fits report this cover; a walled fit reports ``expected``
+    alone (:meth:`MaximumLikelihood._fit`: at the walls' shadow edges the likelihood is not quadratic and the
+    numerical Hessian errs both ways). A non-finite ``observed`` (a fit that did not converge) stays
+    non-finite: no ellipse is claimed for it."""
     observed = np.asarray(observed, dtype=float)
     expected = np.asarray(expected, dtype=float)
     if not (np.isfinite(observed).all() and np.isfinite(expected).all()):
