@@ -33,3 +33,35 @@ def test_a_confident_estimate_is_refitted_from_itself(lattice_clean, counted_fit
         assert calls == [1]
         truth = ds.truth.sources[0]
         assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
+
+
+def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(shared_datasets, monkeypatch):
+    """The last estimate was walled; the new wall-free refit misfits and no recorded line of sight near the
+    estimate crosses a wall (both injected): the walled model is refitted from the last walled estimate alone,
+    not from all its starts (lattice-wall seed 8: 5 starts, 1.3 s). The independent generator's lattice-wall."""
+    ds = read_dataset(shared_datasets / "lattice-wall")
+    real_fit = InflightEstimator._fit
+    calls: list[tuple[tuple[str, ...], int]] = []
+
+    def fit(self, frames, settings):
+        loc = real_fit(self, frames, settings)
+        effects = tuple(settings.get("effects", ()))
+        calls.append((effects, settings.get("n_starts")))
+        if inject["on"] and loc is not None and not effects:
+            loc.info_["p_value"] = 1e-6  # the fault: the wall-free refit misfits
+        return loc
+
+    inject = {"on": False}
+    monkeypatch.setattr(InflightEstimator, "_fit", fit)
+    est = InflightEstimator(ds.scenario)
+    dwells = np.unique(ds.frames.dwell[ds.frames.dwell >= 0])
+    first = est.update(ds.frames.select(ds.frames.dwell <= dwells[-2]), dwell=len(dwells) - 1)
+    assert first is not None and "wall_attenuation" in first["effects"]
+    inject["on"] = True
+    monkeypatch.setattr(InflightEstimator, "_shadowed", lambda self, frames, source: False)
+    calls.clear()
+    second = est.update(ds.frames, dwell=len(dwells))
+    assert calls == [((), 1), (("wall_attenuation",), 1)]
+    assert "wall_attenuation" in second["effects"]
+    truth = ds.truth.sources[0]
+    assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
