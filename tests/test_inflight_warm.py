@@ -65,3 +65,28 @@ def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(sh
     assert "wall_attenuation" in second["effects"]
     truth = ds.truth.sources[0]
     assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
+
+
+def test_a_wall_free_estimate_the_walls_now_shadow_goes_straight_to_the_walled_fit(shared_datasets, monkeypatch):
+    """The last estimate was wall-free (injected) and a recorded line of sight near it crosses a wall: the
+    refit is the walled model with its starts, and no wall-free fit first (the shadow would discard it)."""
+    ds = read_dataset(shared_datasets / "lattice-wall")
+    real_fit = InflightEstimator._fit
+    calls: list[tuple[tuple[str, ...], int]] = []
+
+    def fit(self, frames, settings):
+        calls.append((tuple(settings.get("effects", ())), settings.get("n_starts")))
+        return real_fit(self, frames, settings)
+
+    monkeypatch.setattr(InflightEstimator, "_fit", fit)
+    est = InflightEstimator(ds.scenario)
+    dwells = np.unique(ds.frames.dwell[ds.frames.dwell >= 0])
+    first = est.update(ds.frames.select(ds.frames.dwell <= dwells[-2]), dwell=len(dwells) - 1)
+    first["effects"] = []  # the fault: the last estimate is taken as wall-free
+    assert est._shadowed(ds.frames, [first[k] for k in ("x", "y", "z")])
+    calls.clear()
+    second = est.update(ds.frames, dwell=len(dwells))
+    assert calls == [(("wall_attenuation",), 5)]
+    assert second["effects"] == ["wall_attenuation"] and second["converged"]
+    truth = ds.truth.sources[0]
+    assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
