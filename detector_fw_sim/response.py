@@ -21,7 +21,11 @@ Physics only, from the photon cross-sections (no drawn shapes):
 - **Backscatter**: a fraction ``backscatter_fraction`` of photons reaches the crystal after
   Compton scattering through angles of 110-180 deg in the surroundings (floor, frame, electronics).
   Their energies E/(1 + k(1 - cos theta)) weighted by Klein-Nishina dsigma/dOmega put the
-  backscatter peak near 184 keV for Cs-137; they then deposit like any photon.
+  backscatter peak near 184 keV for Cs-137; they then deposit like any photon. The fraction is given at
+  Cs-137's 662 keV; at another line energy it follows single scattering in a thick scatterer
+  (``scatter_share_scale``: Klein-Nishina over the attenuation in and out of concrete, NIST XCOM via
+  pydecay): against 662 keV, Co-60's lines backscatter 0.70-0.75 times as much and Ba-133's 356 keV 1.29 times
+  (a thin scatterer's Klein-Nishina ratio alone: 0.60-0.66 and 1.52).
 - **Resolution**: Gaussian, FWHM/E = r * sqrt(662 keV / E) (~7 % at 662 keV for CsI(Tl)).
 
 A pulse is counted in channel k when its energy lies in [edges[k], edges[k+1]); channel 31 is the
@@ -272,6 +276,7 @@ class ResponseEffects:
 
 
 SIDE_SCATTER_DEG = (20.0, 110.0)
+BACKSCATTER_MIN_DEG = 110.0
 MULTIPLE_SCATTER_MIN_KEV = 30.0
 
 
@@ -454,7 +459,8 @@ def scattered_energies(E_keV: float, theta_lo_deg: float, theta_hi_deg: float, n
     return scattered_energy_keV(E_keV, mid), w / w.sum()
 
 
-def backscatter_energies(E_keV: float, n: int = 24, theta_min_deg: float = 110.0) -> tuple[np.ndarray, np.ndarray]:
+def backscatter_energies(E_keV: float, n: int = 24, theta_min_deg: float = BACKSCATTER_MIN_DEG
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """Energies of photons back-scattered through theta_min..180 deg and their Klein-Nishina weights (sum 1)."""
     return scattered_energies(E_keV, theta_min_deg, 180.0, n)
 
@@ -466,18 +472,61 @@ def multiple_scatter_energies(E_keV: float, n: int = 24) -> tuple[np.ndarray, np
     return np.sqrt(edges[1:] * edges[:-1]), np.full(n, 1.0 / n)
 
 
+#: the surroundings' scatterers (floor, walls, bench, source holder) are thick: a line energy's scattered share
+#: follows single scattering in a thick slab of this material (:func:`scatter_share_scale`)
+SCATTERER_MATERIAL = "concrete"
+#: the line energy (keV) at which a calibrated detector's scatter shares are given: Cs-137's 661.657 keV
+SHARE_REFERENCE_KEV = 661.657
+
+
+@lru_cache(maxsize=4096)
+def thick_scatter_yield(E_keV: float, theta_lo_deg: float, theta_hi_deg: float, n: int = 200) -> float:
+    """Photons of E_keV singly scattered through theta_lo..theta_hi deg back out of a thick slab, per electron
+    and per unit areal density: integral of dsigma_KN/dOmega / (mu/rho(E) + mu/rho(E')) over the angles
+    (single-scattering albedo of a semi-infinite medium, normal incidence and exit: the photon is scattered at
+    the depth it reaches and must get out again at its scattered energy E'; Chandrasekhar, *Radiative
+    Transfer*, 1960, sec. 9; mu/rho of ``SCATTERER_MATERIAL`` from pydecay / NIST XCOM)."""
+    mat = pydecay.material(SCATTERER_MATERIAL)
+    theta = np.linspace(math.radians(theta_lo_deg), math.radians(theta_hi_deg), n + 1)
+    mid = 0.5 * (theta[1:] + theta[:-1])
+    mu_in = mat.mu_over_rho(max(E_keV, 10.0) / 1000.0)
+    mu_out = np.array([mat.mu_over_rho(max(float(e), 10.0) / 1000.0) for e in scattered_energy_keV(E_keV, mid)])
+    return float((klein_nishina_dOmega(E_keV, mid) * np.sin(mid) * np.diff(theta) / (mu_in + mu_out)).sum())
+
+
+def scatter_share_scale(E_keV: float, theta_lo_deg: float, theta_hi_deg: float) -> float:
+    """A calibrated scatter share (given at :data:`SHARE_REFERENCE_KEV`) at line energy E_keV: the ratio of the
+    thick-slab single-scattering yields (:func:`thick_scatter_yield`). Against Cs-137's 662 keV the Klein-Nishina
+    cross-section falls with energy, but a harder photon reaches deeper and gets out more easily: Co-60's lines
+    backscatter 0.70-0.75 times as much (Klein-Nishina alone 0.60-0.66) and Ba-133's 356 keV 1.29 times (alone
+    1.52). The thin ratio alone moved Ba-133 away from the same device's spectrum (docs/real-spectra.md)."""
+    lo, hi = round(float(theta_lo_deg), 3), round(float(theta_hi_deg), 3)
+    if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(E_keV)):
+        return math.nan  # a search's trial step off the parameter space: the likelihood is nan there too
+    return thick_scatter_yield(round(float(E_keV), 3), lo, hi) / thick_scatter_yield(SHARE_REFERENCE_KEV, lo, hi)
+
+
 def scatter_components(E_keV: float, backscatter_fraction: float, effects: ResponseEffects | None
                        ) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """(share, energies, weights) of the photons of one line reaching the crystal scattered in the surroundings;
-    the unscattered share is 1 minus the sum of the shares."""
+    the unscattered share is 1 minus the sum of the shares. The shares (the emulator's default backscatter and a
+    calibrated crystal's) are given at :data:`SHARE_REFERENCE_KEV` and scaled to E_keV by
+    :func:`scatter_share_scale`."""
     out = []
+
+    def scale(lo: float, hi: float) -> float:
+        return scatter_share_scale(E_keV, lo, hi)
+
     if backscatter_fraction > 0:
-        out.append((backscatter_fraction, *backscatter_energies(E_keV)))
+        out.append((backscatter_fraction * scale(BACKSCATTER_MIN_DEG, 180.0), *backscatter_energies(E_keV)))
     if effects is not None and effects.scatter_side > 0:
-        out.append((effects.scatter_side, *scattered_energies(E_keV, effects.side_scatter_min_deg,
-                                                              SIDE_SCATTER_DEG[1])))
+        lo, hi = effects.side_scatter_min_deg, SIDE_SCATTER_DEG[1]
+        out.append((effects.scatter_side * scale(lo, hi), *scattered_energies(E_keV, lo, hi)))
     if effects is not None and effects.scatter_multiple > 0:
-        out.append((effects.scatter_multiple, *multiple_scatter_energies(E_keV)))
+        out.append((effects.scatter_multiple * scale(0.0, 180.0), *multiple_scatter_energies(E_keV)))
+    total = sum(c[0] for c in out)
+    if total > 1.0:  # a share scaled past all photons (far-off energies): the direct share cannot go negative
+        out = [(c[0] / total, c[1], c[2]) for c in out]
     return out
 
 

@@ -118,3 +118,42 @@ def test_activity_conversion_uses_efficiency_and_face_area():
     below = np.trapezoid(np.where(t < 40.0, kn, 0.0), t) / np.trapezoid(kn, t)
     photo, compton = response.csi_coefficients(661.657)
     assert p_int * (1 - compton / mu * below) * 0.97 < counted <= p_int
+
+
+def test_thick_scatter_share_scale_is_the_single_scattering_albedo_ratio():
+    """``scatter_share_scale`` against scipy's adaptive quadrature of the albedo integrand written out here
+    (Klein-Nishina in its textbook form, concrete mu/rho from pydecay): dsigma/dOmega sin(theta) over
+    mu(E) + mu(E'), at the line energy over at 662 keV. It is 1 at the reference line and falls with energy at
+    backward angles."""
+    import math
+
+    import pydecay
+    from scipy.integrate import quad
+
+    mat = pydecay.material(response.SCATTERER_MATERIAL)
+
+    def integrand(theta, e):
+        p = 1.0 / (1.0 + e / 510.99895 * (1.0 - math.cos(theta)))  # E'/E
+        dsig = 0.5 * p**2 * (p + 1.0 / p - math.sin(theta) ** 2)  # r_e^2 left out: it cancels in the ratio
+        return dsig * math.sin(theta) / (mat.mu_over_rho(e / 1000.0) + mat.mu_over_rho(e * p / 1000.0))
+
+    def ratio(e, lo, hi):
+        def y(en):
+            return quad(integrand, math.radians(lo), math.radians(hi), args=(en,), limit=200)[0]
+        return y(e) / y(response.SHARE_REFERENCE_KEV)
+
+    for e, lo, hi in ((356.0, 110.0, 180.0), (81.0, 32.0, 110.0), (1332.5, 0.0, 180.0)):
+        assert response.scatter_share_scale(e, lo, hi) == pytest.approx(ratio(e, lo, hi), rel=2e-3)
+    assert response.scatter_share_scale(661.657, 110.0, 180.0) == pytest.approx(1.0)
+    back = [response.scatter_share_scale(e, 110.0, 180.0) for e in (356.0, 661.657, 1173.2, 1332.5)]
+    assert back == sorted(back, reverse=True) and back[0] > 1.2 and back[-1] < 0.8
+
+
+def test_scatter_shares_are_given_at_662_kev_and_scaled_per_line():
+    """Each component's share at a line energy is the 662 keV share times the thick-slab scale."""
+    eff = response.ResponseEffects(scatter_side=0.1, scatter_multiple=0.04, side_scatter_min_deg=30.0)
+    scale = response.scatter_share_scale
+    for e in (121.8, 661.657, 1173.2):
+        comps = response.scatter_components(e, 0.05, eff)
+        want = [0.05 * scale(e, 110.0, 180.0), 0.1 * scale(e, 30.0, 110.0), 0.04 * scale(e, 0.0, 180.0)]
+        assert [c[0] for c in comps] == pytest.approx(want, rel=1e-12)
