@@ -256,7 +256,8 @@ class ResponseEffects:
       source capsule and holder; it shapes the X-ray and low-energy lines.
     - ``scatter_side``: share of photons reaching the crystal after one Compton scatter through
       ``SIDE_SCATTER_DEG`` in the source holder and nearby objects (Klein-Nishina dsigma/dOmega weights);
-      the existing ``backscatter_fraction`` covers 110-180 deg.
+      the existing ``backscatter_fraction`` covers 110-180 deg. Both, and ``scatter_multiple``, are shares at
+      662 keV; other lines get them times ``scatter_share_scale`` (a thick scatterer).
     - ``scatter_multiple``: share of photons arriving after several scatters in the room, spread flat in
       log E from ``MULTIPLE_SCATTER_MIN_KEV`` to the line energy (the build-up continuum).
     - ``escape_scale`` multiplies the escape length of Compton-scattered photons (a crystal's shape and
