@@ -150,6 +150,16 @@ def _warn_no_mcap(out: Path, why: str) -> None:
           "its record)", file=sys.stderr)
 
 
+def _last_words(log: Path) -> str:
+    """': ' and the log's last line when it is the process's own error message ("radseek ...: ..."), else ''."""
+    try:
+        lines = log.read_text(errors="replace").strip().splitlines()
+    except OSError:
+        return ""
+    last = next((ln.strip() for ln in reversed(lines) if ln.strip()), "")
+    return f": {last}" if last.startswith("radseek ") else ""
+
+
 def start_recorder(stack: Stack, out: Path, endpoint: str, gcs_port: int) -> None:
     """Start ``radseek record`` into ``out/flight.mcap``: every zenoh topic, and the MAVLink the vehicle
     sends its GCS port (the recorder is that GCS: it listens and never answers)."""
@@ -435,7 +445,8 @@ def main(argv: list[str] | None = None) -> int:
         return run.exit_code
     wall = time.monotonic() - t0
     if mission.returncode not in (EXIT_FOUND, EXIT_SEARCH_FAILED):  # the mission's own verdict is read below
-        print(f"radseek run: mission failed (exit {mission.returncode}); see {out}/logs/mission.log", file=sys.stderr)
+        print(f"radseek run: mission failed (exit {mission.returncode}){_last_words(out / 'logs' / 'mission.log')}; "
+              f"see {out}/logs/mission.log", file=sys.stderr)
         return EXIT_STACK
     try:
         mission_summary = json.loads((out / "dataset" / "mission_summary.json").read_text())

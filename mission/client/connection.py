@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from mavsdk.asyncio import Configuration, Mavsdk
+from mavsdk.asyncio.exceptions import MavsdkConnectionError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.component_type import ComponentType
 
@@ -18,6 +19,7 @@ DEFAULT_URL = "udpin://0.0.0.0:14540"  # PX4 SITL's API port: the vehicle sends 
 class ConnectionResult(Enum):
     SUCCESS = "success"
     NO_VEHICLE = "no autopilot heartbeat"
+    NO_LINK = "cannot open the MAVLink link"
     NOT_HEALTHY = "vehicle not healthy (no position or home)"
 
 
@@ -42,7 +44,13 @@ class Connection:
 async def connect(url: str = DEFAULT_URL, timeout_s: float = 30.0) -> Connection:
     """Open ``url`` (e.g. ``udpin://0.0.0.0:14540``) and return the first autopilot found."""
     sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    await sdk.add_any_connection(url)
+    try:
+        await sdk.add_any_connection(url)
+    except MavsdkConnectionError as exc:  # e.g. BIND_ERROR: the port is taken
+        sdk.destroy()
+        raise ConnectionFailed(ConnectionResult.NO_LINK, f"{url}: {exc} (is another radseek run, SITL or ground "
+                                                          "station listening on that port? radseek run "
+                                                          "--mavlink-port chooses another)") from None
     system = await sdk.first_autopilot(timeout_s)
     if system is None:
         sdk.destroy()
