@@ -507,27 +507,44 @@ def scatter_share_scale(E_keV: float, theta_lo_deg: float, theta_hi_deg: float) 
     return thick_scatter_yield(round(float(E_keV), 3), lo, hi) / thick_scatter_yield(SHARE_REFERENCE_KEV, lo, hi)
 
 
+@lru_cache(maxsize=256)
+def _share_scales(energies: tuple[float, ...], theta_lo_deg: float, theta_hi_deg: float) -> np.ndarray:
+    """:func:`scatter_share_scale` of each line energy over one angular range (read-only)."""
+    out = np.array([scatter_share_scale(e, theta_lo_deg, theta_hi_deg) for e in energies])
+    out.setflags(write=False)
+    return out
+
+
+def scaled_shares(energies_keV: Any, backscatter_fraction: float, scatter_side: float, scatter_multiple: float,
+                  side_scatter_min_deg: float = SIDE_SCATTER_DEG[0]) -> np.ndarray:
+    """(3, L) back, side and multiple scatter shares of L lines: the shares given at :data:`SHARE_REFERENCE_KEV`
+    times :func:`scatter_share_scale` at each line's energy. Where they would add up past 1 (far-off energies)
+    they are scaled down to 1 together, so the direct share never goes negative."""
+    e = tuple(float(x) for x in np.atleast_1d(energies_keV))
+    theta_min = round(float(side_scatter_min_deg), 3)
+    shares = np.stack([
+        backscatter_fraction * _share_scales(e, BACKSCATTER_MIN_DEG, 180.0),
+        scatter_side * _share_scales(e, theta_min, SIDE_SCATTER_DEG[1]),
+        scatter_multiple * _share_scales(e, 0.0, 180.0)])
+    return shares / np.maximum(shares.sum(0), 1.0)
+
+
 def scatter_components(E_keV: float, backscatter_fraction: float, effects: ResponseEffects | None
                        ) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """(share, energies, weights) of the photons of one line reaching the crystal scattered in the surroundings;
     the unscattered share is 1 minus the sum of the shares. The shares (the emulator's default backscatter and a
-    calibrated crystal's) are given at :data:`SHARE_REFERENCE_KEV` and scaled to E_keV by
-    :func:`scatter_share_scale`."""
+    calibrated crystal's) are given at :data:`SHARE_REFERENCE_KEV` and scaled to E_keV (:func:`scaled_shares`)."""
+    side = effects.scatter_side if effects is not None else 0.0
+    multiple = effects.scatter_multiple if effects is not None else 0.0
+    theta_min = effects.side_scatter_min_deg if effects is not None else SIDE_SCATTER_DEG[0]
+    fb, fs, fm = scaled_shares(E_keV, backscatter_fraction, side, multiple, theta_min)[:, 0]
     out = []
-
-    def scale(lo: float, hi: float) -> float:
-        return scatter_share_scale(E_keV, lo, hi)
-
     if backscatter_fraction > 0:
-        out.append((backscatter_fraction * scale(BACKSCATTER_MIN_DEG, 180.0), *backscatter_energies(E_keV)))
-    if effects is not None and effects.scatter_side > 0:
-        lo, hi = effects.side_scatter_min_deg, SIDE_SCATTER_DEG[1]
-        out.append((effects.scatter_side * scale(lo, hi), *scattered_energies(E_keV, lo, hi)))
-    if effects is not None and effects.scatter_multiple > 0:
-        out.append((effects.scatter_multiple * scale(0.0, 180.0), *multiple_scatter_energies(E_keV)))
-    total = sum(c[0] for c in out)
-    if total > 1.0:  # a share scaled past all photons (far-off energies): the direct share cannot go negative
-        out = [(c[0] / total, c[1], c[2]) for c in out]
+        out.append((float(fb), *backscatter_energies(E_keV)))
+    if side > 0:
+        out.append((float(fs), *scattered_energies(E_keV, theta_min, SIDE_SCATTER_DEG[1])))
+    if multiple > 0:
+        out.append((float(fm), *multiple_scatter_energies(E_keV)))
     return out
 
 

@@ -168,14 +168,6 @@ def _side_nodes(nuclides: tuple[str, ...], theta_min_deg: float) -> np.ndarray:
                      for e, _ in lines])
 
 
-@lru_cache(maxsize=256)
-def _share_scales(energies: tuple[float, ...], theta_lo_deg: float, theta_hi_deg: float) -> np.ndarray:
-    """:func:`response.scatter_share_scale` of each line energy over one angular range (read-only)."""
-    out = np.array([response.scatter_share_scale(e, theta_lo_deg, theta_hi_deg) for e in energies])
-    out.setflags(write=False)
-    return out
-
-
 @lru_cache(maxsize=16)
 def _transmission_at(energies: tuple[float, ...], g_cm2: float) -> np.ndarray:
     return response.absorber_transmission(np.array(energies), response.ResponseEffects(absorber_g_cm2=g_cm2))
@@ -187,14 +179,9 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     energies, yields, pk_e, pk_w, pk_line, conts, nodes, D = _line_tables(
         nuclides, round(params["crystal_mm"], 4), round(params["escape_scale"], 4), params["k_escape"] >= 0.5)
     theta_min = round(params["side_scatter_min_deg"], 3)
-    # per line, the shares (given at 662 keV) scaled to its energy as response.scatter_components does
-    fb, fs, fm = (params[k] * _share_scales(tuple(energies), lo, hi) for k, lo, hi in (
-        ("backscatter_fraction", response.BACKSCATTER_MIN_DEG, 180.0),
-        ("scatter_side", theta_min, response.SIDE_SCATTER_DEG[1]), ("scatter_multiple", 0.0, 180.0)))
-    total = fb + fs + fm
-    over = np.maximum(total, 1.0)
-    fb, fs, fm = fb / over, fs / over, fm / over
-    direct = np.maximum(1.0 - total / over, 0.0)
+    fb, fs, fm = response.scaled_shares(energies, params["backscatter_fraction"], params["scatter_side"],
+                                        params["scatter_multiple"], theta_min)  # per line, as the emulator's
+    direct = np.maximum(1.0 - (fb + fs + fm), 0.0)
     g = round(params["absorber_g_cm2"], 6)
     t_lines = _transmission_at(tuple(energies), g)
     t_nodes = _transmission_at(tuple(response.INCIDENT_NODES_KEV), g)

@@ -162,13 +162,13 @@ def test_thick_scatter_law_carries_the_cs137_scatter_to_co60(monkeypatch):
     det = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc102-001272.detector.json"
 
     def co60():
-        M._share_scales.cache_clear()
+        response._share_scales.cache_clear()
         return run(str(DATA / "Co60_a.xml"), ["Co-60"], str(DATA / "bg.xml"), str(det), True)
 
     thick = co60()
     monkeypatch.setattr(response, "scatter_share_scale", lambda e, lo, hi: 1.0)
     flat = co60()
-    M._share_scales.cache_clear()
+    response._share_scales.cache_clear()
     assert thick["total_variation_32"] < flat["total_variation_32"] - 0.01
     assert thick["deviance"] < flat["deviance"] - 100
 
