@@ -196,20 +196,20 @@ class InflightEstimator:
         last = self.estimates[-1] if self.estimates else None
         loc = None
         if walls and last is not None and self._shadowed(frames, [last[k] for k in ("x", "y", "z")]):
-            walled = {**settings, "effects": ("wall_attenuation",)}
+            walled_settings = {**settings, "effects": ("wall_attenuation",)}
             if "wall_attenuation" in last["effects"]:
                 # the walls mattered at the last estimate and still do: refit the walled model straight from it
                 # (warm start plus the best grid cells), without the wall-free fit and the full start set that
                 # finding the walls took: the refit's cost is its model evaluations
                 # a last estimate that already misfit had its starts searched (its first walled fit or its own
                 # escalation): a misfit that persists is the model's, not the start's, so it does not escalate
-                loc = self._fit_warm(frames, {**walled, "n_starts": WARM_WALLED_STARTS},
+                loc = self._fit_warm(frames, {**walled_settings, "n_starts": WARM_WALLED_STARTS},
                                      escalate=not last["p_value"] < GOOD_FIT_P)
             else:
                 # a recorded line of sight near the last (wall-free) estimate now crosses a wall: the walled
                 # model and its starts from it, without a wall-free fit first that the shadow would discard
                 # (lattice-wall seed 3, dwell 5: 0.3 s of a 0.9 s refit)
-                loc = self._fit(frames, {**walled, "n_starts": max(settings.get("n_starts", 3), 5)})
+                loc = self._fit(frames, {**walled_settings, "n_starts": max(settings.get("n_starts", 3), 5)})
         if loc is None:
             plain = {**settings, "effects": settings.get("effects", ())}
             # with mapped walls a misfit goes on to the walled fit and its starts, not to the wall-free starts

@@ -700,7 +700,8 @@ def fit(
     if init:
         base_starts.append({**defaults, **{k: v for k, v in init.items() if k in defaults}})
     grid = grid_starts(model, frames)
-    base_starts += [{**defaults, **g} for g in grid]
+    gridded = [{**defaults, **g} for g in grid]
+    base_starts += gridded
     if "second_source" in model.effects and not (init and "second_source.x" in init):
         ref = base_starts[0]
         base_starts = [{**ref, **s2} for s2 in second_source_starts(model, frames, ref)] + base_starts
@@ -724,8 +725,7 @@ def fit(
             # from inside a slab shorten as the source moves in; lattice-wall seed 5, dwell 5: 209.6 there
             # against 90.0 from every grid start, and the profiled search crawled 774 calls, 1.1 s, out of
             # it). The grid starts are screened too, cheaply without offsets, and the best basin goes on
-            grid_based = base_starts[len(base_starts) - len(grid):]
-            starts = _screen(model, frames, names, fixed, starts + grid_based, keep=1)
+            starts = _screen(model, frames, names, fixed, starts + gridded, keep=1)
     best: Minuit | None = None
     all_nll = []
     for st in starts:
