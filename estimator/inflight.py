@@ -15,8 +15,9 @@ warm-starts from. The policy, in order:
    fit that fails its goodness of fit is refitted with the walls too, even unshadowed (a source behind a wall
    reads weak and the wall-free optimum flees the shadow), and the walled fit kept if its likelihood is higher. Once the
    last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted,
-   from that estimate alone, and from ``WARM_WALLED_STARTS`` starts only when that fit fails to converge or
-   to fit (:meth:`InflightEstimator._fit_warm`): each refit stays well under a second;
+   from that estimate (its basin and the grid's best basins, screened without pose offsets: a walled
+   likelihood has a basin per shadow edge, ``estimator.mle.fit``), and from ``WARM_WALLED_STARTS`` starts only
+   when that fit fails to converge or to fit (:meth:`InflightEstimator._fit_warm`);
 5. second source: a one-source fit whose goodness-of-fit p is below :data:`SECOND_SOURCE_TRY_P` (or a last
    estimate with two sources) is refitted with ``second_source`` and that fit kept when its likelihood-ratio test passes
    (:data:`SECOND_SOURCE_LR`); the record is the strongest source's, the other's position in ``params``;
@@ -191,7 +192,7 @@ class InflightEstimator:
         frames = pooled(frames, POOL_FRAMES, dwells_only=True)
         settings = dict(self.settings)
         if self.estimates:
-            settings["init"] = {k: self.estimates[-1][k] for k in _INIT_KEYS}
+            settings["init"] = _warm_init(self.estimates[-1])
         walls = bool(self.scenario.walls) and "effects" not in self.settings
         last = self.estimates[-1] if self.estimates else None
         loc = None
@@ -222,7 +223,7 @@ class InflightEstimator:
                 # warm start from the last walled estimate if there is one: the wall-free optimum is itself a
                 # local optimum of the walled model (mu = 0), so starting only there never leaves it
                 prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
-                init = ({k: prev[k] for k in _INIT_KEYS} if prev else
+                init = (_warm_init(prev) if prev else
                         {**loc.sources_[0], "background_cps": loc.background_})
                 # from a walled estimate (one the walls no longer shadowed, kept for its likelihood) it is a
                 # warm refit: its starts only on a misfit (lattice-wall seed 8, dwell 5: 5 starts, 1.3 s)
@@ -317,6 +318,13 @@ class InflightEstimator:
         src = np.asarray(source, dtype=float)
         around = src + np.array([[dx, dy, 0.0] for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
         return bool(path_lengths(frames.positions[None, :, :], around[:, None, :], self.scenario.walls).max() > 0)
+
+
+def _warm_init(record: Mapping[str, Any]) -> dict[str, float]:
+    """A refit's warm start from an estimate record: its source, background and every other parameter it fitted
+    (``params``: a wall's mu, a second source; a model without them ignores them), so a walled refit starts at
+    the fitted mu rather than the model's default."""
+    return {**{k: float(v) for k, v in record.get("params", {}).items()}, **{k: record[k] for k in _INIT_KEYS}}
 
 
 def _primary(loc: Localizer) -> int:

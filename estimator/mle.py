@@ -32,11 +32,11 @@ import numpy as np
 from iminuit import Minuit
 from scipy import stats
 
-from estimator.model import MeasurementModel, WallAttenuation
+from estimator.model import MeasurementModel
 from radseek.count_model import expected_rate
 from radseek.dataset import Frames
 from radseek.frame_record import COUNT_DTYPE
-from radseek.geometry import path_lengths, segment_hits_walls
+from radseek.geometry import path_lengths
 
 OFFSET_STEP_M = 1e-3
 #: Fisher-scoring steps of the pose-offset profile (models without mapped walls; see profile_offsets)
@@ -646,15 +646,6 @@ def _screen(model: MeasurementModel, frames: Frames, names: list[str], fixed: di
     return kept
 
 
-def _in_a_wall(model: MeasurementModel, theta: dict[str, float]) -> bool:
-    """Does the source of ``theta`` sit inside a mapped wall (its edge ramps included)?"""
-    walls = model.scenario.walls
-    if not walls or "wall_attenuation" not in model.effects:
-        return False
-    p = np.array([theta["x"], theta["y"], theta.get("z", model.scenario.source_z)], dtype=float)
-    return bool(segment_hits_walls(p, p, walls, inflate=WallAttenuation.EDGE_M))
-
-
 def _polish(m: Minuit) -> None:
     """Go on from ``m``'s minimum with full-strategy MIGRAD and iminuit's default tolerance."""
     m.strategy = 1
@@ -719,13 +710,15 @@ def fit(
     n = model.observed_counts(frames)
     saturated = poisson_nll(n, n)
     if groups is not None:
+        if len(starts) == 1 and "wall_attenuation" in model.effects and model.scenario.walls:
+            # a walled likelihood has a basin per shadow edge, and new frames move which one is deepest: a warm
+            # refit's start alone stays in the last estimate's (lattice-wall seed 0, dwell 5: 180.7 in
+            # half-deviance there against 139.2 from a grid cell 0.4 m away, and that flight stopped 4.7
+            # sigma off), or in a minimum inside a wall (seed 5, dwell 5: 209.6 against 90.0, then 774
+            # profiled calls, 1.1 s, to crawl out). The grid starts are screened too, cheaply without
+            # offsets, and the profiled search goes on from the best basins
+            starts = starts + gridded
         starts = _screen(model, frames, names, fixed, starts, keep=min(SCREEN_KEEP, len(starts)))
-        if len(starts) == 1 and _in_a_wall(model, starts[0]):
-            # a warm refit's start reached a minimum inside a mapped wall: an artefact of the walls (paths
-            # from inside a slab shorten as the source moves in; lattice-wall seed 5, dwell 5: 209.6 there
-            # against 90.0 from every grid start, and the profiled search crawled 774 calls, 1.1 s, out of
-            # it). The grid starts are screened too, cheaply without offsets, and the best basin goes on
-            starts = _screen(model, frames, names, fixed, starts + gridded, keep=1)
     best: Minuit | None = None
     all_nll = []
     for st in starts:

@@ -95,9 +95,9 @@ def _face_trap():
 
 
 def test_a_warm_single_start_is_screened_against_the_grid_starts():
-    """A warm refit (one start) at a wall's face: the search without offsets from that start alone ends in the
-    wall, over 1000 in -log L above the source's basin. The screen also tries the grid starts (cheap without
-    offsets) and keeps the best one basin, so the one profiled search reaches the multi-start fit's minimum (nine
+    """A warm walled refit (one start) at a wall's face: the search without offsets from that start alone ends in
+    the wall, over 1000 in -log L above the source's basin. The screen also tries the grid starts (cheap without
+    offsets) and keeps the best basins, so the profiled search reaches the multi-start fit's minimum (nine
     dwells of total counts tell little here: that minimum is 0.36 m off with the wall's mu at 0, p = 0.25)."""
     m, f, init = _face_trap()
     names = m.free_names
@@ -107,7 +107,7 @@ def test_a_warm_single_start_is_screened_against_the_grid_starts():
     full = fit(m, f, n_starts=4)
     assert trapped.fval + saturated > full.nll + 1000
     warm = fit(m, f, n_starts=1, init=init)
-    assert warm.starts_tried == 1 and warm.converged
+    assert warm.starts_tried <= SCREEN_KEEP and warm.converged
     assert warm.nll <= full.nll + 0.05
     for k in ("x", "y"):
         assert abs(warm.values[k] - full.values[k]) < 0.2 * full.errors[k]
