@@ -58,3 +58,49 @@ def test_a_doubtful_fit_is_tried_against_two_sources_and_the_test_keeps_one(shar
     rec = InflightEstimator(ds.scenario).update(ds.frames, dwell=9)
     assert any("second_source" in s.get("effects", ()) for s in tried)
     assert rec["effects"] == []
+
+
+def test_a_first_try_that_fails_without_pose_offsets_ends_there(shared_datasets, monkeypatch):
+    """The same injected doubt: the try is tested first on the likelihood without pose offsets (one model
+    evaluation a call). On one true source its likelihood ratio fails there, so no profiled two-source fit
+    (eight evaluations a call, the slow refits of outdoor seed 6) is run."""
+    ds = read_dataset(shared_datasets / "lattice-clean")
+    tried = []
+    real = _counting(InflightEstimator._fit, tried)
+
+    def doubtful(self, frames, settings):
+        loc = real(self, frames, settings)
+        if loc is not None and "second_source" not in settings.get("effects", ()) \
+                and settings.get("pose_uncertainty", True):
+            loc.info_["p_value"] = 0.005
+        return loc
+
+    monkeypatch.setattr(InflightEstimator, "_fit", doubtful)
+    rec = InflightEstimator(ds.scenario).update(ds.frames, dwell=9)
+    two = [s for s in tried if "second_source" in s.get("effects", ())]
+    assert two and all(s["pose_uncertainty"] is False for s in two)
+    assert rec["effects"] == []
+
+
+@pytest.mark.parametrize("name", ["two-sources", "lattice-clean"])
+def test_the_likelihood_ratio_without_pose_offsets_bounds_the_profiled_one(shared_datasets, name):
+    """What that gate relies on, on the independent generator's flights: the pose offsets absorb part of what a
+    second source explains, so 2 delta log L of two sources against one is at least as large without them.
+    two-sources: both pass SECOND_SOURCE_LR; lattice-clean (one source): the profiled ratio fails it."""
+    from estimator.inflight import SECOND_SOURCE_LR
+    from estimator.localizers.mle import MaximumLikelihood
+
+    ds = read_dataset(shared_datasets / name)
+
+    def nll(effects, pose):
+        loc = MaximumLikelihood(effects=effects, n_starts=5, compute_crlb=False, pose_uncertainty=pose)
+        loc.fit(ds.frames, ds.scenario)
+        return loc.info_["nll"]
+
+    plain = 2.0 * (nll((), False) - nll(("second_source",), False))
+    profiled = 2.0 * (nll((), True) - nll(("second_source",), True))
+    assert plain >= profiled - 1.0  # 1.0: MIGRAD's tolerance on two minima
+    if name == "two-sources":
+        assert profiled > SECOND_SOURCE_LR
+    else:
+        assert profiled < SECOND_SOURCE_LR
