@@ -36,9 +36,13 @@ POSE_COLUMNS = ["t", "duration", "x", "y", "z", "yaw", "var_x", "var_y", "var_z"
 CHANNEL_COLUMNS = [f"c{k:02d}" for k in range(N_CHANNELS)]
 COLUMNS = POSE_COLUMNS + CHANNEL_COLUMNS
 
-#: how each pose column is written to CSV (channels are written as integers)
-_CSV_FORMAT = {"t": ".4f", "duration": ".4f", "x": ".4f", "y": ".4f", "z": ".4f", "yaw": ".4f",
-               "var_x": ".3e", "var_y": ".3e", "var_z": ".3e", "dwell": "d"}
+
+def _csv_cell(value: Any, column: str) -> str:
+    """A pose cell as frames.csv writes it: ``dwell`` an integer, the others the shortest text that reads back
+    as the same float. Rounded cells (4 decimals, as before 2026-11-26) moved a walled fit's basin: lattice-wall
+    seed 0's dwell-4 estimate replayed from frames.csv 0.22 m from the flown one, which its MCAP log reproduces."""
+    return str(int(value)) if column == "dwell" else repr(float(value))
+
 
 #: flags of a frame that is no measurement of the field at any pose
 NOT_A_MEASUREMENT = topics.FLAG_STALE_POSE | topics.FLAG_CRC_ERROR
@@ -147,4 +151,4 @@ class FrameRecord:
 
     def csv_cells(self) -> list[str]:
         """The row as frames.csv writes it, in ``COLUMNS`` order."""
-        return [format(getattr(self, c), _CSV_FORMAT[c]) for c in POSE_COLUMNS] + [str(int(c)) for c in self.counts]
+        return [_csv_cell(getattr(self, c), c) for c in POSE_COLUMNS] + [str(int(c)) for c in self.counts]
