@@ -5,7 +5,7 @@ data, no walls)."""
 import numpy as np
 import pytest
 
-from estimator.inflight import DEFAULT_SETTINGS, WARM_SIGMA_M, InflightEstimator
+from estimator.inflight import DEFAULT_SETTINGS, WARM_SIGMA_M, WARM_WALLED_STARTS, InflightEstimator
 from radseek.dataset import read_dataset
 
 
@@ -37,8 +37,8 @@ def test_a_confident_estimate_is_refitted_from_itself(lattice_clean, counted_fit
 
 def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(shared_datasets, monkeypatch):
     """The last estimate was walled; the new wall-free refit misfits and no recorded line of sight near the
-    estimate crosses a wall (both injected): the walled model is refitted from the last walled estimate alone,
-    not from all its starts (lattice-wall seed 8: 5 starts, 1.3 s). The independent generator's lattice-wall."""
+    estimate crosses a wall (both injected): the walled model is refitted once, from the last walled estimate and
+    the grid's best cells (WARM_WALLED_STARTS). The independent generator's lattice-wall."""
     ds = read_dataset(shared_datasets / "lattice-wall")
     real_fit = InflightEstimator._fit
     calls: list[tuple[tuple[str, ...], int]] = []
@@ -61,7 +61,7 @@ def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(sh
     monkeypatch.setattr(InflightEstimator, "_shadowed", lambda self, frames, source: False)
     calls.clear()
     second = est.update(ds.frames, dwell=len(dwells))
-    assert calls == [((), 1), (("wall_attenuation",), 1)]
+    assert calls == [((), 1), (("wall_attenuation",), WARM_WALLED_STARTS)]
     assert "wall_attenuation" in second["effects"]
     truth = ds.truth.sources[0]
     assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
@@ -86,7 +86,7 @@ def test_a_wall_free_estimate_the_walls_now_shadow_goes_straight_to_the_walled_f
     assert est._shadowed(ds.frames, [first[k] for k in ("x", "y", "z")])
     calls.clear()
     second = est.update(ds.frames, dwell=len(dwells))
-    assert calls == [(("wall_attenuation",), 5)]
+    assert calls == [(("wall_attenuation",), WARM_WALLED_STARTS)]
     assert second["effects"] == ["wall_attenuation"] and second["converged"]
     truth = ds.truth.sources[0]
     assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]

@@ -94,11 +94,14 @@ def _face_trap():
     return m, f, init
 
 
-def test_a_warm_single_start_is_screened_against_the_grid_starts():
-    """A warm walled refit (one start) at a wall's face: the search without offsets from that start alone ends in
-    the wall, over 1000 in -log L above the source's basin. The screen also tries the grid starts (cheap without
-    offsets) and keeps the best basins, so the profiled search reaches the multi-start fit's minimum (nine
-    dwells of total counts tell little here: that minimum is 0.36 m off with the wall's mu at 0, p = 0.25)."""
+def test_a_walled_refit_from_a_warm_start_at_a_walls_face_leaves_the_trap():
+    """A warm walled refit at a wall's face: the search without offsets from that start alone ends in the wall,
+    over 1000 in -log L above the source's basin. The in-flight walled refit's starts (the warm one and the
+    grid's best cells, WARM_WALLED_STARTS) are screened together without offsets, so the profiled search
+    reaches the multi-start fit's minimum (nine dwells of total counts tell little here: that minimum is 0.36 m
+    off with the wall's mu at 0, p = 0.25)."""
+    from estimator.inflight import WARM_WALLED_STARTS
+
     m, f, init = _face_trap()
     names = m.free_names
     fixed = {p.name: p.value for p in m.params if p.fixed}
@@ -106,7 +109,7 @@ def test_a_warm_single_start_is_screened_against_the_grid_starts():
     trapped = mle._search(mle._objective(m, f, names, fixed, None), m, names, init)
     full = fit(m, f, n_starts=4)
     assert trapped.fval + saturated > full.nll + 1000
-    warm = fit(m, f, n_starts=1, init=init)
+    warm = fit(m, f, n_starts=WARM_WALLED_STARTS, init=init)
     assert warm.starts_tried <= SCREEN_KEEP and warm.converged
     assert warm.nll <= full.nll + 0.05
     for k in ("x", "y"):
