@@ -269,27 +269,13 @@ class InflightEstimator:
         if not (two or _misfit(loc, SECOND_SOURCE_TRY_P)):
             return loc
         init = dict(settings.get("init") or {})
-        n_starts = max(settings.get("n_starts", 3), 5)
-        if two:
-            init.update({n: v for n, v in last["params"].items() if n.startswith("second_source.")})
-        else:
-            # a first try is tested on the likelihood without pose offsets first (a call costs one model
-            # evaluation, not eight): the offsets absorb part of what a second source explains, so its
-            # likelihood ratio there bounds the profiled one (8 of 8 tries on two-source and outdoor seeds:
-            # profiled 0-1284 against plain 0-2316). A try that fails there ends; one that passes goes on
-            # from the plain two-source optimum alone. Outdoor seed 6, dwell 5: 1.5 s, 1.1 s of it a
-            # profiled search crawling 407 calls through a two-source fit that explains nothing more
-            plain = {**settings, "pose_uncertainty": False, "n_starts": 1}
-            one = self._fit(frames, {**plain, "effects": (), "init": {**loc.sources_[0],
-                                                                       "background_cps": loc.background_}})
-            two_plain = self._fit(frames, {**plain, "effects": ("second_source",), "init": init or None,
-                                           "n_starts": 1})
-            if one is None or two_plain is None or \
-                    not 2.0 * (one.info_["nll"] - two_plain.info_["nll"]) > SECOND_SOURCE_LR:
-                return loc
-            init, n_starts = dict(two_plain.info_["values"]), 1
-        cand = self._fit(frames, {**settings, "effects": ("second_source",), "init": init or None,
-                                  "n_starts": n_starts})
+        if not two:
+            # tested without pose offsets first: a try that fails there ends (outdoor seed 6, dwell 5: 1.5 s, 1.1 s
+            # of it a profiled search crawling 407 calls through a two-source fit that explained nothing more)
+            return self._nested_test(frames, settings, loc, ("second_source",), init or None, 1, SECOND_SOURCE_LR)
+        init.update({n: v for n, v in last["params"].items() if n.startswith("second_source.")})
+        cand = self._fit(frames, {**settings, "effects": ("second_source",), "init": init,
+                                  "n_starts": max(settings.get("n_starts", 3), 5)})
         if cand is not None and 2.0 * (loc.info_["nll"] - cand.info_["nll"]) > SECOND_SOURCE_LR:
             return cand
         return loc
@@ -298,20 +284,26 @@ class InflightEstimator:
         """A wall-free fit that fits and that no recorded line of sight near it crosses a wall may still have fled
         a shadow: a source behind a wall reads weak, and a weaker source elsewhere explains that well (lattice-wall
         seeds 57 and 152: 1.7 and 2.6 m off at p = 0.05 and 0.69, searches stopped there). The walled model
-        nests it (mu = 0), so a likelihood-ratio test with one dof (mu) at :data:`GOOD_FIT_P` decides
-        (:data:`WALL_LR`; those flights: 27 and 13 already at their fourth dwell). Like a second-source try it is
-        tested without pose offsets first (cheap, and that ratio bounds the profiled one), and only a pass runs
-        the profiled walled fit, from the walled optimum found there."""
+        nests it (mu = 0): :meth:`_nested_test` with one dof (mu, :data:`WALL_LR`; those flights: 27 and 13
+        already at their fourth dwell), its starts the grid's cells."""
+        return self._nested_test(frames, settings, loc, ("wall_attenuation",), None, WARM_WALLED_STARTS - 1, WALL_LR)
+
+    def _nested_test(self, frames: Frames, settings: dict[str, Any], loc: Localizer, effects: tuple[str, ...],
+                     init: Mapping[str, float] | None, n_starts: int, threshold: float) -> Localizer:
+        """The wall-free one-source fit ``loc`` against the model with ``effects``, which nests it: the richer
+        fit replaces it when 2 delta log L exceeds ``threshold``. Tested without pose offsets first (one model
+        evaluation a call, not eight; from ``init`` and ``n_starts``): the offsets absorb part of what the richer
+        model explains, so the ratio there bounds the profiled one (second source, 8 of 8 tries on two-source
+        and outdoor seeds: profiled 0-1284 against 0-2316). Only a pass runs the profiled fit, from the optimum
+        found there."""
         plain = {**settings, "pose_uncertainty": False, "n_starts": 1}
-        here = {**loc.sources_[0], "background_cps": loc.background_}
-        free = self._fit(frames, {**plain, "effects": (), "init": here})
-        walled = self._fit(frames, {**plain, "effects": ("wall_attenuation",), "init": None,
-                                    "n_starts": WARM_WALLED_STARTS - 1})  # the grid's cells
-        if free is None or walled is None or not 2.0 * (free.info_["nll"] - walled.info_["nll"]) > WALL_LR:
+        base = self._fit(frames, {**plain, "effects": (), "init": {**loc.sources_[0],
+                                                                    "background_cps": loc.background_}})
+        rich = self._fit(frames, {**plain, "effects": effects, "init": init, "n_starts": n_starts})
+        if base is None or rich is None or not 2.0 * (base.info_["nll"] - rich.info_["nll"]) > threshold:
             return loc
-        cand = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": dict(walled.info_["values"]),
-                                  "n_starts": 1})
-        if cand is not None and 2.0 * (loc.info_["nll"] - cand.info_["nll"]) > WALL_LR:
+        cand = self._fit(frames, {**settings, "effects": effects, "init": dict(rich.info_["values"]), "n_starts": 1})
+        if cand is not None and 2.0 * (loc.info_["nll"] - cand.info_["nll"]) > threshold:
             return cand
         return loc
 
