@@ -469,11 +469,11 @@ def _grid_fit(u: np.ndarray, n: np.ndarray, tdur: np.ndarray, b0: float) -> tupl
     return s, b, (mu - n * np.log(mu)).sum(1)
 
 
-def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:
-    """Starting points for the source from a grid over the bounds: for each cell, the Poisson-optimal
-    cps_at_1m and background of the baseline model (vectorised IRLS) on pooled frames, best cells
-    first, kept apart. A walled model's likelihood has a narrow mode per shadow, so its cells are ranked
-    through the mapped walls at the best of :data:`GRID_WALL_MU`, which the start then carries."""
+def _grid(model: MeasurementModel, frames: Frames, n_grid: int, walled: bool) -> tuple[np.ndarray, ...]:
+    """Cell centres ``xx``, ``yy`` of an ``n_grid`` x ``n_grid`` grid over the bounds and, per cell, the
+    Poisson-optimal cps_at_1m and background of the baseline model (vectorised IRLS) on pooled ``frames`` and
+    the -log L there; ``walled``: through the mapped walls at the best of :data:`GRID_WALL_MU` per cell, whose
+    index is returned last (zeros otherwise)."""
     frames = pooled(frames)
     sc = model.scenario
     gx = np.linspace(sc.bounds_min[0], sc.bounds_max[0], n_grid)
@@ -486,18 +486,23 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
     d2 = ((frames.positions[None, :, :] - cells[:, None, :]) ** 2).sum(-1)
     u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
     b0 = max(sc.background_cps, 1.0)
-    walled = "wall_attenuation" in model.effects and bool(sc.walls)
-    if walled:
-        lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls)
-        fits = [_grid_fit(u * np.exp(-m * lengths), n, tdur, b0) for m in GRID_WALL_MU]
-        k = np.argmin(np.stack([f[2] for f in fits]), axis=0)
-        s, b, nll = (np.choose(k, [f[i] for f in fits]) for i in range(3))
-    else:
-        s, b, nll = _grid_fit(u, n, tdur, b0)
-    order = np.argsort(nll)
-    cell = max(gx[1] - gx[0], gy[1] - gy[0])
+    if not walled:
+        return (xx, yy, *_grid_fit(u, n, tdur, b0), np.zeros(len(xx), dtype=int))
+    lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls)
+    fits = [_grid_fit(u * np.exp(-m * lengths), n, tdur, b0) for m in GRID_WALL_MU]
+    k = np.argmin(np.stack([f[2] for f in fits]), axis=0)
+    return (xx, yy, *(np.choose(k, [f[i] for f in fits]) for i in range(3)), k)
+
+
+def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:
+    """Starting points for the source from a grid over the bounds (:func:`_grid`), best cells first, kept
+    apart. A walled model's likelihood has a narrow mode per shadow, so its cells are ranked through the mapped
+    walls at the best of :data:`GRID_WALL_MU`, which the start then carries."""
+    walled = "wall_attenuation" in model.effects and bool(model.scenario.walls)
+    xx, yy, s, b, nll, k = _grid(model, frames, n_grid, walled)
+    cell = max(np.ptp(xx), np.ptp(yy)) / (n_grid - 1)
     starts: list[dict[str, float]] = []
-    for i in order:
+    for i in np.argsort(nll):
         if all(np.hypot(xx[i] - st["x"], yy[i] - st["y"]) > 3 * cell for st in starts):
             st = {"x": xx[i], "y": yy[i], "cps_at_1m": s[i], "background_cps": b[i]}
             if walled:
@@ -506,6 +511,15 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
         if len(starts) >= n_best:
             break
     return starts
+
+
+def wall_grid_ratio(model: MeasurementModel, frames: Frames, n_grid: int = 25) -> float:
+    """2 delta log L of the walled model (``model``, with ``wall_attenuation``) against the wall-free one, each
+    at its best cell of the start grid (:func:`_grid`; the walled one at the best of :data:`GRID_WALL_MU` or
+    mu = 0): a few vectorised Newton steps, no search. Coarse (cells 0.4-1 m apart), so a gate, not a test."""
+    free = _grid(model, frames, n_grid, walled=False)[4].min()
+    walled = _grid(model, frames, n_grid, walled=True)[4].min()
+    return 2.0 * (free - min(walled, free))
 
 
 def second_source_starts(
@@ -630,17 +644,22 @@ def _search(fcn: Callable[..., float], model: MeasurementModel, names: list[str]
 
 
 def _screen(model: MeasurementModel, frames: Frames, names: list[str], fixed: dict[str, float],
-            starts: list[dict[str, float]], keep: int = SCREEN_KEEP) -> list[dict[str, float]]:
+            starts: list[dict[str, float]], keep: int = SCREEN_KEEP, warm: bool = False) -> list[dict[str, float]]:
     """The minima of the likelihood without pose offsets reached from ``starts``: the best ``keep`` of them
     (apart by :data:`SCREEN_APART_M`, within :data:`SCREEN_MARGIN` of the best), best first, to start the
-    profiled search.
+    profiled search. ``warm``: the first start is a refit's last optimum; when its basin is the best one it
+    alone goes on (it was the profiled optimum a dwell ago; a runner-up basin is kept for the profiled search
+    because the offsets can reorder basins, which a first fit has no evidence against).
 
     Each call of the profiled likelihood costs PROFILE_STEPS Jacobians (about 8 model evaluations); without the
     offsets a call is one. Far starts crawl (a grid cell 1030 MIGRAD calls, the warm start 69, to the same
     minimum), so they crawl here, and the profiled search starts in the best basins."""
     plain = _objective(model, frames, names, fixed, None)
-    found = sorted(((m.fval, dict(zip(names, (float(v) for v in m.values), strict=True)))
-                    for m in (_search(plain, model, names, st, SCREEN_NCALL) for st in starts)), key=lambda r: r[0])
+    minima = [(m.fval, dict(zip(names, (float(v) for v in m.values), strict=True)))
+              for m in (_search(plain, model, names, st, SCREEN_NCALL) for st in starts)]
+    found = sorted(minima, key=lambda r: r[0])
+    if warm and np.hypot(found[0][1]["x"] - minima[0][1]["x"], found[0][1]["y"] - minima[0][1]["y"]) <= SCREEN_APART_M:
+        keep = 1
     kept: list[dict[str, float]] = []
     for fval, vals in found:
         if fval > found[0][0] + SCREEN_MARGIN:
@@ -679,12 +698,14 @@ def fit(
     seed: int = 0,
     pose_uncertainty: bool = True,
     init: dict[str, float] | None = None,
+    warm_start: bool = False,
 ) -> FitResult:
     """Multi-start bounded Poisson MLE (MIGRAD + HESSE, errordef 0.5).
 
     Starts: ``init`` (if given) first, then grid starts for the source (and for a second source),
     then random perturbations of the best start, up to ``n_starts`` in all. With pose offsets every start is
-    first run without them (:func:`_screen`), and the profiled search goes on from the best basins found.
+    first run without them (:func:`_screen`), and the profiled search goes on from the best basins found
+    (``warm_start``: ``init`` is a refit's last optimum, searched alone when its basin is the best).
     """
     rng = np.random.default_rng(seed)
     names = model.free_names
@@ -714,7 +735,8 @@ def fit(
     n = model.observed_counts(frames)
     saturated = poisson_nll(n, n)
     if groups is not None:
-        starts = _screen(model, frames, names, fixed, starts, keep=min(SCREEN_KEEP, len(starts)))
+        starts = _screen(model, frames, names, fixed, starts, keep=min(SCREEN_KEEP, len(starts)),
+                         warm=warm_start and bool(init))
     best: Minuit | None = None
     all_nll = []
     for st in starts:

@@ -101,14 +101,15 @@ def test_a_wall_free_fit_that_fits_is_tested_against_the_walls(lattice_wall, mon
     tried = _fits_well(monkeypatch)
     rec = InflightEstimator(lattice_wall.scenario).update(lattice_wall.frames, dwell=9)
     assert rec["effects"] == ["wall_attenuation"]
-    assert [s.get("pose_uncertainty", True) for s in tried if s.get("effects") == ("wall_attenuation",)] == [False, True]
+    walled = [s.get("pose_uncertainty", True) for s in tried if s.get("effects") == ("wall_attenuation",)]
+    assert walled == [False, True]
     truth = lattice_wall.truth.sources[0]
     assert abs(rec["x"] - truth.x) < 0.1 and abs(rec["y"] - truth.y) < 0.1
 
 
 def test_walls_that_explain_nothing_leave_the_wall_free_fit(shared_datasets, monkeypatch):
     """lattice-clean (no wall in the world) with lattice-wall's two walls mapped beside its source: the walled
-    model explains nothing more, its likelihood ratio fails without offsets, and no profiled walled fit runs."""
+    model explains nothing more, already on the start grid (``wall_grid_ratio``), so no walled fit runs."""
     import dataclasses
 
     ds = read_dataset(shared_datasets / "lattice-clean")
@@ -116,4 +117,22 @@ def test_walls_that_explain_nothing_leave_the_wall_free_fit(shared_datasets, mon
     tried = _fits_well(monkeypatch)
     rec = InflightEstimator(dataclasses.replace(ds.scenario, walls=walled)).update(ds.frames, dwell=9)
     assert rec["effects"] == []
-    assert [s.get("pose_uncertainty", True) for s in tried if s.get("effects") == ("wall_attenuation",)] == [False]
+    assert not [s for s in tried if s.get("effects") == ("wall_attenuation",)]
+
+
+def test_the_start_grid_sees_a_shadow_only_where_one_was_recorded(lattice_wall, shared_datasets):
+    """``wall_grid_ratio`` (the gate of that test): on the independent generator's lattice-wall flight (source
+    behind the walls, mu = 3 /m) far above WALL_LR; the same walls mapped beside lattice-clean's source (no wall
+    in its world): below half of it, where the in-flight test is not run."""
+    import dataclasses
+
+    from estimator.inflight import WALL_LR
+    from estimator.localizers.mle import MaximumLikelihood
+    from estimator.mle import wall_grid_ratio
+
+    def ratio(ds, scenario):
+        return wall_grid_ratio(MaximumLikelihood(effects=("wall_attenuation",)).model_for(scenario), ds.frames)
+
+    assert ratio(lattice_wall, lattice_wall.scenario) > 10 * WALL_LR
+    clean = read_dataset(shared_datasets / "lattice-clean")
+    assert ratio(clean, dataclasses.replace(clean.scenario, walls=lattice_wall.scenario.walls)) < WALL_LR / 2

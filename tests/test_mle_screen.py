@@ -30,7 +30,7 @@ def test_the_screened_search_finds_the_full_searchs_minimum(case, seed, monkeypa
     else:
         m, f = _noisy_strong(seed)
     screened = fit(m, f, n_starts=4, seed=seed)
-    monkeypatch.setattr(mle, "_screen", lambda model, frames, names, fixed, starts, keep=None: starts)
+    monkeypatch.setattr(mle, "_screen", lambda model, frames, names, fixed, starts, keep=None, warm=False: starts)
     full = fit(m, f, n_starts=4, seed=seed)
     assert screened.converged and full.converged
     assert screened.nll <= full.nll + 0.05
@@ -114,3 +114,22 @@ def test_a_walled_refit_from_a_warm_start_at_a_walls_face_leaves_the_trap():
     assert warm.nll <= full.nll + 0.05
     for k in ("x", "y"):
         assert abs(warm.values[k] - full.values[k]) < 0.2 * full.errors[k]
+
+
+def test_a_warm_start_that_is_still_the_best_basin_goes_on_alone():
+    """``warm`` (a refit's last optimum first): when the screen finds its basin the best, the profiled search
+    starts there alone; a warm start in a worse basin (the face trap) leaves the grid's best basins to it."""
+    m, f = _noisy_strong(0)
+    names = m.free_names
+    fixed = {p.name: p.value for p in m.params if p.fixed}
+    warm = {**m.defaults(), **TRUE, "cps_at_1m": 30000.0, "background_cps": 30.0}
+    starts = [warm] + [{**warm, "x": x, "y": y} for x in (1.0, 9.0) for y in (1.0, 9.0)]
+    kept = mle._screen(m, f, names, fixed, starts, warm=True)
+    assert len(kept) == 1 and np.hypot(kept[0]["x"] - TRUE["x"], kept[0]["y"] - TRUE["y"]) < 0.2
+    m, f, init = _face_trap()
+    names = m.free_names
+    fixed = {p.name: p.value for p in m.params if p.fixed}
+    grid = [{**m.defaults(), **g} for g in mle.grid_starts(m, f)]
+    kept = mle._screen(m, f, names, fixed, [init] + grid, warm=True)
+    trapped = mle._search(mle._objective(m, f, names, fixed, None), m, names, init)
+    assert all(np.hypot(k["x"] - trapped.values["x"], k["y"] - trapped.values["y"]) > SCREEN_APART_M for k in kept)

@@ -131,13 +131,15 @@ class MaximumLikelihood(Localizer):
 
     def __init__(self, effects: Sequence[str] = (), n_starts: int = 8, seed: int = 0, pose_uncertainty: bool = True,
                  fixed: Mapping[str, float] | None = None, init: Mapping[str, float] | None = None,
-                 compute_crlb: bool = True, energy_window_keV: Sequence[float] | None = None):
+                 compute_crlb: bool = True, energy_window_keV: Sequence[float] | None = None,
+                 warm_start: bool = False):
         self.effects = effects
         self.n_starts = n_starts
         self.seed = seed
         self.pose_uncertainty = pose_uncertainty
         self.fixed = fixed
         self.init = init
+        self.warm_start = warm_start
         self.compute_crlb = compute_crlb
         self.energy_window_keV = energy_window_keV
 
@@ -158,7 +160,7 @@ class MaximumLikelihood(Localizer):
 
         model = self.model_for(scenario)
         res = fit(model, frames, n_starts=self.n_starts, seed=self.seed, pose_uncertainty=self.pose_uncertainty,
-                  init=dict(self.init) if self.init else None)
+                  init=dict(self.init) if self.init else None, warm_start=self.warm_start)
         per_source = source_param_names(model.effects)
         self.result_ = res
         self.sources_ = [source_dict(*(res.values[n] for n in names)) for names in per_source]
