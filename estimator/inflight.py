@@ -209,7 +209,7 @@ class InflightEstimator:
             if "wall_attenuation" in last["effects"]:
                 # the walls mattered at the last estimate and still do: refit the walled model straight from it
                 # and the grid's best cells, without the wall-free fit first
-                loc = self._fit(frames, {**walled_settings, "n_starts": WARM_WALLED_STARTS, "warm_start": True})
+                loc = self._fit_walled(frames, walled_settings, warm=not last["p_value"] < GOOD_FIT_P)
             else:
                 # a recorded line of sight near the last (wall-free) estimate now crosses a wall: the walled
                 # model and its starts from it, without a wall-free fit first that the shadow would discard
@@ -229,8 +229,8 @@ class InflightEstimator:
                 prev = next((e for e in reversed(self.estimates) if "wall_attenuation" in e["effects"]), None)
                 init = (_warm_init(prev) if prev else
                         {**loc.sources_[0], "background_cps": loc.background_})
-                walled = self._fit(frames, {**settings, "effects": ("wall_attenuation",), "init": init,
-                                            "n_starts": WARM_WALLED_STARTS, "warm_start": prev is not None})
+                walled = self._fit_walled(frames, {**settings, "effects": ("wall_attenuation",), "init": init},
+                                          warm=prev is not None and not prev["p_value"] < GOOD_FIT_P)
                 # even unconverged: sigma_m() then refuses to call it confident. A wall-free fit that fails
                 # its goodness of fit with no recorded line of sight near it crossing a wall may have fled
                 # the shadow (a source behind a wall reads weak, so the wall-free optimum moves away): then
@@ -354,6 +354,20 @@ class InflightEstimator:
         if loc is not None and not (escalate and _misfit(loc)):
             return loc
         return self._fit(frames, settings)
+
+    def _fit_walled(self, frames: Frames, settings: dict[str, Any], warm: bool) -> Localizer | None:
+        """The walled model from ``settings["init"]`` and the grid's best cells (:data:`WARM_WALLED_STARTS`).
+        ``warm`` (the init is a walled estimate that fit): its basin goes on alone when the screen finds it the
+        best (``warm_start``), and the best two basins only if that fit fails or misfits; the better of the two
+        fits is kept. Without that escalation lattice-wall seeds 321 and 370 kept a misfit basin (p = 7e-28) to
+        the end of the dwell budget."""
+        settings = {**settings, "n_starts": WARM_WALLED_STARTS}
+        loc = self._fit(frames, {**settings, "warm_start": True}) if warm else None
+        if loc is not None and not _misfit(loc):
+            return loc
+        full = self._fit(frames, settings)
+        fits = [f for f in (loc, full) if f is not None]
+        return min(fits, key=lambda f: f.info_["nll"]) if fits else None
 
     def _shadowed(self, frames: Frames, source: Any) -> bool:
         """Does a recorded line of sight cross a mapped wall? Asked of every point within 1 m of the

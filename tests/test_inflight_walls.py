@@ -57,20 +57,20 @@ def test_a_walled_model_starts_in_the_shadows_mode(lattice_wall):
     assert best["wall_attenuation.mu_per_m"] in GRID_WALL_MU
 
 
-def test_a_walled_refit_searches_its_starts_once_misfit_or_not(lattice_wall, counted_fits):
+def test_a_walled_refit_escalates_a_new_misfit_once_and_a_persistent_one_not_at_all(lattice_wall, counted_fits):
     """The injected fault: every fit after the first misfits (p = 1e-6, a physical effect the model lacks).
-    Every walled refit after a walled record starts from it and the grid's best cells together
-    (WARM_WALLED_STARTS, screened without offsets), once: a misfit that persists is the model's, and no refit
-    searches the starts again (on lattice-wall such escalations found the same minimum at 4-7 s each)."""
+    After a walled record that fit, the warm refit (its own basin alone when still the best) misfits and
+    escalates once to the best two basins of the warm and grid starts (WARM_WALLED_STARTS). Once the last record
+    itself misfit, the refit searches those basins directly, once: a misfit that persists is the model's."""
     calls, misfit = counted_fits
     est = InflightEstimator(lattice_wall.scenario)
     first = est.update(lattice_wall.frames, dwell=9)
     assert first["effects"] == ["wall_attenuation"] and first["p_value"] >= GOOD_FIT_P
     misfit["on"] = True
-    for dwell in (10, 11):
+    for dwell, expected in ((10, [WARM_WALLED_STARTS] * 2), (11, [WARM_WALLED_STARTS])):
         calls.clear()
         rec = est.update(lattice_wall.frames, dwell=dwell)
-        assert calls == [WARM_WALLED_STARTS]
+        assert calls == expected
         assert rec["effects"] == ["wall_attenuation"] and rec["p_value"] < GOOD_FIT_P
 
 
