@@ -16,8 +16,9 @@ warm-starts from. The policy, in order:
    reads weak and the wall-free optimum flees the shadow), and the walled fit kept if its likelihood is higher. Once the
    last estimate was walled and its lines of sight still cross a wall, only the walled model is refitted. Every
    walled fit starts from the last estimate and the grid's best cells (:data:`WARM_WALLED_STARTS`), screened
-   without pose offsets: a walled likelihood has a basin per shadow edge. A wall-free fit that fits and is not
-   in a shadow is tested against the walled model (:meth:`InflightEstimator._walls_behind`);
+   without pose offsets: a walled likelihood has a basin per shadow edge (a warm one's own basin alone while it
+   is the best, escalating once on a misfit: :meth:`InflightEstimator._fit_walled`). A wall-free fit that
+   fits and is not in a shadow is tested against the walled model (:meth:`InflightEstimator._walls_behind`);
 5. second source: a one-source fit whose goodness-of-fit p is below :data:`SECOND_SOURCE_TRY_P` (or a last
    estimate with two sources) is refitted with ``second_source`` and that fit kept when its likelihood-ratio test passes
    (:data:`SECOND_SOURCE_LR`); a first try is tested without pose offsets first and ends there if it fails (the
