@@ -347,10 +347,8 @@ class InflightEstimator:
         """:meth:`_fit` from the warm start alone, and with all ``n_starts`` only if that fit fails (no
         result, or, when ``escalate``, its goodness of fit fails): between dwells the optimum moves by
         decimetres, and the grid starts only find a better minimum when the warm one no longer explains the
-        counts. A fit that explains them but did not converge (a flat direction: no line of sight crosses a
-        wall, so mu is free) does not converge from the grid starts either. Without ``escalate`` (the warm
-        start's own fit already misfit after its starts were searched) a misfit is kept: on lattice-wall the
-        all-starts refits of such fits found the same minimum (to 0.2 in -log L) at 4-7 s each."""
+        counts. Wall-free refits only: without ``escalate`` (the scene maps walls) a misfit is kept here and goes
+        on to the walled fit and its starts instead (walled refits: :meth:`_fit_walled`)."""
         loc = self._fit(frames, {**settings, "n_starts": 1})
         if loc is not None and not (escalate and _misfit(loc)):
             return loc

@@ -469,11 +469,11 @@ def _grid_fit(u: np.ndarray, n: np.ndarray, tdur: np.ndarray, b0: float) -> tupl
     return s, b, (mu - n * np.log(mu)).sum(1)
 
 
-def _grid(model: MeasurementModel, frames: Frames, n_grid: int, walled: bool) -> tuple[np.ndarray, ...]:
-    """Cell centres ``xx``, ``yy`` of an ``n_grid`` x ``n_grid`` grid over the bounds and, per cell, the
-    Poisson-optimal cps_at_1m and background of the baseline model (vectorised IRLS) on pooled ``frames`` and
-    the -log L there; ``walled``: through the mapped walls at the best of :data:`GRID_WALL_MU` per cell, whose
-    index is returned last (zeros otherwise)."""
+def _grid(model: MeasurementModel, frames: Frames, n_grid: int, mus: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """Cell centres ``xx``, ``yy`` of an ``n_grid`` x ``n_grid`` grid over the bounds and, for each wall mu in
+    ``mus`` (1/m, through the mapped walls; 0: no walls) and each cell, the Poisson-optimal cps_at_1m and
+    background of the baseline model (vectorised IRLS) on pooled ``frames`` and the -log L there, as
+    (len(mus), cells) arrays."""
     frames = pooled(frames)
     sc = model.scenario
     gx = np.linspace(sc.bounds_min[0], sc.bounds_max[0], n_grid)
@@ -486,12 +486,9 @@ def _grid(model: MeasurementModel, frames: Frames, n_grid: int, walled: bool) ->
     d2 = ((frames.positions[None, :, :] - cells[:, None, :]) ** 2).sum(-1)
     u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
     b0 = max(sc.background_cps, 1.0)
-    if not walled:
-        return (xx, yy, *_grid_fit(u, n, tdur, b0), np.zeros(len(xx), dtype=int))
-    lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls)
-    fits = [_grid_fit(u * np.exp(-m * lengths), n, tdur, b0) for m in GRID_WALL_MU]
-    k = np.argmin(np.stack([f[2] for f in fits]), axis=0)
-    return (xx, yy, *(np.choose(k, [f[i] for f in fits]) for i in range(3)), k)
+    lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls) if any(mus) else 0.0
+    fits = [_grid_fit(u * np.exp(-m * lengths) if m else u, n, tdur, b0) for m in mus]
+    return (xx, yy, *(np.stack([f[i] for f in fits]) for i in range(3)))
 
 
 def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_best: int = 4) -> list[dict[str, float]]:
@@ -499,7 +496,9 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
     apart. A walled model's likelihood has a narrow mode per shadow, so its cells are ranked through the mapped
     walls at the best of :data:`GRID_WALL_MU`, which the start then carries."""
     walled = "wall_attenuation" in model.effects and bool(model.scenario.walls)
-    xx, yy, s, b, nll, k = _grid(model, frames, n_grid, walled)
+    xx, yy, s, b, nll = _grid(model, frames, n_grid, GRID_WALL_MU if walled else (0.0,))
+    k = np.argmin(nll, axis=0)  # each cell at its best mu
+    s, b, nll = (np.choose(k, a) for a in (s, b, nll))
     cell = max(np.ptp(xx), np.ptp(yy)) / (n_grid - 1)
     starts: list[dict[str, float]] = []
     for i in np.argsort(nll):
@@ -515,11 +514,11 @@ def grid_starts(model: MeasurementModel, frames: Frames, n_grid: int = 25, n_bes
 
 def wall_grid_ratio(model: MeasurementModel, frames: Frames, n_grid: int = 25) -> float:
     """2 delta log L of the walled model (``model``, with ``wall_attenuation``) against the wall-free one, each
-    at its best cell of the start grid (:func:`_grid`; the walled one at the best of :data:`GRID_WALL_MU` or
-    mu = 0): a few vectorised Newton steps, no search. Coarse (cells 0.4-1 m apart), so a gate, not a test."""
-    free = _grid(model, frames, n_grid, walled=False)[4].min()
-    walled = _grid(model, frames, n_grid, walled=True)[4].min()
-    return 2.0 * (free - min(walled, free))
+    at its best cell of the start grid (:func:`_grid`, one pass; the walled one at the best of mu = 0 and
+    :data:`GRID_WALL_MU`): a few vectorised Newton steps, no search. Coarse (cells 0.4-1 m apart), so a gate,
+    not a test."""
+    nll = _grid(model, frames, n_grid, (0.0, *GRID_WALL_MU))[4]
+    return 2.0 * float(nll[0].min() - nll.min())
 
 
 def second_source_starts(
