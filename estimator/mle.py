@@ -23,6 +23,7 @@ model's free parameters: the Fisher information of Poisson counts is sum_i grad(
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 from iminuit import Minuit
 from scipy import stats
+from scipy.linalg import get_lapack_funcs
 
 from estimator.model import MeasurementModel
 from radseek.count_model import expected_rate
@@ -64,6 +66,8 @@ SCREEN_MARGIN = 30.0
 #: two-source starts 0.36 s) ended in a basin another start reached in under 500
 SCREEN_NCALL = 600
 _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
+_ZERO_ROW = np.zeros((1, 3))
+_PBTRF, _PBTRS = get_lapack_funcs(("pbtrf", "pbtrs"), (np.zeros(1),))
 #: a minimum whose only fault is an EDM (expected distance to the minimum in -log L, with HESSE's full
 #: Hessian) above MIGRAD's tolerance counts as converged below this: 0.05 is a tenth of the 0.5 that makes
 #: one standard deviation, so the true minimum is within ~0.3 sigma of the *statistical* error (and far less of
@@ -142,7 +146,7 @@ class PoseGroups:
     def n_groups(self) -> int:
         return len(self.variance)
 
-    @property
+    @cached_property
     def active(self) -> np.ndarray:
         """(3,) axes that carry an offset (a variance was reported)."""
         return (self.variance > _NO_VARIANCE).any(axis=0)
@@ -188,11 +192,11 @@ class PoseGroups:
         if self.increments is None:
             return delta / np.maximum(self.variance, _NO_VARIANCE)
         w = 1.0 / self.increments  # (G, 3): precision of each step e_g - e_(g-1), with e_(-1) = 0
-        prev = np.r_[np.zeros((1, 3)), delta[:-1]]
+        prev = np.concatenate((_ZERO_ROW, delta[:-1]))
         if self.restarts is not None:
             prev[self.restarts] = 0.0  # a new walk's first step is from 0, not from the other walk
         step = (delta - prev) * w  # (G, 3)
-        back = np.r_[step[1:], np.zeros((1, 3))]
+        back = np.concatenate((step[1:], _ZERO_ROW))
         if self.restarts is not None:
             back[np.flatnonzero(self.restarts[1:])] = 0.0  # the next group is not linked to this one
         return step - back
@@ -210,8 +214,6 @@ class PoseGroups:
 
     def solver(self, fisher: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
         """:meth:`solve` with (F + Sigma^-1) factored once, for several right-hand sides."""
-        from scipy.linalg import cho_solve_banded, cholesky_banded
-
         a = self.active
         g = self.n_groups
         f = fisher * (a[:, None] & a[None, :])
@@ -226,7 +228,7 @@ class PoseGroups:
             link = w.copy()  # precision coupling group g to g - 1 (none where a new walk starts)
             if self.restarts is not None:
                 link[self.restarts] = 0.0
-            diag = w + np.r_[link[1:], np.zeros((1, 3))] + np.where(a, 0.0, 1.0)
+            diag = w + np.concatenate((link[1:], _ZERO_ROW)) + np.where(a, 0.0, 1.0)
             ab = np.zeros((4, 3 * g))
             ab[3] = (np.einsum("gjj->gj", f) + diag).ravel()
             up1 = np.zeros((g, 3))
@@ -238,10 +240,16 @@ class PoseGroups:
             up3 = np.zeros((g, 3))
             up3[1:] = -link[1:]  # A[3(g-1)+j, 3g+j] couples consecutive groups of one walk
             ab[0] = up3.ravel()
-            chol = cholesky_banded(ab, check_finite=False)
+            # LAPACK's banded Cholesky itself (what scipy's cholesky_banded and cho_solve_banded call, without their
+            # checks: this runs a few thousand times a fit)
+            chol, info = _PBTRF(ab, lower=0)
+            if info != 0:
+                raise np.linalg.LinAlgError(f"pose-offset system not positive definite (LAPACK pbtrf info {info})")
 
             def _solve(r: np.ndarray) -> np.ndarray:
-                x = cho_solve_banded((chol, False), (r * a[None, :, None]).reshape(3 * g, -1), check_finite=False)
+                x, info = _PBTRS(chol, (r * a[None, :, None]).reshape(3 * g, -1), lower=0)
+                if info != 0:
+                    raise np.linalg.LinAlgError(f"pose-offset solve failed (LAPACK pbtrs info {info})")
                 return x.reshape(g, 3, -1)
 
         def solve(rhs: np.ndarray) -> np.ndarray:
@@ -268,19 +276,51 @@ def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Fr
     offsets ``at`` (N, 3; default zero; ``mu0`` the expected counts there).
 
     All shifted copies of the frames go through the model in one evaluation (every effect is per frame)."""
+    if not central:
+        return _counts_and_jacobian(model, theta, frames, at, mu0)[1]
     n = len(frames)
-    steps = (OFFSET_STEP_M, -OFFSET_STEP_M) if central else (OFFSET_STEP_M,)
-    k = 3 * len(steps)
-    shift = np.zeros((k, n, 3))
-    for i in range(k):
-        shift[i, :, i % 3] = steps[i // 3]
+    shift = np.zeros((6, n, 3))
+    for i in range(6):
+        shift[i, :, i % 3] = (OFFSET_STEP_M, -OFFSET_STEP_M)[i // 3]
     if at is not None:
         shift += at[None]
-    tiled = frames.select(np.tile(np.arange(n), k))
-    mu = model.expected_counts(theta, tiled, offsets=shift.reshape(k * n, 3)).reshape(k, n)
-    if central:
-        return ((mu[:3] - mu[3:]) / (2 * OFFSET_STEP_M)).T
-    return ((mu - mu0) / OFFSET_STEP_M).T
+    mu = model.expected_counts(theta, frames.select(np.tile(np.arange(n), 6)), offsets=shift.reshape(6 * n, 3))
+    mu = mu.reshape(6, n)
+    return ((mu[:3] - mu[3:]) / (2 * OFFSET_STEP_M)).T
+
+
+def _counts_and_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Frames, at: np.ndarray | None,
+                         mu0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The expected counts (N,) at the offsets ``at`` (N, 3; default zero) and their forward-difference
+    Jacobian in the offsets (N, 3), from one model evaluation of the frames at ``at`` and at the three steps
+    (every effect is per frame, so a frame's counts are the same to the last bit in either evaluation).
+    ``mu0``: the counts at ``at`` already known (the Jacobian's differences take them; they are the same)."""
+    n = len(frames)
+    shift = np.zeros((4, n, 3))
+    for i in range(3):
+        shift[i + 1, :, i] = OFFSET_STEP_M
+    if at is not None:
+        shift += at[None]
+    mu = model.expected_counts(theta, _tiled(frames, 4), offsets=shift.reshape(4 * n, 3))
+    mu = mu.reshape(4, n)
+    base = mu[0] if mu0 is None else mu0
+    return mu[0], ((mu[1:] - base) / OFFSET_STEP_M).T
+
+
+#: the last few frame sets tiled for the Jacobian's shifted copies: (id, k) -> (weak reference, tiled frames)
+_TILED: dict[tuple[int, int], tuple[weakref.ref, Frames]] = {}
+
+
+def _tiled(frames: Frames, k: int) -> Frames:
+    """``k`` copies of ``frames`` one after the other (built once per frame set: a fit asks thousands of times)."""
+    hit = _TILED.get((id(frames), k))
+    if hit is not None and hit[0]() is frames:
+        return hit[1]
+    if len(_TILED) >= 8:
+        _TILED.clear()
+    tiled = frames.select(np.tile(np.arange(len(frames)), k))
+    _TILED[(id(frames), k)] = (weakref.ref(frames), tiled)
+    return tiled
 
 
 def profile_offsets(
@@ -297,41 +337,46 @@ def profile_offsets(
     This fixed number of steps keeps the objective smooth in theta for MIGRAD; the goodness of fit at the
     optimum goes on to the maximum (:func:`converged_profile`).
 
+    Each iterate's counts come from the same model evaluation as its Jacobian (:func:`_counts_and_jacobian`):
+    four evaluations of the model a call instead of seven (three scoring steps), three instead of four (chord),
+    the same numbers.
+
     Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty delta^T Sigma^-1 delta).
     """
     n = model.observed_counts(frames)
-    mu0 = model.expected_counts(theta, frames)
     if not groups.active.any():
-        return np.zeros((groups.n_groups, 3)), mu0, 0.0
+        return np.zeros((groups.n_groups, 3)), model.expected_counts(theta, frames), 0.0
     scoring = not ("wall_attenuation" in model.effects and len(model.scenario.walls))
+    steps = PROFILE_STEPS if scoring else newton_steps
     delta = np.zeros((groups.n_groups, 3))
-    mu, solve, jac = mu0, None, None
-    for k in range(PROFILE_STEPS if scoring else newton_steps):
+    mu, jac = _counts_and_jacobian(model, theta, frames, None)
+    solve = None
+    for k in range(steps):
         # chord steps keep the Jacobian (and its factored system) from zero offsets
-        delta, mu, solve, jac = _scoring_step(model, theta, frames, groups, n, delta, mu,
-                                              None if (k == 0 or scoring) else (solve, jac))
+        delta, solve = _scoring_step(groups, n, delta, mu, jac, None if (k == 0 or scoring) else solve)
+        if scoring and k < steps - 1:
+            mu, jac = _counts_and_jacobian(model, theta, frames, delta[groups.index])
+        else:
+            mu = model.expected_counts(theta, frames, offsets=delta[groups.index])
     return delta, mu, groups.penalty(delta)
 
 
-def _scoring_step(model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups,
-                  n: np.ndarray, delta: np.ndarray, mu: np.ndarray, chord: tuple | None = None,
-                  scale: float = 1.0) -> tuple:
-    """One Fisher-scoring step (times ``scale``) of the penalised likelihood in the offsets from ``delta``
-    (expected counts ``mu`` there), with the Jacobian at ``delta`` or, for a chord step, the ``(solve, jac)``
-    of an earlier one. Returns (delta, mu, solve, jac) after the step; offsets stay within 5 prior sd."""
+def _scoring_step(groups: PoseGroups, n: np.ndarray, delta: np.ndarray, mu: np.ndarray, jac: np.ndarray,
+                  solve: Callable[[np.ndarray], np.ndarray] | None = None,
+                  scale: float = 1.0) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """One Fisher-scoring step (times ``scale``) of the penalised likelihood in the offsets from ``delta``, where
+    the expected counts are ``mu`` and ``jac`` their Jacobian (:func:`_counts_and_jacobian`; for a chord step
+    an earlier iterate's, with its factored system ``solve``). Returns (delta after the step, ``solve``);
+    offsets stay within 5 prior sd."""
     active = groups.active
-    if chord is None:
-        jac = offset_jacobian(model, theta, frames, mu, at=delta[groups.index] if delta.any() else None)
+    if solve is None:
         jac[:, ~active] = 0.0
         mu_safe = np.maximum(mu, 1e-12)
         solve = groups.solver(groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None]))
-    else:
-        solve, jac = chord
     resid = n / np.maximum(mu, 1e-12) - 1.0
     grad = groups.group_sum(resid[:, None] * jac) - groups.prior_times(delta)
     sd = np.sqrt(groups.variance)
-    delta = np.where(active, np.clip(delta + scale * solve(grad), -5 * sd, 5 * sd), 0.0)
-    return delta, model.expected_counts(theta, frames, offsets=delta[groups.index]), solve, jac
+    return np.where(active, np.clip(delta + scale * solve(grad), -5 * sd, 5 * sd), 0.0), solve
 
 
 def converged_profile(model: MeasurementModel, theta: dict[str, float], frames: Frames, groups: PoseGroups,
@@ -351,11 +396,12 @@ def converged_profile(model: MeasurementModel, theta: dict[str, float], frames: 
         return delta, mu, penalty
     value = poisson_nll(n, mu) + 0.5 * penalty
     for _ in range(max_steps):
-        chord = None
+        jac = offset_jacobian(model, theta, frames, mu, at=delta[groups.index] if delta.any() else None)
+        solve = None
         for halving in range(CONVERGE_HALVINGS + 1):
-            cand, cand_mu, solve, jac = _scoring_step(model, theta, frames, groups, n, delta, mu, chord,
-                                                      scale=0.5**halving)
-            chord = (solve, jac)  # the halved steps reuse this iterate's Jacobian
+            # the halved steps reuse this iterate's Jacobian and factored system
+            cand, solve = _scoring_step(groups, n, delta, mu, jac, solve, scale=0.5**halving)
+            cand_mu = model.expected_counts(theta, frames, offsets=cand[groups.index])
             cand_pen = groups.penalty(cand)
             cand_value = poisson_nll(n, cand_mu) + 0.5 * cand_pen
             if cand_value < value:
