@@ -133,3 +133,42 @@ def test_a_warm_start_that_is_still_the_best_basin_goes_on_alone():
     kept = mle._screen(m, f, names, fixed, [init] + grid, warm=True)
     trapped = mle._search(mle._objective(m, f, names, fixed, None), m, names, init)
     assert all(np.hypot(k["x"] - trapped.values["x"], k["y"] - trapped.values["y"]) > SCREEN_APART_M for k in kept)
+
+
+def test_a_runner_up_basin_stopped_at_its_call_cap_still_wins_when_it_is_ahead(shared_datasets, monkeypatch):
+    """The independent generator's spin-anisotropy flight, its first 181 pooled frames: the screen keeps two basins
+    1.4 m apart. A runner-up's profiled search stops after RUNNER_UP_NCALL calls; with the order reversed (the true
+    best basin searched second) and a cap of 10 calls, it is stopped short while already ahead, so it becomes the
+    best fit and is polished to the same minimum as the normal order. The cap changes nothing in the normal order."""
+    from estimator.inflight import POOL_FRAMES
+    from estimator.localizers.mle import MaximumLikelihood
+    from radseek.dataset import read_dataset
+
+    ds = read_dataset(shared_datasets / "spin-anisotropy")
+    f = mle.pooled(ds.frames, POOL_FRAMES, dwells_only=True).select(np.arange(181))
+    m = MaximumLikelihood().model_for(ds.scenario)
+    screen, search = mle._screen, mle._search
+    kept: list = []
+    monkeypatch.setattr(mle, "_screen", lambda *a, **k: kept.append(screen(*a, **k)) or kept[-1])
+    normal = fit(m, f, n_starts=5, seed=0)
+    assert len(kept[0]) == 2
+    assert np.hypot(kept[0][0]["x"] - kept[0][1]["x"], kept[0][0]["y"] - kept[0][1]["y"]) > 1.0
+    monkeypatch.setattr(mle, "RUNNER_UP_NCALL", 4000)
+    assert fit(m, f, n_starts=5, seed=0).nll == pytest.approx(normal.nll, abs=1e-6)
+
+    stopped = []
+
+    def counted(fcn, model, names, start, ncall=4000):
+        found = search(fcn, model, names, start, ncall)
+        stopped.append(bool(found.fmin.has_reached_call_limit))
+        return found
+
+    monkeypatch.setattr(mle, "_screen", lambda *a, **k: screen(*a, **k)[::-1])
+    monkeypatch.setattr(mle, "_search", counted)
+    monkeypatch.setattr(mle, "RUNNER_UP_NCALL", 10)
+    reversed_ = fit(m, f, n_starts=5, seed=0)
+    assert stopped[-2:] == [False, True]  # the first basin searched to its minimum, the runner-up stopped at 10
+    assert reversed_.converged
+    assert reversed_.nll == pytest.approx(normal.nll, abs=0.01)
+    for k in ("x", "y"):
+        assert abs(reversed_.values[k] - normal.values[k]) < 0.1 * normal.errors[k]
