@@ -10,18 +10,23 @@ file read and rejects an .spe without ``$DATE_MEA``. So the readers here are sma
 (``sandiaspecutils``, the library InterSpec is built on) when those are installed.
 
 Energy calibration convention (the one of N42 and SpecUtils): the lower edge of channel i is
-E(i) = c0 + c1 i + c2 i^2 keV, so channel i spans [E(i), E(i + 1)). Files with explicit boundaries (N42
-``EnergyBoundaryValues``, a CSV with an energy column) keep them.
+E(i) = c0 + c1 i + c2 i^2 keV, so channel i spans [E(i), E(i + 1)). All-zero coefficients (an uncalibrated
+MCA) mean none (channel numbers); a calibration whose edges do not rise over the channels is an error. Files
+with explicit boundaries (N42 ``EnergyBoundaryValues``, a CSV with an energy column) keep them.
 
 Formats:
 
-- **N42.42-2011**: ``RadMeasurement`` / ``Spectrum`` / ``ChannelData`` (``compressionCode`` None or
-  CountedZeroes), ``LiveTimeDuration`` / ``RealTimeDuration`` as xs:duration (``PT300S``), the calibration
-  referenced by ``energyCalibrationReference`` (``CoefficientValues`` or ``EnergyBoundaryValues``);
-  ``MeasurementClassCode`` tells foreground from background.
+- **N42.42-2011**: ``RadMeasurement`` / ``Spectrum`` / ``ChannelData`` (``compressionCode`` or ``Compression``
+  None or CountedZeroes), ``LiveTimeDuration`` / ``RealTimeDuration`` as xs:duration (``PT300S``; a bare
+  number of seconds is taken too), the calibration referenced by ``energyCalibrationReference``
+  (``CoefficientValues``, with deviation pairs applied as SpecUtils does, or ``EnergyBoundaryValues``);
+  ``MeasurementClassCode`` tells foreground from background. Prefixes InterSpec leaves undeclared are bound.
+- **N42.42-2006** (``N42InstrumentData``): ``Spectrum`` / ``LiveTime`` / ``RealTime`` / ``Calibration``
+  (``Polynomial`` or ``FullRangeFraction``, inline or by ``CalibrationIDs``), ``SourceType`` for the kind.
 - **RadiaCode XML** (the app's export, ``ResultDataFile`` / ``EnergySpectrum``): ``Spectrum/DataPoint``,
-  ``MeasurementTime`` (s), ``EnergyCalibration/Coefficients``; the optional ``BackgroundEnergySpectrum`` is read
-  as a second spectrum.
+  ``MeasurementTime`` (s; the real time when a non-zero ``LiveTime`` is given, as AtomSpectra and BecqMoni
+  write), ``EnergyCalibration/Coefficients`` (as many as ``PolynomialOrder`` + 1); the optional
+  ``BackgroundEnergySpectrum`` is read as a second spectrum.
 - **Ortec .spe** (ASCII, ORTEC software file structure manual): ``$MEAS_TIM:`` live real, ``$DATA:`` first last,
   ``$MCA_CAL:`` or ``$ENER_FIT:``, ``$DATE_MEA:``, ``$SPEC_ID:``.
 - **Ortec .chn** (binary, little endian): 32-byte header (int16 -1, MCA, segment, 2-char seconds, int32 real
@@ -134,12 +139,17 @@ def _floats(path: str | Path, where: str, text: str | None) -> list[float]:
     return [_float(path, where, t) for t in (text or "").split()]
 
 
+_BARE_SECONDS = re.compile(r"^(?:\d+(?:\.\d*)?|\.\d+)$")
 _DURATION = re.compile(r"^P(?:(\d+(?:\.\d+)?)D)?(?:T(?:(\d+(?:\.\d+)?)H)?(?:(\d+(?:\.\d+)?)M)?(?:(\d+(?:\.\d+)?)S)?)?$")
 
 
 def parse_duration(path: str | Path, where: str, text: str | None) -> float:
-    """xs:duration (``PT613S``, ``PT1H2M3.5S``) in seconds."""
-    m = _DURATION.match((text or "").strip())
+    """xs:duration (``PT613S``, ``PT1H2M3.5S``) in seconds; a bare number (``300.5``, written by some N42
+    exporters) is seconds too."""
+    t = (text or "").strip()
+    if _BARE_SECONDS.match(t):
+        return float(t)
+    m = _DURATION.match(t)
     if not m or not any(m.groups()):
         raise _err(path, where, f"not an xs:duration like PT300S: {text!r}")
     d, h, mi, s = (float(g) if g else 0.0 for g in m.groups())
@@ -159,11 +169,44 @@ def _check_counts(path: str | Path, where: str, values: list[float]) -> np.ndarr
     return a
 
 
+_PREFIX_USE = re.compile(rb"</?([A-Za-z_][\w.-]*):[A-Za-z_]|\s([A-Za-z_][\w.-]*):[A-Za-z_][\w.-]*\s*=")
+_FIRST_TAG = re.compile(rb"<[A-Za-z_][\w.:-]*")
+
+
 def _parse_xml(path: str | Path, data: bytes) -> ET.Element:
+    """The XML tree. InterSpec (SpecUtils) writes its ``<DHS:InterSpec>`` section into N42 files without
+    declaring the ``DHS`` prefix, which expat rejects; such undeclared prefixes are bound to a placeholder
+    namespace on the root element and the file parsed again (namespaces are ignored by the readers)."""
     try:
         return ET.fromstring(data)
     except ET.ParseError as exc:
-        raise SpectrumFileError(f"{path}: not well-formed XML ({exc})") from None
+        err = exc
+    if "unbound prefix" in str(err):
+        declared = set(re.findall(rb"xmlns:([A-Za-z_][\w.-]*)\s*=", data))
+        used = {a or b for a, b in _PREFIX_USE.findall(data)} - declared - {b"xml", b"xmlns"}
+        m = _FIRST_TAG.search(data)
+        if used and m:
+            decl = b"".join(b' xmlns:%s="urn:radseek:undeclared:%s"' % (u, u) for u in sorted(used))
+            try:
+                return ET.fromstring(data[: m.end()] + decl + data[m.end():])
+            except ET.ParseError:
+                pass
+    raise SpectrumFileError(f"{path}: not well-formed XML ({err})") from None
+
+
+def _poly_cal(path: str | Path, where: str, coefs, n: int) -> tuple[float, ...]:
+    """A polynomial energy calibration checked over ``n`` channels. All zeros (what an uncalibrated MCA writes,
+    e.g. a digiBASE's ``$MCA_CAL``) means none: channel numbers, as for a file without a calibration. Otherwise
+    the channel edges must rise, or the file's calibration is garbage and reading it would misplace every peak."""
+    c = tuple(float(v) for v in coefs)
+    if not c or all(v == 0 for v in c):
+        return (0.0, 1.0)
+    i = np.arange(n + 1, dtype=float)
+    with np.errstate(all="ignore"):
+        e = sum(ck * i**k for k, ck in enumerate(c)) * np.ones_like(i)
+    if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+        raise _err(path, where, f"energy calibration {c} does not rise over channels 0..{n}")
+    return c
 
 
 def _local(tag: str) -> str:
@@ -192,9 +235,17 @@ def _find(el: ET.Element, name: str) -> ET.Element | None:
 
 
 def _n42_counts(path: str | Path, where: str, el: ET.Element) -> np.ndarray:
-    values = _floats(path, where, el.text)
-    code = (el.get("compressionCode") or "None").strip()
-    if code == "CountedZeroes":
+    """``ChannelData`` counts. The compression is ``compressionCode`` (N42-2011) or ``Compression`` (N42-2006,
+    and what Radiation Solutions' AVID writes in 2011 files), ``CountedZeroes`` (one file writer spells it
+    ``CountedZeros``) or ``None``; values may be separated by commas; 2006 files may wrap them in ``<Data>``."""
+    data = _child(el, "Data")
+    text = data.text if data is not None and (data.text or "").strip() else el.text
+    values = _floats(path, where, (text or "").replace(",", " "))
+    code = "None"
+    for k, v in el.attrib.items():
+        if _local(k).lower() in ("compressioncode", "compression"):
+            code = v.strip() or "None"
+    if code.lower() in ("countedzeroes", "countedzeros"):
         out: list[float] = []
         i = 0
         while i < len(values):
@@ -210,25 +261,37 @@ def _n42_counts(path: str | Path, where: str, el: ET.Element) -> np.ndarray:
                 out.append(values[i])
                 i += 1
         values = out
-    elif code != "None":
+    elif code.lower() != "none":
         raise _err(path, where, f"unknown compressionCode {code!r} (None or CountedZeroes)")
     return _check_counts(path, where, values)
 
 
 def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
-    """Every spectrum of an N42.42-2011 file, in file order (``kind`` from ``MeasurementClassCode``)."""
+    """Every spectrum of an N42.42-2011 file (or an N42.42-2006 one, :func:`read_n42_2006`), in file order
+    (``kind`` from ``MeasurementClassCode``, ``meta["detector"]`` the ``radDetectorInformationReference``: a
+    multi-detector instrument gives one spectrum per detector and measurement)."""
     data = Path(path).read_bytes() if data is None else data
     root = _parse_xml(path, data)
+    if _local(root.tag) == "N42InstrumentData":
+        return _read_n42_2006(path, root)
     if _local(root.tag) != "RadInstrumentData":
-        raise _err(path, f"<{_local(root.tag)}>", "root element must be RadInstrumentData (N42.42-2011)")
+        raise _err(path, f"<{_local(root.tag)}>", "root element must be RadInstrumentData (N42.42-2011) or "
+                   "N42InstrumentData (N42.42-2006)")
     cals: dict[str, tuple[str, list[float]]] = {}
+    devs: dict[str, tuple[list[float], list[float]]] = {}
     for i, ec in enumerate(_children(root, "EnergyCalibration")):
         where = f"EnergyCalibration[{i}]"
         coef, bounds = _child(ec, "CoefficientValues"), _child(ec, "EnergyBoundaryValues")
         if coef is not None:
             cals[ec.get("id", "")] = ("coef", _floats(path, where + "/CoefficientValues", coef.text))
+            ev, dv = _child(ec, "EnergyValues"), _child(ec, "EnergyDeviationValues")
+            if ev is not None and dv is not None:
+                devs[ec.get("id", "")] = (_floats(path, where + "/EnergyValues", ev.text),
+                                          _floats(path, where + "/EnergyDeviationValues", dv.text))
         elif bounds is not None:
             cals[ec.get("id", "")] = ("bounds", _floats(path, where + "/EnergyBoundaryValues", bounds.text))
+        else:
+            cals[ec.get("id", "")] = ("none", [])
     serial = ""
     rii = _child(root, "RadInstrumentInformation")
     if rii is not None and _child(rii, "RadInstrumentIdentifier") is not None:
@@ -262,10 +325,16 @@ def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
                 if ref not in cals:
                     raise _err(path, where, f"energyCalibrationReference {ref!r} names no EnergyCalibration")
                 how, vals = cals[ref]
+                if how == "none":
+                    raise _err(path, f"EnergyCalibration id={ref!r}", "neither CoefficientValues nor "
+                               "EnergyBoundaryValues")
                 if how == "coef":
                     if not vals:
                         raise _err(path, f"EnergyCalibration id={ref!r}", "empty CoefficientValues")
-                    cal = tuple(vals)
+                    cal = _poly_cal(path, f"EnergyCalibration id={ref!r}/CoefficientValues", vals, len(counts))
+                    if ref in devs:
+                        bounds = _deviation_pairs(path, f"EnergyCalibration id={ref!r}/EnergyDeviationValues",
+                                                  cal, len(counts), *devs[ref])
                 else:
                     if len(vals) != len(counts) + 1:
                         raise _err(path, f"EnergyCalibration id={ref!r}/EnergyBoundaryValues",
@@ -274,12 +343,131 @@ def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
             try:
                 out.append(Spectrum(counts, live, real, cal, bounds, (start.text or "").strip() if start is not None
                                     else None, (remark.text or "").strip() if remark is not None else "", serial,
-                                    kind, str(path), {"measurement_id": meas.get("id", "")}))
+                                    kind, str(path), {"measurement_id": meas.get("id", ""),
+                                                     "detector": sp.get("radDetectorInformationReference", "")}))
             except SpectrumFileError as exc:
                 raise _err(path, where, str(exc).split(": ", 1)[-1]) from None
     if not out:
         raise _err(path, "RadInstrumentData", "no RadMeasurement/Spectrum with ChannelData")
     return out
+
+
+def _deviation_pairs(path: str | Path, where: str, cal: tuple[float, ...], n: int, energies: list[float],
+                     deviations: list[float]) -> np.ndarray | None:
+    """Channel edges of a polynomial calibration with deviation pairs (N42-2011 ``EnergyValues`` /
+    ``EnergyDeviationValues``, GADRAS' non-linearity correction), as SpecUtils applies them: the correction at
+    polynomial energy E is a cubic spline through (E_i - d_i, d_i), second derivative 0 at the first pair, slope
+    0 at the last, constant beyond them. All-zero deviations change nothing (``None``)."""
+    if len(energies) != len(deviations):
+        raise _err(path, where, f"{len(deviations)} deviations for {len(energies)} EnergyValues")
+    if not any(deviations):
+        return None
+    from scipy.interpolate import CubicSpline
+
+    x = np.asarray(energies, dtype=float) - np.asarray(deviations, dtype=float)
+    if len(x) < 2 or np.any(np.diff(x) <= 0):
+        raise _err(path, where, "needs two or more pairs with ascending energies")
+    spline = CubicSpline(x, deviations, bc_type=((2, 0.0), (1, 0.0)))
+    i = np.arange(n + 1, dtype=float)
+    e = sum(c * i**k for k, c in enumerate(cal)) * np.ones_like(i)
+    e = e + np.where(e < x[0], deviations[0], np.where(e > x[-1], deviations[-1], spline(e)))
+    if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+        raise _err(path, where, "the corrected channel energies do not rise")
+    return e
+
+
+_SOURCE_KIND = {"background": "background", "calibration": "calibration", "intrinsic": "intrinsicactivity"}
+
+
+def _read_n42_2006(path: str | Path, root: ET.Element) -> list[Spectrum]:
+    """Every gamma spectrum of an N42.42-2006 file (``N42InstrumentData``), in file order: any ``Spectrum``
+    with ``ChannelData`` (under ``Measurement`` directly, or ``DetectorData`` / ``DetectorMeasurement`` /
+    ``SpectrumMeasurement``), ``LiveTime`` / ``RealTime`` as xs:duration (``RealTime`` or the enclosing
+    ``SampleRealTime`` stands in for a missing ``LiveTime``), the energy ``Calibration`` inside the spectrum or
+    named by its ``CalibrationIDs`` (``Equation`` ``Polynomial`` or ``FullRangeFraction``), ``SourceType`` for
+    the kind. Spectra of a ``DetectorType="Neutron"`` measurement are skipped."""
+    cal_ids = {c.get("ID"): c for c in root.iter() if _local(c.tag) == "Calibration" and c.get("ID")}
+    out: list[Spectrum] = []
+
+    def walk(el: ET.Element, ctx: dict) -> None:
+        for ch in el:
+            name = _local(ch.tag)
+            if name == "Spectrum" and _child(ch, "ChannelData") is not None:
+                if (ctx.get("dtype") or ch.get("DetectorType") or "").lower() != "neutron":
+                    out.append(_n42_2006_spectrum(path, ch, ctx, cal_ids, len(out)))
+                continue
+            if name in ("Calibration", "ChannelData"):
+                continue
+            sub = dict(ctx)
+            for tag, key in (("StartTime", "start"), ("SampleRealTime", "real")):
+                e = _child(ch, tag)
+                if e is not None and (e.text or "").strip():
+                    sub[key] = (e.text or "").strip()
+            for att, key in (("DetectorType", "dtype"), ("Detector", "detector")):
+                if ch.get(att):
+                    sub[key] = ch.get(att)
+            walk(ch, sub)
+
+    walk(root, {})
+    if not out:
+        raise _err(path, "N42InstrumentData", "no gamma Spectrum with ChannelData")
+    return out
+
+
+def _n42_2006_spectrum(path: str | Path, sp: ET.Element, ctx: dict, cal_ids: dict, i: int) -> Spectrum:
+    det = sp.get("Detector") or sp.get("Sensor") or ctx.get("detector", "")
+    where = f"Spectrum[{i}]" + (f" Detector={det!r}" if det else "")
+    counts = _n42_counts(path, where + "/ChannelData", _child(sp, "ChannelData"))  # type: ignore[arg-type]
+    rt, lt = _child(sp, "RealTime"), _child(sp, "LiveTime")
+    real = parse_duration(path, where + "/RealTime", rt.text) if rt is not None else (
+        parse_duration(path, "SampleRealTime", ctx["real"]) if "real" in ctx else None)
+    if lt is not None:
+        live = parse_duration(path, where + "/LiveTime", lt.text)
+    elif real is not None:
+        live = real
+    else:
+        raise _err(path, where, "missing LiveTime (and no RealTime)")
+    cals = [c for c in _children(sp, "Calibration") if (c.get("Type") or "Energy").lower() == "energy"]
+    for ref in (sp.get("CalibrationIDs") or "").split():
+        if ref not in cal_ids:
+            raise _err(path, where, f"CalibrationIDs {ref!r} names no Calibration")
+        if (cal_ids[ref].get("Type") or "Energy").lower() == "energy":
+            cals.append(cal_ids[ref])
+    cal: tuple[float, ...] = (0.0, 1.0)
+    bounds = None
+    if cals:
+        cal, bounds = _n42_2006_cal(path, where + "/Calibration", cals[0], len(counts))
+    src = _child(sp, "SourceType")
+    kind = _SOURCE_KIND.get((src.text or "").strip().lower(), "foreground") if src is not None else "foreground"
+    try:
+        return Spectrum(counts, live, real, cal, bounds, ctx.get("start"), "", "", kind, str(path),
+                        {"detector": det, "sample": sp.get("SampleNumber", "")})
+    except SpectrumFileError as exc:
+        raise _err(path, where, str(exc).split(": ", 1)[-1]) from None
+
+
+def _n42_2006_cal(path: str | Path, where: str, el: ET.Element, n: int) -> tuple[tuple[float, ...], np.ndarray | None]:
+    eq = _child(el, "Equation")
+    coef = _child(eq, "Coefficients") if eq is not None else None
+    if coef is None:
+        raise _err(path, where, "energy Calibration without Equation/Coefficients")
+    vals = _floats(path, where + "/Equation/Coefficients", (coef.text or "").replace(",", " "))
+    unit = (el.get("EnergyUnits") or "keV").strip().lower()
+    if unit not in ("kev", "mev", "ev"):
+        raise _err(path, where, f"EnergyUnits {el.get('EnergyUnits')!r} (keV, MeV or eV)")
+    vals = [v * {"kev": 1.0, "mev": 1000.0, "ev": 0.001}[unit] for v in vals]
+    model = (eq.get("Model") or "Polynomial").strip().lower()  # type: ignore[union-attr]
+    if model == "polynomial":
+        return _poly_cal(path, where + "/Equation/Coefficients", vals, n), None
+    if model == "fullrangefraction":
+        # E(x) = c0 + c1 x + c2 x^2 + c3 x^3 + c4 / (1 + 60 x), x = channel / n (SpecUtils, GADRAS)
+        c = (vals + [0.0] * 5)[:5]
+        x = np.arange(n + 1, dtype=float) / n
+        e = c[0] + c[1] * x + c[2] * x**2 + c[3] * x**3 + c[4] / (1 + 60 * x)
+        if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+            raise _err(path, where, f"FullRangeFraction calibration {tuple(vals)} does not rise over the channels")
+        return (0.0, 1.0), e
+    raise _err(path, where, f"Equation Model {eq.get('Model')!r} (Polynomial or FullRangeFraction)")  # type: ignore[union-attr]
 
 
 def _fmt(v: float) -> str:
@@ -376,12 +564,24 @@ def read_radiacode_xml(path: str | Path, data: bytes | None = None) -> list[Spec
             live = _float(path, where + "/MeasurementTime", mt.text)
             if live <= 0:
                 raise _err(path, where + "/MeasurementTime", f"must be > 0, got {live}")
+            real = None
+            lt = es.find("LiveTime")  # AtomSpectra / BecqMoni write it (0 when unknown); RadiaCode does not
+            if lt is not None and _float(path, where + "/LiveTime", lt.text) != 0:
+                real, live = live, _float(path, where + "/LiveTime", lt.text)
+                if not 0 < live <= real * (1 + 1e-6):
+                    raise _err(path, where + "/LiveTime", f"{live} must be > 0 and <= MeasurementTime {real}")
             coefs = es.findall("EnergyCalibration/Coefficients/Coefficient")
             cal = tuple(_float(path, where + f"/EnergyCalibration/Coefficients/Coefficient[{i}]", c.text)
-                        for i, c in enumerate(coefs)) or (0.0, 1.0)
+                        for i, c in enumerate(coefs))
+            order = es.find("EnergyCalibration/PolynomialOrder")
+            if order is not None and coefs and int(_float(path, where + "/EnergyCalibration/PolynomialOrder",
+                                                          order.text)) + 1 != len(cal):
+                raise _err(path, where + "/EnergyCalibration", f"PolynomialOrder {order.text.strip()} needs "  # type: ignore[union-attr]
+                           f"{int(float(order.text)) + 1} Coefficient, found {len(cal)}")  # type: ignore[arg-type]
+            cal = _poly_cal(path, where + "/EnergyCalibration", cal, len(counts))
             name = es.find("SpectrumName")
             serial = es.find("SerialNumber")
-            out.append(Spectrum(counts, live, None, cal, None,
+            out.append(Spectrum(counts, live, real, cal, None,
                                 (start.text or "").strip() if start is not None and kind == "foreground" else None,
                                 (name.text or "").strip() if name is not None else "",
                                 (serial.text or "").strip() if serial is not None else "", kind, str(path)))
@@ -396,6 +596,7 @@ def read_radiacode_xml(path: str | Path, data: bytes | None = None) -> list[Spec
 def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """An Ortec ASCII .spe file."""
     data = Path(path).read_bytes() if data is None else data
+    data = data[3:] if data.startswith(b"\xef\xbb\xbf") else data  # a UTF-8 byte-order mark
     try:
         lines = [ln.strip() for ln in data.decode("latin-1").splitlines()]
     except Exception as exc:  # pragma: no cover - latin-1 decodes any byte string
@@ -444,9 +645,9 @@ def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
         coefs = [_float(path, "$MCA_CAL: coefficients", t) for t in mc[1].split()[:n]]
         if len(coefs) != n or n < 1:
             raise _err(path, "$MCA_CAL:", f"says {n} coefficients, found {len(coefs)}")
-        cal = tuple(coefs)
+        cal = _poly_cal(path, "$MCA_CAL:", coefs, len(counts))
     elif sections.get("ENER_FIT"):
-        cal = tuple(_floats(path, "$ENER_FIT:", sections["ENER_FIT"][0])) or cal
+        cal = _poly_cal(path, "$ENER_FIT:", _floats(path, "$ENER_FIT:", sections["ENER_FIT"][0]), len(counts))
     title = " ".join(sections.get("SPEC_ID", [])).strip()
     date = " ".join(sections.get("DATE_MEA", [])).strip() or None
     return [Spectrum(counts, live, real, cal, None, date, title, "", "foreground", str(path))]
@@ -491,8 +692,7 @@ def read_chn(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
             cal = (c0, c1, c2) if ttag == -102 else (c0, c1)
             if not all(math.isfinite(c) for c in cal):
                 raise _err(path, f"trailer byte {end + 4}", f"energy calibration not finite: {cal}")
-            if cal == (0.0, 0.0) or cal == (0.0, 0.0, 0.0):
-                cal = (0.0, 1.0)
+            cal = _poly_cal(path, f"trailer byte {end + 4} (energy calibration)", cal, n + max(first, 0))
         else:
             raise _err(path, f"trailer byte {end}", f"tag must be -101 or -102, got {ttag}")
     start = None
@@ -540,7 +740,7 @@ def read_commented_csv(text: str) -> tuple[dict[str, str], list[list[str]]]:
 def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """A CSV spectrum (see the module docstring)."""
     data = Path(path).read_bytes() if data is None else data
-    meta, rows = read_commented_csv(data.decode("utf-8", errors="replace"))
+    meta, rows = read_commented_csv(data.decode("utf-8-sig", errors="replace"))
     if not rows:
         raise _err(path, "rows", "no data rows")
     header = None
@@ -564,7 +764,8 @@ def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     cal: tuple[float, ...] = (0.0, 1.0)
     bounds = None
     if "calibration" in meta:
-        cal = tuple(_floats(path, "# calibration:", meta["calibration"].replace(",", " "))) or cal
+        cal = _poly_cal(path, "# calibration:", _floats(path, "# calibration:", meta["calibration"].replace(",", " ")),
+                        len(counts))
     elif width == 2 and header is not None and header[0].startswith("energy"):
         lo = arr[:, 0]
         if len(lo) < 2 or np.any(np.diff(lo) <= 0):
@@ -598,12 +799,19 @@ def write_csv(path: str | Path, sp: Spectrum) -> Path:
 # ------------------------------------------------------------------------------------------------ dispatch
 
 
+def _head(data: bytes) -> bytes:
+    """The file's first 4 kB as ASCII-compatible bytes, without a byte-order mark or leading white space."""
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 XML
+        return data[:8192].decode("utf-16", errors="replace").encode("utf-8", errors="replace").lstrip()
+    return data[:4096].removeprefix(b"\xef\xbb\xbf").lstrip()
+
+
 def detect_format(path: str | Path, data: bytes) -> str:
-    head = data[:4096].lstrip()
-    if head[:2] == b"\xff\xff":
+    head = _head(data)
+    if data[:2] == b"\xff\xff":
         return "chn"
     if head.startswith(b"<"):
-        if b"RadInstrumentData" in head:
+        if b"RadInstrumentData" in head or b"N42InstrumentData" in head:
             return "n42"
         if b"ResultDataFile" in head:
             return "xml"
@@ -627,7 +835,7 @@ def read_spectra(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
         except FileNotFoundError:
             raise SpectrumFileError(f"{p}: file not found") from None
     fmt = detect_format(p, data)
-    if fmt == "xml" and b"RadInstrumentData" in data[:4096]:
+    if fmt == "xml" and (b"RadInstrumentData" in _head(data) or b"N42InstrumentData" in _head(data)):
         fmt = "n42"
     return READERS[fmt](p, data)
 

@@ -191,3 +191,117 @@ def test_writers_round_trip_any_spectrum(tmp_path_factory, counts, live, c0, c1)
         back = sf.read_spectrum(p)
         np.testing.assert_array_equal(back.counts, sp.counts)
         assert back.live_time_s == pytest.approx(live, rel=1e-6)
+
+
+# ------------------------------------------------------------------------ files from other devices and tools
+
+BQ = Path(__file__).resolve().parent / "data" / "becquerel"
+
+
+def test_digibase_spe_all_zero_calibration_means_uncalibrated():
+    # a real Maestro file whose $MCA_CAL is 0 0 0: read as channel numbers, not as every channel at 0 keV
+    sp = sf.read_spectrum(BQ / "digibase_5min_30_1.spe")
+    assert (sp.n_channels, sp.counts.sum(), sp.live_time_s, sp.real_time_s) == (1024, 892301, 296.0, 300.0)
+    assert sp.calibration == (0.0, 1.0)
+    assert np.all(np.diff(sp.edges_keV()) > 0)
+
+
+def test_spe_bom_and_non_rising_calibration(tmp_path):
+    body = "$SPEC_ID:\r\nx\r\n$MEAS_TIM:\r\n10 11\r\n$DATA:\r\n0 3\r\n1\r\n2\r\n3\r\n4\r\n$MCA_CAL:\r\n2\r\n"
+    p = tmp_path / "a.spe"
+    p.write_bytes(b"\xef\xbb\xbf" + (body + "1 2 keV\r\n").encode())
+    sp = sf.read_spectrum(p)
+    assert sp.title == "x" and sp.calibration == (1.0, 2.0) and sp.counts.sum() == 10
+    p.write_bytes((body + "5 -2 keV\r\n").encode())
+    with pytest.raises(sf.SpectrumFileError, match=r"a\.spe: \$MCA_CAL:: energy calibration .* does not rise"):
+        sf.read_spectrum(p)
+
+
+N42_2011_HEAD = ('<?xml version="1.0"?>\n<RadInstrumentData xmlns="http://physics.nist.gov/N42/2011/N42">\n'
+                 '<EnergyCalibration id="ec"><CoefficientValues>0 3 0</CoefficientValues>{dev}</EnergyCalibration>\n')
+
+
+def test_n42_compression_attribute_as_avid_writes_it(tmp_path):
+    # Radiation Solutions' AVID writes <ChannelData Compression="CountedZeroes"> in N42-2011 files (SpecUtils
+    # accepts both spellings); read as uncompressed, "0 4" became two channels instead of four zeros
+    doc = (N42_2011_HEAD.format(dev="") + '<RadMeasurement id="m"><MeasurementClassCode>Foreground'
+           '</MeasurementClassCode><RealTimeDuration>PT1S</RealTimeDuration>'
+           '<Spectrum id="s" energyCalibrationReference="ec" radDetectorInformationReference="d1">'
+           '<LiveTimeDuration>PT0.999S</LiveTimeDuration><ChannelData Compression="CountedZeroes">'
+           '0 4 22 16 0 2 5</ChannelData></Spectrum></RadMeasurement></RadInstrumentData>\n')
+    (tmp_path / "avid.n42").write_text(doc)
+    sp = sf.read_spectrum(tmp_path / "avid.n42")
+    np.testing.assert_array_equal(sp.counts, [0, 0, 0, 0, 22, 16, 0, 0, 5])
+    assert sp.meta["detector"] == "d1" and sp.live_time_s == 0.999
+    (tmp_path / "bad.n42").write_text(doc.replace('Compression="CountedZeroes"', 'Compression="Zip"'))
+    with pytest.raises(sf.SpectrumFileError, match=r"bad\.n42: .*Spectrum\[0\]/ChannelData: unknown compressionCode"):
+        sf.read_spectrum(tmp_path / "bad.n42")
+
+
+def test_n42_with_interspec_undeclared_prefix_and_deviation_pairs(tmp_path):
+    # InterSpec saves <DHS:InterSpec> without declaring DHS (expat: "unbound prefix"), and GADRAS deviation
+    # pairs as EnergyValues / EnergyDeviationValues; a constant deviation d shifts every channel edge by d
+    dev = "<EnergyValues>0 500 3000</EnergyValues><EnergyDeviationValues>-1 -1 -1</EnergyDeviationValues>"
+    doc = (N42_2011_HEAD.format(dev=dev) + '<RadMeasurement id="m"><Spectrum id="s" energyCalibrationReference="ec">'
+           '<LiveTimeDuration>PT10S</LiveTimeDuration><ChannelData compressionCode="None">1 2 3 4</ChannelData>'
+           '</Spectrum></RadMeasurement>\n<DHS:InterSpec version="1"><DHS:Peaks/></DHS:InterSpec>\n'
+           '</RadInstrumentData>\n')
+    (tmp_path / "is.n42").write_text(doc)
+    sp = sf.read_spectrum(tmp_path / "is.n42")
+    assert sp.counts.sum() == 10 and sp.kind == "foreground"
+    np.testing.assert_allclose(sp.edges_keV(), np.arange(5) * 3.0 - 1.0)
+    # a smooth deviation curve: SpecUtils' spline through (E - d, d), flat beyond the last pair
+    doc2 = doc.replace("-1 -1 -1", "0 4 0").replace("0 500 3000", "0 6 12")
+    (tmp_path / "is2.n42").write_text(doc2)
+    e = sf.read_spectrum(tmp_path / "is2.n42").edges_keV()
+    assert e[0] == 0.0 and e[4] == 12.0 and e[1] > 3.0 and e[2] > 6.0
+
+
+N42_2006 = """<?xml version="1.0"?>
+<N42InstrumentData xmlns="http://physics.nist.gov/Divisions/Div846/Gp4/ANSIN4242/2005/ANSIN4242">
+<Measurement><InstrumentInformation><InstrumentID>x</InstrumentID></InstrumentInformation>
+<DetectorData><StartTime>2016-02-04T20:28:33.000Z</StartTime><SampleRealTime>PT2S</SampleRealTime>
+<DetectorMeasurement Detector="VD1" DetectorType="Gamma"><SpectrumMeasurement>
+<Spectrum CalibrationIDs="Lin"><RealTime>PT0.999998S</RealTime><LiveTime>PT0.999718S</LiveTime>
+<SourceType>Item</SourceType><ChannelData Compression="CountedZeroes">0 2 7 0 1 3</ChannelData></Spectrum>
+</SpectrumMeasurement></DetectorMeasurement>
+<DetectorMeasurement Detector="VD1" DetectorType="Neutron"><SpectrumMeasurement><Spectrum>
+<LiveTime>PT1S</LiveTime><ChannelData>5</ChannelData></Spectrum></SpectrumMeasurement></DetectorMeasurement>
+</DetectorData></Measurement>
+<Measurement><Spectrum Type="PHA"><LiveTime>299.5</LiveTime><RealTime>300</RealTime><SourceType>Background</SourceType>
+<Calibration Type="Energy" EnergyUnits="MeV"><Equation Model="FullRangeFraction"><Coefficients>0 3</Coefficients>
+</Equation></Calibration><ChannelData>1, 2, 3</ChannelData></Spectrum></Measurement>
+<Calibration Type="Energy" EnergyUnits="keV" ID="Lin"><Equation Model="Polynomial"><Coefficients>1 3</Coefficients>
+</Equation></Calibration>
+</N42InstrumentData>
+"""
+
+
+def test_n42_2006(tmp_path):
+    # N42.42-2006 (ORTEC portals, RSI AVID / RadAssist, older InterSpec examples) was refused outright
+    p = tmp_path / "old.N42"
+    p.write_text(N42_2006)
+    fg, bg = sf.read_spectra(p)
+    np.testing.assert_array_equal(fg.counts, [0, 0, 7, 0, 3])
+    assert (fg.live_time_s, fg.real_time_s, fg.calibration, fg.kind) == (0.999718, 0.999998, (1.0, 3.0), "foreground")
+    assert fg.start_time == "2016-02-04T20:28:33.000Z" and fg.meta["detector"] == "VD1"
+    assert (bg.kind, bg.live_time_s, bg.real_time_s) == ("background", 299.5, 300.0)
+    np.testing.assert_allclose(bg.edges_keV(), [0, 1000, 2000, 3000])  # FullRangeFraction in MeV
+    assert sf.detect_format(tmp_path / "old.xml", N42_2006.encode()) == "n42"
+    p.write_text(N42_2006.replace('ID="Lin"', 'ID="Other"'))
+    with pytest.raises(sf.SpectrumFileError, match=r"old\.N42: Spectrum\[0\] Detector='VD1': CalibrationIDs 'Lin'"):
+        sf.read_spectra(p)
+
+
+def test_resultdatafile_live_time_and_polynomial_order(tmp_path):
+    # AtomSpectra / BecqMoni write <LiveTime> beside <MeasurementTime> (the real time) in the same format
+    text = (DATA / "Cs137_b.xml").read_text()
+    p = tmp_path / "as.xml"
+    p.write_text(text.replace("<MeasurementTime>300</MeasurementTime>",
+                              "<MeasurementTime>300</MeasurementTime><LiveTime>297.5</LiveTime>"))
+    sp = sf.read_spectrum(p)
+    assert (sp.live_time_s, sp.real_time_s) == (297.5, 300.0)
+    # radiacode-tools' data_invalid_cal_inconsistent_order.xml: order 2 but the quadratic term deleted
+    p.write_text(text.replace("<Coefficient>4.39819E-4</Coefficient>", ""))
+    with pytest.raises(sf.SpectrumFileError, match=r"EnergySpectrum/EnergyCalibration: PolynomialOrder 2 needs 3"):
+        sf.read_spectrum(p)
