@@ -311,13 +311,7 @@ def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
             if cd is None:
                 raise _err(path, where, "missing ChannelData")
             counts = _n42_counts(path, where + "/ChannelData", cd)
-            lt_el = _child(sp, "LiveTimeDuration")
-            if lt_el is not None:
-                live = parse_duration(path, where + "/LiveTimeDuration", lt_el.text)
-            elif real is not None:
-                live = real
-            else:
-                raise _err(path, where, "missing LiveTimeDuration (and no RealTimeDuration)")
+            live = _live_time(path, where, sp, "LiveTimeDuration", real, "RealTimeDuration")
             ref = sp.get("energyCalibrationReference")
             cal: tuple[float, ...] = (0.0, 1.0)
             bounds = None
@@ -350,6 +344,16 @@ def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     if not out:
         raise _err(path, "RadInstrumentData", "no RadMeasurement/Spectrum with ChannelData")
     return out
+
+
+def _live_time(path: str | Path, where: str, sp: ET.Element, tag: str, real: float | None, real_tag: str) -> float:
+    """The spectrum's live time ``tag`` (xs:duration); without one, its real time (no dead time recorded)."""
+    el = _child(sp, tag)
+    if el is not None:
+        return parse_duration(path, f"{where}/{tag}", el.text)
+    if real is not None:
+        return real
+    raise _err(path, where, f"missing {tag} (and no {real_tag})")
 
 
 def _deviation_pairs(path: str | Path, where: str, cal: tuple[float, ...], n: int, energies: list[float],
@@ -418,15 +422,10 @@ def _n42_2006_spectrum(path: str | Path, sp: ET.Element, ctx: dict, cal_ids: dic
     det = sp.get("Detector") or sp.get("Sensor") or ctx.get("detector", "")
     where = f"Spectrum[{i}]" + (f" Detector={det!r}" if det else "")
     counts = _n42_counts(path, where + "/ChannelData", _child(sp, "ChannelData"))  # type: ignore[arg-type]
-    rt, lt = _child(sp, "RealTime"), _child(sp, "LiveTime")
+    rt = _child(sp, "RealTime")
     real = parse_duration(path, where + "/RealTime", rt.text) if rt is not None else (
         parse_duration(path, "SampleRealTime", ctx["real"]) if "real" in ctx else None)
-    if lt is not None:
-        live = parse_duration(path, where + "/LiveTime", lt.text)
-    elif real is not None:
-        live = real
-    else:
-        raise _err(path, where, "missing LiveTime (and no RealTime)")
+    live = _live_time(path, where, sp, "LiveTime", real, "RealTime")
     cals = [c for c in _children(sp, "Calibration") if (c.get("Type") or "Energy").lower() == "energy"]
     for ref in (sp.get("CalibrationIDs") or "").split():
         if ref not in cal_ids:
