@@ -290,7 +290,7 @@ def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Fr
         shift[i, :, i % 3] = (OFFSET_STEP_M, -OFFSET_STEP_M)[i // 3]
     if at is not None:
         shift += at[None]
-    mu = model.expected_counts(theta, frames.select(np.tile(np.arange(n), 6)), offsets=shift.reshape(6 * n, 3))
+    mu = model.expected_counts(theta, _tiled(frames, 6), offsets=shift.reshape(6 * n, 3))
     mu = mu.reshape(6, n)
     return ((mu[:3] - mu[3:]) / (2 * OFFSET_STEP_M)).T
 

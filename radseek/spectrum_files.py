@@ -99,8 +99,7 @@ class Spectrum:
         """(n + 1,) channel boundaries in keV."""
         if self.boundaries_keV is not None:
             return self.boundaries_keV
-        i = np.arange(self.n_channels + 1, dtype=float)
-        return sum(c * i**k for k, c in enumerate(self.calibration)) * np.ones_like(i)
+        return polynomial_edges(self.calibration, self.n_channels)
 
     def rate(self) -> np.ndarray:
         return self.counts / self.live_time_s
@@ -201,12 +200,22 @@ def _poly_cal(path: str | Path, where: str, coefs, n: int) -> tuple[float, ...]:
     c = tuple(float(v) for v in coefs)
     if not c or all(v == 0 for v in c):
         return (0.0, 1.0)
-    i = np.arange(n + 1, dtype=float)
     with np.errstate(all="ignore"):
-        e = sum(ck * i**k for k, ck in enumerate(c)) * np.ones_like(i)
-    if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+        e = polynomial_edges(c, n)
+    if not _rising(e):
         raise _err(path, where, f"energy calibration {c} does not rise over channels 0..{n}")
     return c
+
+
+def polynomial_edges(cal: tuple[float, ...], n: int) -> np.ndarray:
+    """(n + 1,) channel edges in keV of the polynomial calibration ``cal``: E(i) = c0 + c1 i + c2 i^2 + ..."""
+    i = np.arange(n + 1, dtype=float)
+    return sum(c * i**k for k, c in enumerate(cal)) * np.ones_like(i)
+
+
+def _rising(edges: np.ndarray) -> bool:
+    """Channel edges that are finite and rise strictly (a usable energy calibration)."""
+    return bool(np.all(np.isfinite(edges)) and np.all(np.diff(edges) > 0))
 
 
 def _local(tag: str) -> str:
@@ -372,10 +381,9 @@ def _deviation_pairs(path: str | Path, where: str, cal: tuple[float, ...], n: in
     if len(x) < 2 or np.any(np.diff(x) <= 0):
         raise _err(path, where, "needs two or more pairs with ascending energies")
     spline = CubicSpline(x, deviations, bc_type=((2, 0.0), (1, 0.0)))
-    i = np.arange(n + 1, dtype=float)
-    e = sum(c * i**k for k, c in enumerate(cal)) * np.ones_like(i)
+    e = polynomial_edges(cal, n)
     e = e + np.where(e < x[0], deviations[0], np.where(e > x[-1], deviations[-1], spline(e)))
-    if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+    if not _rising(e):
         raise _err(path, where, "the corrected channel energies do not rise")
     return e
 
@@ -463,7 +471,7 @@ def _n42_2006_cal(path: str | Path, where: str, el: ET.Element, n: int) -> tuple
         c = (vals + [0.0] * 5)[:5]
         x = np.arange(n + 1, dtype=float) / n
         e = c[0] + c[1] * x + c[2] * x**2 + c[3] * x**3 + c[4] / (1 + 60 * x)
-        if not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+        if not _rising(e):
             raise _err(path, where, f"FullRangeFraction calibration {tuple(vals)} does not rise over the channels")
         return (0.0, 1.0), e
     raise _err(path, where, f"Equation Model {eq.get('Model')!r} (Polynomial or FullRangeFraction)")  # type: ignore[union-attr]
