@@ -2,9 +2,9 @@
 
 Per frame i (10 Hz, duration ~ N(0.1 s, 0.5 ms)) at the TRUE pose:
 
-    source rate  s_i = sum_j S_j / d_ij^2 * exp(-mu_air d_ij) * exp(-mu_wall L_ij) * (1 - f cone(theta_ij))
-    background   b_i = B + gx x_i + gy y_i
-    detected     n_i = s_i P_S(a_i) + b_i P_B(a_i)   (P: recorded fraction of the response at gain a_i)
+    source rate  s_ij = S_j / d_ij^2 * exp(-mu_air d_ij) * exp(-mu_wall L_ij) * exp(-mu_u U_ij) * (1 - f cone(theta_ij))
+    background   b_i = (B + gx x_i + gy y_i) (1 + a sin(2 pi t_i / T + phi) + r t_i / 6000)
+    detected     n_i = sum_j s_ij P_j(a_i) + b_i P_B(a_i)   (P: recorded fraction of a response at gain a_i)
 
 with a_i = 1 + percent_per_min / 100 * t_i / 60. Pulses are drawn event by event (Poisson in time, a
 frame-wise gamma factor on the rate when over-dispersed), a paralyzable dead time removes every pulse that
@@ -12,6 +12,13 @@ follows the previous pulse (recorded or not) by less than tau, and the surviving
 over the 32 channels by the mixture of the source and background channel probabilities. The recorded pose is
 the true one plus a per-segment offset and jitter (``pose_error="independent"``) or an odometry random walk in
 distance flown (``"random_walk"``), plus ``pose_drift`` v t.
+
+Besides the diagnose vocabulary (dataset-format.md) it makes ``unmapped_wall`` (slabs absent from
+scenario.walls; U_ij the path length inside them), a ``second_source`` of another ``nuclide`` (its measured
+spectrum), a primary of another nuclide (``FlightSpec.nuclide``), and two effects that vocabulary lacks, to test
+an honest "none of these": ``moving_source`` (the primary moves at a constant ``vx``, ``vy`` m/s; truth holds
+its position at t = 0) and ``background_drift`` (``amplitude`` a, ``period_s`` T, ``phase`` phi and
+``percent_per_min`` r in the formula above, each optional).
 """
 
 from __future__ import annotations
@@ -22,7 +29,12 @@ from typing import Any
 import numpy as np
 
 from benchmarks.forward2 import paths as P
-from benchmarks.forward2.spectra import EDGES, background_response, scatter_response, source_response
+from benchmarks.forward2.spectra import (
+    EDGES,
+    background_response,
+    scatter_response,
+    source_response,
+)
 from radseek.dataset import Dataset, Frames, Scenario, Truth, TruthSource, Wall
 
 GEOMETRIES = ("lattice", "spin", "lawnmower", "closepass", "outdoor", "wall", "lshape")
@@ -47,6 +59,11 @@ class FlightSpec:
     #: down-scattered continuum instead of the crystal's response (the spectrum's shape changes with distance)
     scatter: float = 0.0
     name: str = ""
+    #: the primary source's nuclide (Cs-137, Co-60, Eu-152 or Ba-133): its response; scenario.json carries it
+    nuclide: str = "Cs-137"
+    #: the geometry's walls ("wall", "lshape") are left out of scenario.walls and attenuate as
+    #: ``unmapped_wall`` (``effects["unmapped_wall"]["mu_per_m"]`` needed); truth lists them there
+    unmap_walls: bool = False
 
 
 # ------------------------------------------------------------------------------------------- geometry
@@ -54,9 +71,10 @@ class FlightSpec:
 
 def slab_lengths(a: np.ndarray, b: np.ndarray, walls: list[Wall]) -> np.ndarray:
     """(N,) total length of the segments a_i -> b inside the wall slabs, by clipping the parametric segment
-    against the slab's three pairs of planes in the wall's own frame (along, across, up)."""
+    against the slab's three pairs of planes in the wall's own frame (along, across, up); ``b`` is one point or
+    one per row of ``a``."""
     a = np.atleast_2d(a)
-    d = np.asarray(b, dtype=float)[None, :] - a
+    d = np.atleast_2d(np.asarray(b, dtype=float)) - a  # b: one point (3,) or one per row (N, 3)
     total = np.zeros(len(a))
     for w in walls:
         s0, s1 = np.asarray(w.start, float), np.asarray(w.end, float)
@@ -85,11 +103,66 @@ def slab_lengths(a: np.ndarray, b: np.ndarray, walls: list[Wall]) -> np.ndarray:
 def back_cone(pos: np.ndarray, yaw: np.ndarray, src: np.ndarray, fraction: float, half_angle_deg: float,
               edge_deg: float) -> np.ndarray:
     """1 - fraction * (1 - tanh((theta - half) / edge)) / 2, theta between the back direction and the source."""
-    d = src[None, :] - pos
+    d = np.atleast_2d(src) - pos
     back = np.column_stack([-np.cos(yaw), -np.sin(yaw), np.zeros_like(yaw)])
     c = np.einsum("ij,ij->i", d, back) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
     theta = np.degrees(np.arccos(np.clip(c, -1, 1)))
     return 1.0 - fraction * 0.5 * (1.0 - np.tanh((theta - half_angle_deg) / edge_deg))
+
+
+def unmapped_walls(fx: dict[str, Any]) -> list[Wall]:
+    """The slabs listed in ``fx["unmapped_wall"]["walls"]`` (scenario wall form) as walls, material "unmapped"."""
+    out = []
+    for w in fx.get("unmapped_wall", {}).get("walls", []):
+        out.append(Wall(tuple(map(float, w["start"])), tuple(map(float, w["end"])), float(w["thickness"]),
+                        float(w.get("height", 3.0)), str(w.get("material", "unmapped"))))
+    return out
+
+
+def wall_dict(w: Wall) -> dict[str, Any]:
+    """A wall in the scenario's own form (start, end, thickness, height, material)."""
+    return w.to_dict()
+
+
+def drift_factor(p: dict[str, float], t: np.ndarray) -> np.ndarray:
+    """Background multiplier at times t: 1 + amplitude sin(2 pi t / period_s + phase) + percent_per_min t / 6000."""
+    f = 1.0 + p.get("percent_per_min", 0.0) / 100.0 * t / 60.0
+    if p.get("amplitude", 0.0):
+        f = f + p["amplitude"] * np.sin(2 * np.pi * t / p["period_s"] + p.get("phase", 0.0))
+    return f
+
+
+def random_unmapped_wall(spec: FlightSpec, seed: int, mu_t: float, rng: np.random.Generator, n_walls: int = 1
+                         ) -> dict[str, Any]:
+    """``unmapped_wall`` parameters for ``simulate(spec, seed)``: ``n_walls`` slabs of mu * thickness = ``mu_t``
+    (thickness 0.1-0.3 m, height 2-3 m, length 1.5-4 m), each centred 0.6-2.5 m from the source (at most 60 %
+    of the way) towards a different waypoint of the flight, its face turned within 45 degrees of square to that
+    line of sight, so it shadows part of the flight (waypoints >= 1 rad apart seen from the source, so the
+    slabs shade different parts). The scene is rebuilt from ``seed`` as ``simulate`` does."""
+    scene, track = _scene(spec, np.random.default_rng(seed))
+    src = scene["src"]
+    pts = track.points[:, :2]
+    dist = np.linalg.norm(pts - src[:2], axis=1)
+    cand = np.flatnonzero((dist > 1.6) & (dist < 8.0))
+    if not len(cand):
+        cand = np.array([int(np.argmax(dist))])
+    bearing = np.arctan2(pts[:, 1] - src[1], pts[:, 0] - src[0])
+    picks: list[int] = []
+    for k in rng.permutation(cand):
+        if len(picks) < n_walls and all(abs(np.angle(np.exp(1j * (bearing[k] - bearing[j])))) >= 1.0 for j in picks):
+            picks.append(int(k))
+    thick = float(rng.uniform(0.1, 0.3))
+    walls = []
+    for k in picks:
+        u = (pts[k] - src[:2]) / dist[k]
+        r = float(rng.uniform(0.6, max(0.6, min(2.5, 0.6 * dist[k]))))
+        ang = np.arctan2(u[1], u[0]) + np.pi / 2 + rng.uniform(-np.pi / 4, np.pi / 4)
+        along = np.array([np.cos(ang), np.sin(ang)])
+        half = rng.uniform(1.5, 4.0) / 2
+        c = src[:2] + r * u
+        walls.append({"start": [float(v) for v in c - half * along], "end": [float(v) for v in c + half * along],
+                      "thickness": thick, "height": float(rng.uniform(2.0, 3.0))})
+    return {"walls": walls, "mu_per_m": mu_t / thick}
 
 
 # ------------------------------------------------------------------------------------------- scene
@@ -136,6 +209,10 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
     rng = np.random.default_rng(seed)
     scene, track = _scene(spec, rng)
     fx = spec.effects
+    mapped = [] if spec.unmap_walls else scene["walls"]
+    uwalls = (scene["walls"] if spec.unmap_walls else []) + unmapped_walls(fx)
+    if uwalls and "mu_per_m" not in fx.get("unmapped_wall", {}):
+        raise ValueError("unmapped walls need effects['unmapped_wall']['mu_per_m']")
     n_max = int(track.duration / FRAME_S) + 10
     dur = np.clip(rng.normal(FRAME_S, 0.0005, n_max), 0.095, 0.105)
     t_end = np.cumsum(dur)
@@ -145,43 +222,57 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
     pos, yaw, dwell, piece = track.sample(t_mid)
 
     S = spec.cps_at_1m if spec.cps_at_1m is not None else STRENGTH[spec.geometry]
-    sources = [(scene["src"], S)]
+    src0 = scene["src"]
+    src_t = np.broadcast_to(src0, pos.shape)  # the primary's position per frame
+    if "moving_source" in fx:
+        v = fx["moving_source"]
+        src_t = src0[None, :] + np.column_stack([v["vx"] * t_mid, v["vy"] * t_mid, np.zeros_like(t_mid)])
+    sources = [(src_t, S, spec.nuclide)]
     if "second_source" in fx:
         p = fx["second_source"]
-        sources.append((np.array([p["x"], p["y"], p.get("z", 0.0)]), p["cps_at_1m"]))
-    rate_s = np.zeros(len(t_mid))
+        sources.append((np.array([p["x"], p["y"], p.get("z", 0.0)]), p["cps_at_1m"],
+                        str(p.get("nuclide", spec.nuclide))))
+    rates: dict[str, np.ndarray] = {}  # direct source rate per nuclide
     scat = np.zeros(len(t_mid))  # scattered part of the source rate
-    for src, s in sources:
-        d = np.maximum(np.linalg.norm(pos - src[None, :], axis=1), 0.05)
+    for src, s, nuc in sources:
+        d = np.maximum(np.linalg.norm(pos - src, axis=1), 0.05)
         term = s / d**2
         if "air_attenuation" in fx:
             term = term * np.exp(-fx["air_attenuation"]["mu_per_m"] * d)
-        if "wall_attenuation" in fx and scene["walls"]:
-            term = term * np.exp(-fx["wall_attenuation"]["mu_per_m"] * slab_lengths(pos, src, scene["walls"]))
+        if "wall_attenuation" in fx and mapped:
+            term = term * np.exp(-fx["wall_attenuation"]["mu_per_m"] * slab_lengths(pos, src, mapped))
+        if uwalls:
+            term = term * np.exp(-fx["unmapped_wall"]["mu_per_m"] * slab_lengths(pos, src, uwalls))
         if "anisotropy" in fx:
             a = fx["anisotropy"]
             term = term * back_cone(pos, yaw, src, a["fraction"], a["half_angle_deg"], a.get("edge_deg", 4.0))
         q = np.minimum(spec.scatter * d, 0.5)
-        rate_s += term * (1 - q)
+        rates[nuc] = rates.get(nuc, 0.0) + term * (1 - q)
         scat += term * q
     B = spec.background_cps
     rate_b = np.full(len(t_mid), B)
     if "background_gradient" in fx:
         gx, gy = fx["background_gradient"]["gx"], fx["background_gradient"]["gy"]
         rate_b = np.maximum(B + gx * pos[:, 0] + gy * pos[:, 1], 0.1)
+    if "background_drift" in fx:
+        rate_b = np.maximum(rate_b * drift_factor(fx["background_drift"], t_mid), 0.1)
 
     # spectra at each frame's gain (frames grouped by gain to 1e-4 to keep this cheap)
     pct = fx.get("gain_drift", {}).get("percent_per_min", 0.0)
     gain = 1.0 + pct / 100.0 * t_mid / 60.0
-    rs, rb, rc = source_response(spec.crystal), background_response(), scatter_response()
     q = np.round(gain, 5)
     uq, inv = np.unique(q, return_inverse=True)
-    ps = rs.channel_probs(EDGES, uq)
-    pb = rb.channel_probs(EDGES, uq)
-    ps0, pb0 = rs.channel_probs(EDGES, np.ones(1)).sum(), rb.channel_probs(EDGES, np.ones(1)).sum()
-    pc, pc0 = rc.channel_probs(EDGES, uq), rc.channel_probs(EDGES, np.ones(1)).sum()
-    ps, pb, pc = ps[inv] / ps0, pb[inv] / pb0, pc[inv] / pc0  # cps_at_1m counts all channels at unit gain
-    mix = rate_s[:, None] * ps + rate_b[:, None] * pb + scat[:, None] * pc
+
+    def probs_at_gain(r: Any) -> np.ndarray:
+        """(frames, 32) channel probabilities per unit rate (cps_at_1m counts all channels at unit gain)."""
+        return r.channel_probs(EDGES, uq)[inv] / r.channel_probs(EDGES, np.ones(1)).sum()
+
+    parts = [probs_at_gain(source_response(spec.crystal if spec.crystal != "fill" or nuc == "Cs-137" else "real",
+                                           nuclide=nuc)) * rate[:, None] for nuc, rate in rates.items()]
+    parts += [probs_at_gain(background_response()) * rate_b[:, None], probs_at_gain(scatter_response()) * scat[:, None]]
+    mix = parts[0]
+    for x in parts[1:]:
+        mix = mix + x
     n_true = mix.sum(1)
     if "over_dispersion" in fx:
         r = fx["over_dispersion"]["rel_sd"]
@@ -223,10 +314,13 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
     lo, hi = scene["lo"], scene["hi"]
     scenario = Scenario(channel_edges_keV=EDGES.copy(), background_cps=float(B * (1 + rng.normal(0, 0.03))),
                         source_z=0.0, bounds_min=np.array([lo[0], lo[1], 0.0]),
-                        bounds_max=np.array([hi[0], hi[1], 0.5]), walls=tuple(scene["walls"]))
-    src = scene["src"]
-    truth = Truth(sources=(TruthSource(float(src[0]), float(src[1]), 0.0, float(S)),), background_cps=B,
-                  effects={k: dict(v) for k, v in fx.items()})
+                        bounds_max=np.array([hi[0], hi[1], 0.5]), walls=tuple(mapped),
+                        nuclide=spec.nuclide)
+    effects = {k: dict(v) for k, v in fx.items()}
+    if uwalls:
+        effects["unmapped_wall"] = {**effects["unmapped_wall"], "walls": [wall_dict(w) for w in uwalls]}
+    truth = Truth(sources=(TruthSource(float(src0[0]), float(src0[1]), 0.0, float(S), spec.nuclide),),
+                  background_cps=B, effects=effects)
     return Dataset(frames=frames, scenario=scenario, truth=truth, path=None)
 
 

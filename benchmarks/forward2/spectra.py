@@ -21,7 +21,6 @@ REAL_SPECTRA = Path(__file__).resolve().parents[3] / "shared" / "real-spectra"
 EDGES = np.array([40.0, 83.0, 126.5, 170.5, 215.0, 260.0, 305.4, 351.4, 397.8, 444.7, 492.1, 540.0, 588.4, 637.2,
                   686.6, 736.4, 786.7, 837.5, 888.8, 940.6, 992.9, 1045.6, 1098.9, 1152.6, 1206.8, 1261.5, 1316.7,
                   1372.4, 1428.6, 1485.2, 1542.4, 1600.0, 3000.0])
-CRYSTALS = ("real", "wide", "fill")
 
 
 @dataclass(frozen=True)
@@ -50,17 +49,34 @@ def _fine(counts: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return edges[:-1][keep], edges[1:][keep], np.clip(counts[keep], 0.0, None)
 
 
-@lru_cache(maxsize=8)
-def _measured(directory: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lo, hi, Cs-137 net counts, background counts per the Cs live time) from the RadiaCode files."""
-    cs = read_spectrum(Path(directory) / "Cs137_b.xml")
+#: the measured file of each nuclide in ``shared/real-spectra`` (same device, day and calibration as bg.xml)
+MEASURED = {"Cs-137": "Cs137_b.xml", "Co-60": "Co60_a.xml", "Eu-152": "Eu152_b.xml", "Ba-133": "Ba133_a.xml"}
+NUCLIDES = tuple(MEASURED)
+#: analytic crystals: FWHM/E at 662 keV (FWHM grows as sqrt(E)), peak-to-total at 662 keV and its power law in
+#: energy (P/T(E) = pt * (662 / E)^k, at most 1), backscatter bump and multiple-scatter fill (shares of the
+#: Compton part), crystal thickness for the interaction probability (cm)
+ANALYTIC = {
+    "analytic-a": {"fwhm": 0.065, "pt": 0.32, "k": 1.6, "backscatter": 0.03, "fill": 0.0, "cm": 1.0},
+    "analytic-b": {"fwhm": 0.115, "pt": 0.16, "k": 1.1, "backscatter": 0.12, "fill": 0.12, "cm": 2.5},
+}
+CRYSTALS = ("real", "wide", "fill", *ANALYTIC)
+MEC2_KEV = 510.99895
+
+
+@lru_cache(maxsize=16)
+def _measured(directory: str, nuclide: str = "Cs-137") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, net counts of ``nuclide``, background counts per that file's live time) from the RadiaCode
+    files: the room background scaled by live time is subtracted."""
+    if nuclide not in MEASURED:
+        raise ValueError(f"no measured spectrum of {nuclide!r}; have {NUCLIDES}")
+    src = read_spectrum(Path(directory) / MEASURED[nuclide])
     bg = read_spectrum(Path(directory) / "bg.xml")
-    e = cs.edges_keV()
+    e = src.edges_keV()
     if not np.allclose(e, bg.edges_keV()):
-        raise ValueError("Cs-137 and background spectra have different calibrations")
-    net = cs.counts - bg.counts * cs.live_time_s / bg.live_time_s
+        raise ValueError(f"{nuclide} and background spectra have different calibrations")
+    net = src.counts - bg.counts * src.live_time_s / bg.live_time_s
     lo, hi, net_k = _fine(net, e)
-    _, _, bg_k = _fine(bg.counts, e)
+    _, _, bg_k = _fine(bg.counts * src.live_time_s / bg.live_time_s, e)
     return lo, hi, net_k, bg_k
 
 
@@ -73,11 +89,99 @@ def _smooth(mass: np.ndarray, lo: np.ndarray, hi: np.ndarray, rel_sigma_662: flo
     return mass @ k
 
 
-def source_response(crystal: str = "real", directory: str | Path = REAL_SPECTRA) -> Response:
-    """The Cs-137 response of a crystal: ``real`` = the measured RadiaCode-102 spectrum (background subtracted);
-    ``wide`` = the same with 4 % extra resolution at 662 keV; ``fill`` = more multiple-scatter fill between the
-    Compton edge and the photopeak and a stronger backscatter bump (a larger crystal in a scattering room)."""
-    lo, hi, net, _ = _measured(str(directory))
+@lru_cache(maxsize=8)
+def photon_lines(nuclide: str, min_kev: float = 30.0, min_yield: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """(energies keV, photons per decay) of ``nuclide`` from pydecay's ICRP-107 emissions, with its short-lived
+    (< 1 day) radioactive daughters weighted by pydecay's branching (Cs-137 -> Ba-137m: 0.944 x 0.897 at
+    661.657 keV); lines below ``min_kev`` or ``min_yield`` are dropped."""
+    import pydecay
+    from pydecay.nuclide import Nuclide
+
+    lines: dict[float, float] = {}
+    todo = [(nuclide, 1.0)]
+    while todo:
+        name, w = todo.pop()
+        try:
+            rows = pydecay.emissions(name)
+        except Exception:  # pydecay's own NuclideNotFoundError / DataFormatError: no photons listed
+            rows = []
+        for r in rows:
+            if r.get("is_photon") and r["E_MeV"] * 1e3 >= min_kev:
+                e = round(r["E_MeV"] * 1e3, 3)
+                lines[e] = lines.get(e, 0.0) + w * float(r["prob"])
+        nuc = Nuclide.load(name)
+        if nuc.is_stable:
+            continue
+        for d, b in zip(nuc.progeny, nuc.branching, strict=False):
+            dn = Nuclide.load(d)
+            if not dn.is_stable and dn.half_life_s < 86400.0:
+                todo.append((d, w * float(b)))
+    e = np.array(sorted(k for k, v in lines.items() if v >= min_yield))
+    if not len(e):
+        raise ValueError(f"pydecay has no photon lines of {nuclide!r}")
+    return e, np.array([lines[k] for k in e])
+
+
+def _csi_interaction(e_kev: np.ndarray, cm: float) -> np.ndarray:
+    """Probability that a photon of energy E interacts in ``cm`` of CsI (xraydb total attenuation, 4.51 g/cm3)."""
+    import warnings
+
+    import xraydb
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Elam's tables are rougher above 800 keV; ample for a shape
+        mu = np.array([xraydb.material_mu("CsI", float(e) * 1e3, density=4.51) for e in e_kev])
+    return 1.0 - np.exp(-mu * cm)
+
+
+def _klein_nishina_T(e: float, t: np.ndarray) -> np.ndarray:
+    """Klein-Nishina d(sigma)/dT (unnormalised) of a photon of energy e giving kinetic energy t to an electron."""
+    eps = e / MEC2_KEV
+    s = np.clip(t / e, 0.0, 1.0 - 1e-9)
+    return 2.0 + s**2 / (eps**2 * (1 - s) ** 2) + s / (1 - s) * (s - 2.0 / eps)
+
+
+@lru_cache(maxsize=16)
+def analytic_response(crystal: str, nuclide: str = "Cs-137") -> Response:
+    """An analytic crystal response, built from the nuclide's photon lines (pydecay) and not from any measured
+    spectrum: per line E a Gaussian photopeak (FWHM = fwhm * 662 * sqrt(E / 662) keV) holding the share
+    P/T(E) of the interacting photons, a Klein-Nishina Compton continuum up to the edge
+    2E^2 / (mc^2 + 2E), a backscatter bump at E / (1 + 2E / mc^2) and a flat multiple-scatter fill between
+    edge and peak; lines weighted by photons per decay x interaction probability in the crystal (xraydb)."""
+    p = ANALYTIC[crystal]
+    e_lines, y = photon_lines(nuclide)
+    w = y * _csi_interaction(e_lines, p["cm"])
+    lo = np.arange(0.0, 3000.0, 3.0)
+    hi, mid = lo + 3.0, lo + 1.5
+    mass = np.zeros_like(mid)
+    for e, wi in zip(e_lines, w, strict=True):
+        pt = min(1.0, p["pt"] * (662.0 / e) ** p["k"])
+        edge = 2 * e**2 / (MEC2_KEV + 2 * e)
+        comp = np.where(mid < edge, _klein_nishina_T(e, mid), 0.0)
+        bs_e = e / (1 + 2 * e / MEC2_KEV)
+        bs = np.exp(-0.5 * ((mid - bs_e) / (0.15 * bs_e)) ** 2)
+        fill = ((mid >= edge) & (mid < e)).astype(float)
+        parts = [(comp, 1.0 - p["backscatter"] - p["fill"]), (bs, p["backscatter"]), (fill, p["fill"])]
+        cont = sum(f * x / x.sum() for x, f in parts if x.sum() > 0)
+        peak = np.zeros_like(mid)
+        peak[int(np.clip(np.searchsorted(hi, e), 0, len(mid) - 1))] = 1.0
+        mass += wi * (pt * peak + (1 - pt) * cont / cont.sum())
+    mass = _smooth(mass, lo, hi, p["fwhm"] / 2.3548)
+    return Response(lo, hi, mass / mass.sum(), f"{nuclide} ({crystal})")
+
+
+def source_response(crystal: str = "real", directory: str | Path = REAL_SPECTRA, nuclide: str = "Cs-137"
+                    ) -> Response:
+    """The response of a crystal to ``nuclide``: ``real`` = the measured RadiaCode-102 spectrum (background
+    subtracted by live time; Cs-137, Co-60, Eu-152, Ba-133); ``wide`` = the same with 4 % extra resolution at
+    662 keV; ``fill`` (Cs-137 only) = more multiple-scatter fill between the Compton edge and the photopeak and
+    a stronger backscatter bump (a larger crystal in a scattering room); ``analytic-a`` / ``analytic-b`` =
+    :func:`analytic_response` (any nuclide pydecay has lines for)."""
+    if crystal in ANALYTIC:
+        return analytic_response(crystal, nuclide)
+    if crystal == "fill" and nuclide != "Cs-137":
+        raise ValueError(f"crystal 'fill' is Cs-137 only, got {nuclide!r}")
+    lo, hi, net, _ = _measured(str(directory), nuclide)
     mass = net / net.sum()
     mid = (lo + hi) / 2
     if crystal == "wide":
@@ -89,7 +193,7 @@ def source_response(crystal: str = "real", directory: str | Path = REAL_SPECTRA)
         mass = mass + 0.10 * fill / fill.sum() + 0.06 * bump / bump.sum()
     elif crystal != "real":
         raise ValueError(f"crystal must be one of {CRYSTALS}, got {crystal!r}")
-    return Response(lo, hi, mass / mass.sum(), f"Cs-137 ({crystal})")
+    return Response(lo, hi, mass / mass.sum(), f"{nuclide} ({crystal})")
 
 
 def scatter_response() -> Response:
