@@ -110,6 +110,24 @@ def back_cone(pos: np.ndarray, yaw: np.ndarray, src: np.ndarray, fraction: float
     return 1.0 - fraction * 0.5 * (1.0 - np.tanh((theta - half_angle_deg) / edge_deg))
 
 
+def source_term(pos: np.ndarray, yaw: np.ndarray, src: np.ndarray, s: float, fx: dict[str, Any],
+                mapped: list[Wall], uwalls: list[Wall]) -> tuple[np.ndarray, np.ndarray]:
+    """(direct rate (N,), distance (N,)) of a source of ``s`` cps at 1 m at ``src`` (one point or one per frame):
+    inverse square, air, mapped walls (``wall_attenuation``), unmapped walls and the back cone."""
+    d = np.maximum(np.linalg.norm(pos - src, axis=1), 0.05)
+    term = s / d**2
+    if "air_attenuation" in fx:
+        term = term * np.exp(-fx["air_attenuation"]["mu_per_m"] * d)
+    if "wall_attenuation" in fx and mapped:
+        term = term * np.exp(-fx["wall_attenuation"]["mu_per_m"] * slab_lengths(pos, src, mapped))
+    if uwalls:
+        term = term * np.exp(-fx["unmapped_wall"]["mu_per_m"] * slab_lengths(pos, src, uwalls))
+    if "anisotropy" in fx:
+        a = fx["anisotropy"]
+        term = term * back_cone(pos, yaw, src, a["fraction"], a["half_angle_deg"], a.get("edge_deg", 4.0))
+    return term, d
+
+
 def unmapped_walls(fx: dict[str, Any]) -> list[Wall]:
     """The slabs listed in ``fx["unmapped_wall"]["walls"]`` (scenario wall form) as walls, material "unmapped"."""
     out = []
@@ -235,17 +253,7 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
     rates: dict[str, np.ndarray] = {}  # direct source rate per nuclide
     scat = np.zeros(len(t_mid))  # scattered part of the source rate
     for src, s, nuc in sources:
-        d = np.maximum(np.linalg.norm(pos - src, axis=1), 0.05)
-        term = s / d**2
-        if "air_attenuation" in fx:
-            term = term * np.exp(-fx["air_attenuation"]["mu_per_m"] * d)
-        if "wall_attenuation" in fx and mapped:
-            term = term * np.exp(-fx["wall_attenuation"]["mu_per_m"] * slab_lengths(pos, src, mapped))
-        if uwalls:
-            term = term * np.exp(-fx["unmapped_wall"]["mu_per_m"] * slab_lengths(pos, src, uwalls))
-        if "anisotropy" in fx:
-            a = fx["anisotropy"]
-            term = term * back_cone(pos, yaw, src, a["fraction"], a["half_angle_deg"], a.get("edge_deg", 4.0))
+        term, d = source_term(pos, yaw, src, s, fx, mapped, uwalls)
         q = np.minimum(spec.scatter * d, 0.5)
         rates[nuc] = rates.get(nuc, 0.0) + term * (1 - q)
         scat += term * q
