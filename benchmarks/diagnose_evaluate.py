@@ -1,7 +1,8 @@
 """How well ``radseek diagnose`` names the missing effect on data it was not built from (issue 14).
 
-    python -m benchmarks.diagnose_evaluate [--only shared|power|null|pairs ...] [--seeds 2] [--nulls 50]
-                                          [--starts 4] [--jobs 2] [--jsonl FILE] [--plot PNG] [--markdown MD]
+    python -m benchmarks.diagnose_evaluate [--only shared|power|null|pairs|walls|nuclides|conull|offlist ...]
+                                          [--seeds 2] [--nulls 60] [--conulls 60] [--starts 4] [--jobs 2]
+                                          [--jsonl FILE] [--plot PNG] [--markdown MD]
 
 Flights come from ``benchmarks.forward2``, a second forward model with its own code path (measured CsI(Tl)
 spectra, event-by-event dead time, its own geometry, pose noise and gain drift; it imports neither the emulator
@@ -12,7 +13,21 @@ nor the estimator). Nothing in diagnose was tuned on them. Sections:
   geometries and ``--seeds`` seeds: detection rate against strength and its 50 % point;
 - ``null``: ``--nulls`` flights with no effect (every geometry, three crystals, both pose-error models,
   scattered-photon buildup): the false-alarm rate (target <= 2 % at alpha = 0.01);
-- ``pairs``: two missing effects at once.
+- ``pairs``: two missing effects at once;
+- ``walls`` (issue 30): 1-3 random unmapped walls (``forward2.random_unmapped_wall``) or a ``wall`` geometry's
+  wall left out of the scenario, mu * t in {0.1, 0.2, 0.3, 0.5, 1.0}, ``--seeds`` per strength: how often
+  ``unmapped_wall`` is named and whether a named wall's centre lies within 0.5 m of each true one;
+- ``nuclides``: a second source of Co-60, Eu-152, Ba-133 (measured spectra) or Cs-137 at three strengths: is
+  it named, and is ``second_source.nuclide`` right;
+- ``conull``: ``--conulls`` flights with nothing diagnose should name, half with a Co-60 primary (its measured
+  spectrum), random-walk and jittered pose errors, some over-dispersed (then ``over_dispersion`` is in truth and
+  may be named): the false-alarm rate (target <= 2 %), an ``unexplained`` verdict counted as one;
+- ``offlist``: physics diagnose has no name for (a moving source, a background drifting in time): is the verdict
+  ``unexplained`` (target >= 90 %) with no wrong effect in ``missing``.
+
+Rows read the ``--json`` report (``json_report``) with defaults, so this script runs before and after the
+report gains ``unexplained``, ``partial``, ``residual_hotspots``, ``unmapped_walls`` and
+``second_source.nuclide``.
 
 For every flight with a named effect: does adding it bring deviance/dof to its expectation (within 3 sd), and
 does it lower the source error (truth read for these columns only). Time per diagnose call is wall time on
@@ -34,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+SECTIONS = ("shared", "power", "null", "pairs", "walls", "nuclides", "conull", "offlist")
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
 SHARED_DIR = Path(__file__).resolve().parents[2] / "shared" / "datasets"
 
@@ -64,6 +80,25 @@ PAIRS = [
     ("lattice", {"second_source": {"x": 8.5, "y": 1.5, "z": 0.0, "cps_at_1m": 1300.0},
                  "background_gradient": {"gx": -2.0, "gy": 3.0}}),
 ]
+#: issue 30: unmapped walls' mu * thickness, the geometries they are flown on ("wall" = its wall left unmapped)
+WALL_MU_T = (0.1, 0.2, 0.3, 0.5, 1.0)
+WALL_GEOMETRIES = ("lattice", "spin", "wall")
+#: second sources of other nuclides (measured spectra) and their strengths (cps at 1 m)
+NUCLIDES = ("Co-60", "Eu-152", "Ba-133", "Cs-137")
+NUCLIDE_STRENGTHS = (300.0, 650.0, 1300.0)
+#: off-list physics: effect -> (strengths, params(strength, rng)); strength = |v| m/s or the drift's amplitude
+#: (sine, period 20-60 s) or percent per minute (ramp)
+OFFLIST: dict[str, tuple[tuple[float, ...], Callable[[float, Any], dict]]] = {
+    "moving_source": ((0.01, 0.02, 0.05), lambda v, r: _velocity(v, float(r.uniform(0, 2 * math.pi)))),
+    "background_drift": ((0.2, 0.4), lambda v, r: {"amplitude": v, "period_s": float(r.uniform(20, 60)),
+                                                   "phase": float(r.uniform(0, 2 * math.pi))}),
+    "background_ramp": ((10.0, 30.0), lambda v, r: {"percent_per_min": v}),
+}
+OFFLIST_GEOMETRIES = ("lattice", "lawnmower", "spin")
+
+
+def _velocity(v: float, ang: float) -> dict[str, float]:
+    return {"vx": v * math.cos(ang), "vy": v * math.sin(ang)}
 
 
 def _params(effect: str, v: float, rng: np.random.Generator, geometry: str) -> dict[str, float]:
@@ -82,7 +117,7 @@ def _params(effect: str, v: float, rng: np.random.Generator, geometry: str) -> d
     raise KeyError(effect)
 
 
-def jobs(which: list[str], seeds: int, nulls: int) -> list[dict[str, Any]]:
+def jobs(which: list[str], seeds: int, nulls: int, conulls: int = 60) -> list[dict[str, Any]]:
     """The flights to run, as plain dicts (picklable for the process pool)."""
     out: list[dict[str, Any]] = []
     if "null" in which:
@@ -113,10 +148,97 @@ def jobs(which: list[str], seeds: int, nulls: int) -> list[dict[str, Any]]:
                         "crystal": CRYSTALS[k % 3], "scatter": 0.02}, "seed": 70_000 + k})
     if "shared" in which:
         out += [{"kind": "shared", "name": n} for n in SHARED if (SHARED_DIR / n).is_dir()]
+    if "walls" in which:
+        out += wall_jobs(seeds)
+    if "nuclides" in which:
+        out += nuclide_jobs(seeds)
+    if "conull" in which:
+        out += conull_jobs(conulls)
+    if "offlist" in which:
+        out += offlist_jobs(seeds)
+    return out
+
+
+def wall_jobs(seeds: int) -> list[dict[str, Any]]:
+    """Unmapped walls: per mu * t, ``seeds`` flights cycling lattice / spin (1-3 random slabs) and the ``wall``
+    geometry with its wall left out of the scenario."""
+    from benchmarks.forward2 import FlightSpec, random_unmapped_wall
+
+    out = []
+    for i, mt in enumerate(WALL_MU_T):
+        for s in range(seeds):
+            seed = 80_000 + 100 * i + s
+            rng = np.random.default_rng(seed)
+            g = WALL_GEOMETRIES[(i + s) % len(WALL_GEOMETRIES)]
+            spec: dict[str, Any] = {"geometry": g, "effects": {}, "crystal": CRYSTALS[(i + s) % 3],
+                                    "pose_error": "random_walk" if (i + s) % 4 == 3 else "independent",
+                                    "scatter": 0.02}
+            if g == "wall":
+                spec["unmap_walls"] = True
+                spec["effects"] = {"unmapped_wall": {"mu_per_m": mt / 0.2}}  # the geometry's wall is 0.2 m thick
+                n = 1
+            else:
+                uw = random_unmapped_wall(FlightSpec(**spec), seed, mt, rng, 1 + (i + 2 * s) % 3)
+                spec["effects"] = {"unmapped_wall": uw}
+                n = len(uw["walls"])
+            out.append({"kind": "walls", "name": f"uwall-{mt:g}-{g}-n{n}-s{s}", "effect": "unmapped_wall",
+                        "strength": mt, "spec": spec, "seed": seed})
+    return out
+
+
+def nuclide_jobs(seeds: int) -> list[dict[str, Any]]:
+    """Second sources of each nuclide at each strength, ``seeds`` flights (lattice / lawnmower)."""
+    out = []
+    for a, nuc in enumerate(NUCLIDES):
+        for i, v in enumerate(NUCLIDE_STRENGTHS):
+            for s in range(seeds):
+                seed = 90_000 + 1000 * a + 10 * i + s
+                rng = np.random.default_rng(seed)
+                g = ("lattice", "lawnmower")[(i + s) % 2]
+                fx = {"second_source": {**_params("second_source", v, rng, g), "nuclide": nuc}}
+                spec = {"geometry": g, "effects": fx, "crystal": ("real", "wide")[s % 2], "scatter": 0.02,
+                        "pose_error": "random_walk" if (i + s) % 3 == 2 else "independent"}
+                out.append({"kind": "nuclides", "name": f"nuc-{nuc}-{v:g}-{g}-s{s}", "effect": "second_source",
+                            "strength": v, "nuclide": nuc, "spec": spec, "seed": seed})
+    return out
+
+
+def conull_jobs(n: int) -> list[dict[str, Any]]:
+    """Nulls: Co-60 primaries (even k) and Cs-137 ones (odd k), random-walk (every other pair) or jittered
+    pose errors, every third over-dispersed (rel_sd 0.03-0.08: then ``over_dispersion`` is the truth)."""
+    out = []
+    for k in range(n):
+        g = NULL_GEOMETRIES[(k // 2) % len(NULL_GEOMETRIES)]
+        nuc = "Co-60" if k % 2 == 0 else "Cs-137"
+        rng = np.random.default_rng(60_000 + k)
+        fx = {"over_dispersion": {"rel_sd": float(rng.uniform(0.03, 0.08))}} if k % 3 == 2 else {}
+        spec = {"geometry": g, "effects": fx, "nuclide": nuc,
+                "crystal": ("real", "wide")[(k // 2) % 2] if nuc == "Co-60" else CRYSTALS[(k // 2) % 3],
+                "pose_error": "random_walk" if (k // 2) % 2 == 1 else "independent", "scatter": 0.02 * (k % 3),
+                "dwell_s": 6.0}
+        out.append({"kind": "conull", "name": f"conull-{nuc}-{g}-{k}", "spec": spec, "seed": 60_000 + k,
+                    "nuclide": nuc})
+    return out
+
+
+def offlist_jobs(seeds: int) -> list[dict[str, Any]]:
+    """Off-list physics: a moving source, a sine-drifting and a ramping background."""
+    out = []
+    for a, (e, (strengths, make)) in enumerate(OFFLIST.items()):
+        for i, v in enumerate(strengths):
+            for s in range(seeds):
+                seed = 95_000 + 1000 * a + 10 * i + s
+                g = OFFLIST_GEOMETRIES[(i + s) % len(OFFLIST_GEOMETRIES)]
+                effect = "background_drift" if e == "background_ramp" else e
+                spec = {"geometry": g, "effects": {effect: make(v, np.random.default_rng(seed))},
+                        "crystal": CRYSTALS[(i + s) % 3], "scatter": 0.02}
+                out.append({"kind": "offlist", "name": f"off-{e}-{v:g}-{g}-s{s}", "effect": effect,
+                            "strength": v, "spec": spec, "seed": seed})
     return out
 
 
 def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
+    from estimator.diagnose.report import json_report
     from estimator.diagnose.runner import diagnose
     from radseek.dataset import read_dataset
 
@@ -134,11 +256,13 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
     after = d.after
     truth = sorted(ds.truth.effects) if ds.truth else []
     ref = after or d.current
+    j = json_report(d)
     return {
-        **{k: job[k] for k in ("kind", "name", "effect", "strength") if k in job},
+        **{k: job[k] for k in ("kind", "name", "effect", "strength", "nuclide") if k in job},
         "frames": len(ds.frames),
         "truth": truth,
-        "named": list(d.selection.missing),
+        "named": list(j.get("missing", d.selection.missing)),
+        **open_world_fields(j, ds.truth.effects if ds.truth else {}, ds.scenario.nuclide),
         "p_values": [float(c.p_value) for c in chosen],
         "top": first[0].effect if first else None,
         "top_log10_p": round(first[0].log10_p, 2) if first else None,
@@ -156,6 +280,203 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
         "seconds": round(secs, 1),
         "cpu_seconds": round(cpu, 1),
     }
+
+
+# ------------------------------------------------------------------------------------------- open world (30)
+
+
+def named_nuclide(j: dict[str, Any]) -> str | None:
+    """The second source's nuclide in a ``--json`` report: ``effect_params["second_source.nuclide"]`` of the
+    final model, else of ``with_missing``, else a ``second_source`` candidate's ``nuclide`` param; None if absent."""
+    for model in (j, j.get("with_missing") or {}):
+        v = (model.get("effect_params") or {}).get("second_source.nuclide", {})
+        if isinstance(v, dict) and v.get("value") is not None:
+            return str(v["value"])
+    steps = [c for st in j.get("selection_steps", []) for c in st.get("candidates", [])]
+    for c in [*j.get("candidates", []), *steps]:
+        if c.get("effect") == "second_source" and (c.get("params") or {}).get("nuclide") is not None:
+            return str(c["params"]["nuclide"])
+    return None
+
+
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of points ``p`` (..., 2) from the segment a-b."""
+    ab = np.asarray(b, float) - np.asarray(a, float)
+    f = np.clip(np.sum((np.asarray(p, float) - a) * ab, axis=-1) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(np.asarray(p, float) - (a + f[..., None] * ab), axis=-1)
+
+
+def wall_errors(true_walls: list[dict], named_walls: list[dict]) -> list[dict[str, float]]:
+    """Per true wall: ``segment`` = distance from its segment to the nearest named wall's centre, ``centre`` =
+    distance from its centre to the nearest named centre (each nearest on its own terms); [] if none named."""
+    if not named_walls or not true_walls:
+        return []
+    c = np.array([(np.asarray(w["start"], float) + np.asarray(w["end"], float)) / 2 for w in named_walls])
+    out = []
+    for w in true_walls:
+        a, b = np.asarray(w["start"], float), np.asarray(w["end"], float)
+        out.append({"segment": round(float(segment_distance(c, a, b).min()), 3),
+                    "centre": round(float(np.linalg.norm(c - (a + b) / 2, axis=1).min()), 3)})
+    return out
+
+
+def open_world_fields(j: dict[str, Any], truth_effects: dict[str, Any], primary: str) -> dict[str, Any]:
+    """Row fields for issue 30 from a ``--json`` report (``.get`` defaults: the report may not have them yet)."""
+    named = list(j.get("unmapped_walls", []) or [])
+    true_walls = (truth_effects.get("unmapped_wall") or {}).get("walls", [])
+    ss = truth_effects.get("second_source")
+    return {
+        "unexplained": bool(j.get("unexplained", False)),
+        "partial": list(j.get("partial", []) or []),
+        "hotspots": len(j.get("residual_hotspots", []) or []),
+        "walls_named": len(named),
+        "walls_est": [{"start": w.get("start"), "end": w.get("end"), "mu_per_m": w.get("mu_per_m"),
+                       "thickness": w.get("thickness")} for w in named],
+        "wall_centre_err_m": wall_errors(true_walls, named),
+        "nuclide_named": named_nuclide(j),
+        "nuclide_true": (ss.get("nuclide", primary) if ss else None),
+        "primary_nuclide": primary,
+    }
+
+
+def walls_table(rows: list[dict], within_m: float = 0.5) -> tuple[str, dict]:
+    """Per mu * t: flights where ``unmapped_wall`` was named; true walls with a named centre within
+    ``within_m`` of their segment / their centre; flights with every true wall so located; extra walls named
+    (a named centre > 1 m from every true segment); flights naming another effect."""
+    by: dict[float, list[dict]] = {}
+    for r in rows:
+        if r["kind"] == "walls":
+            by.setdefault(r["strength"], []).append(r)
+    lines = [f"| mu x t | flights | unmapped_wall named | true walls located within {within_m:g} m: of its "
+             "segment / of its centre | flights with every wall located (segment) | walls named (true) | "
+             "others named | unexplained |", "|---|---|---|---|---|---|---|---|"]
+    summary: dict[float, dict] = {}
+    for mt in sorted(by):
+        rs = by[mt]
+        det = sum("unmapped_wall" in r["named"] or r.get("walls_named", 0) > 0 for r in rs)
+        errs = [e for r in rs for e in r.get("wall_centre_err_m", [])]
+        n_true = max(sum(len(r.get("truth_params", {}).get("unmapped_wall", {}).get("walls", [])) for r in rs), 1)
+        seg = sum(e["segment"] <= within_m for e in errs)
+        cen = sum(e["centre"] <= within_m for e in errs)
+        every = sum(bool(r.get("wall_centre_err_m")) and all(e["segment"] <= within_m for e in r["wall_centre_err_m"])
+                    for r in rs)
+        others = sum(any(n not in r["truth"] for n in r["named"]) for r in rs)
+        named = sum(r.get("walls_named", 0) for r in rs)
+        unexp = sum(bool(r.get("unexplained")) for r in rs)
+        lines.append(f"| {mt:g} | {len(rs)} | {det}/{len(rs)} ({det / len(rs):.0%}) | {seg}/{n_true} / "
+                     f"{cen}/{n_true} | {every}/{len(rs)} | {named} ({n_true}) | {others} | {unexp} |")
+        summary[mt] = {"n": len(rs), "detected": det / len(rs), "located_segment": seg / n_true,
+                       "located_centre": cen / n_true, "every_located": every / len(rs)}
+    strong = [v for mt, v in summary.items() if mt >= 0.3]
+    if strong:
+        det = min(v["detected"] for v in strong)
+        loc = min(v["located_segment"] for v in strong)
+        lines.append(f"\nTarget (mu x t >= 0.3 named in >= 90 % with centre within {within_m:g} m): lowest detection "
+                     f"{det:.0%}, lowest located {loc:.0%}: {'met' if det >= 0.9 and loc >= 0.9 else 'NOT met'}.")
+    return "\n".join(lines), summary
+
+
+def nuclides_table(rows: list[dict]) -> tuple[str, dict]:
+    """Per true nuclide of the second source: flights where ``second_source`` was named, and where the named
+    nuclide is the true one (among those named and over all flights)."""
+    by: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["kind"] == "nuclides":
+            by.setdefault(r.get("nuclide_true") or r.get("nuclide") or "?", []).append(r)
+    lines = ["| nuclide | flights | second_source named | nuclide right (of named) | nuclide right (all) | "
+             "named as |", "|---|---|---|---|---|---|"]
+    summary: dict[str, dict] = {}
+    for nuc in sorted(by):
+        rs = by[nuc]
+        det = [r for r in rs if "second_source" in r["named"]]
+        right = sum(r.get("nuclide_named") == nuc for r in det)
+        as_ = sorted({str(r.get("nuclide_named")) for r in det})
+        lines.append(f"| {nuc} | {len(rs)} | {len(det)}/{len(rs)} | {right}/{len(det)} | {right}/{len(rs)} "
+                     f"({right / len(rs):.0%}) | {', '.join(as_) or '-'} |")
+        summary[nuc] = {"n": len(rs), "detected": len(det) / len(rs), "right": right / len(rs),
+                        "right_of_named": right / len(det) if det else None}
+    if summary:
+        low = min(v["right"] for v in summary.values())
+        lines.append(f"\nTarget (nuclide right >= 90 %): lowest {low:.0%}: {'met' if low >= 0.9 else 'NOT met'}.")
+    return "\n".join(lines), summary
+
+
+def offlist_table(rows: list[dict]) -> tuple[str, dict]:
+    """Per off-list effect: flights with ``unexplained`` true, and flights where ``missing`` lists any effect
+    (all are wrong there: nothing in diagnose's vocabulary is the truth)."""
+    by: dict[str, list[dict]] = {}
+    for r in rows:
+        if r["kind"] == "offlist":
+            by.setdefault(r["effect"], []).append(r)
+    lines = ["| off-list effect | flights | unexplained | a wrong effect in missing (named) | residual hotspots |",
+             "|---|---|---|---|---|"]
+    summary: dict[str, dict] = {}
+    for e in sorted(by):
+        rs = by[e]
+        unexp = sum(bool(r.get("unexplained")) for r in rs)
+        wrong = [r for r in rs if any(n not in r["truth"] for n in r["named"])]
+        names = sorted({n for r in wrong for n in r["named"] if n not in r["truth"]})
+        hot = sum(r.get("hotspots", 0) > 0 for r in rs)
+        lines.append(f"| {e} | {len(rs)} | {unexp}/{len(rs)} ({unexp / len(rs):.0%}) | {len(wrong)}"
+                     f"{' (' + ', '.join(names) + ')' if names else ''} | {hot}/{len(rs)} |")
+        summary[e] = {"n": len(rs), "unexplained": unexp / len(rs), "wrong": len(wrong)}
+    if summary:
+        n = sum(v["n"] for v in summary.values())
+        unexp = sum(v["unexplained"] * v["n"] for v in summary.values()) / n
+        wrong = sum(v["wrong"] for v in summary.values())
+        lines.append(f"\nTarget (unexplained in >= 90 % of off-list flights, no wrong effect in missing): "
+                     f"{unexp:.0%}, {wrong} wrong: {'met' if unexp >= 0.9 and wrong == 0 else 'NOT met'}.")
+    return "\n".join(lines), summary
+
+
+def open_world_curves(rows: list[dict]) -> dict[str, dict]:
+    """Power curves for the plot: ``unmapped_wall`` named against mu * t, and per nuclide the second source
+    named with the right nuclide against its strength."""
+    out: dict[str, dict] = {}
+    groups: dict[str, dict[float, list[bool]]] = {}
+    for r in rows:
+        if r["kind"] == "walls":
+            hit = "unmapped_wall" in r["named"] or r.get("walls_named", 0) > 0
+            groups.setdefault("unmapped_wall", {}).setdefault(r["strength"], []).append(hit)
+        elif r["kind"] == "nuclides":
+            nuc = r.get("nuclide_true") or r.get("nuclide")
+            hit = "second_source" in r["named"] and r.get("nuclide_named") == nuc
+            groups.setdefault(f"second_source {nuc}", {}).setdefault(r["strength"], []).append(hit)
+    for name, by in groups.items():
+        ss = sorted(by)
+        rates = [sum(by[v]) / len(by[v]) for v in ss]
+        out[name] = {"strengths": ss, "rates": rates, "p50": fifty_percent_point(ss, rates)}
+    return out
+
+
+def false_alarm(r: dict) -> bool:
+    """A null flight's false alarm: ``missing`` names an effect not in truth, or the verdict is ``unexplained``."""
+    return any(n not in r["truth"] for n in r["named"]) or bool(r.get("unexplained"))
+
+
+def conull_table(rows: list[dict], target: float = 0.02) -> tuple[str, dict]:
+    """False alarms on the conull flights, overall and per primary nuclide."""
+    rs = [r for r in rows if r["kind"] == "conull"]
+    if not rs:
+        return "", {}
+    by: dict[str, list[dict]] = {}
+    for r in rs:
+        by.setdefault(r.get("primary_nuclide") or r.get("nuclide") or "?", []).append(r)
+    lines = ["| primary | flights | false alarms | of them unexplained | named |", "|---|---|---|---|---|"]
+    summary: dict[str, Any] = {}
+    for nuc in sorted(by):
+        fa = [r for r in by[nuc] if false_alarm(r)]
+        names = sorted({n for r in fa for n in r["named"] if n not in r["truth"]})
+        lines.append(f"| {nuc} | {len(by[nuc])} | {len(fa)} ({len(fa) / len(by[nuc]):.1%}) | "
+                     f"{sum(bool(r.get('unexplained')) for r in fa)} | {', '.join(names) or '-'} |")
+        summary[nuc] = {"n": len(by[nuc]), "false_alarms": len(fa)}
+    n_fa = sum(false_alarm(r) for r in rs)
+    rate = n_fa / len(rs)
+    summary["all"] = {"n": len(rs), "false_alarms": n_fa, "rate": rate}
+    lines.append(f"\nFalse alarms {n_fa}/{len(rs)} ({rate:.1%}; target <= {target:.0%}): "
+                 f"{'met' if rate <= target else 'NOT met'}"
+                 + (f" ({', '.join(r['name'] for r in rs if false_alarm(r))})" if n_fa else "") + ".")
+    return "\n".join(lines), summary
 
 
 # ------------------------------------------------------------------------------------------- summaries
@@ -226,7 +547,7 @@ def plot_power(summary: dict, path: Path) -> Path:
     for ax, (e, s) in zip(np.ravel(axes), summary.items(), strict=False):
         ax.semilogx(s["strengths"], s["rates"], "o-")
         ax.axhline(0.5, color="grey", lw=0.5)
-        if POWER[e][2] is not None:
+        if e in POWER and POWER[e][2] is not None:
             ax.axvline(POWER[e][2], color="C3", lw=0.8, ls="--", label="shared dataset")
             ax.legend(fontsize=7, loc="lower right")
         ax.set_ylim(-0.05, 1.05)
@@ -234,7 +555,8 @@ def plot_power(summary: dict, path: Path) -> Path:
         ax.set_xlabel({"dead_time": "tau [s]", "wall_attenuation": "mu [1/m]", "anisotropy": "fraction",
                        "air_attenuation": "mu [1/m]", "second_source": "cps at 1 m",
                        "background_gradient": "|g| [cps/m]", "gain_drift": "%/min", "pose_drift": "|v| [m/s]",
-                       "over_dispersion": "relative sd per frame"}.get(e, "strength"), fontsize=8)
+                       "over_dispersion": "relative sd per frame", "unmapped_wall": "mu x thickness"
+                       }.get(e, "cps at 1 m" if e.startswith("second_source") else "strength"), fontsize=8)
         ax.set_ylabel("detection rate", fontsize=8)
     for ax in np.ravel(axes)[n:]:
         ax.axis("off")
@@ -268,6 +590,13 @@ def report(rows: list[dict]) -> tuple[str, dict]:
         summary["null"] = {"false_alarms": len(fa), "n": len(nulls)}
     if kinds["pairs"]:
         out += ["### Two missing effects", "", rows_table(kinds["pairs"]), ""]
+    for kind, title, table in (("walls", "Unmapped walls: detection and location against mu x t", walls_table),
+                               ("nuclides", "Second sources of other nuclides", nuclides_table),
+                               ("conull", "Null flights with Co-60 and Cs-137 primaries", conull_table),
+                               ("offlist", "Off-list physics: an honest open verdict", offlist_table)):
+        if any(r["kind"] == kind for r in rows):
+            tab, summary[kind] = table(rows)
+            out += [f"### {title}", "", tab, ""]
     secs = [r["seconds"] for r in rows]
     if secs:
         cpu = [r.get("cpu_seconds", math.nan) for r in rows]
@@ -281,9 +610,10 @@ def report(rows: list[dict]) -> tuple[str, dict]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--only", choices=["shared", "power", "null", "pairs"], action="append")
+    p.add_argument("--only", choices=SECTIONS, action="append")
     p.add_argument("--seeds", type=int, default=2, help="seeds per effect and strength (2)")
     p.add_argument("--nulls", type=int, default=60, help="null flights (60)")
+    p.add_argument("--conulls", type=int, default=60, help="conull flights, half with a Co-60 primary (60)")
     p.add_argument("--starts", type=int, default=4, help="multi-starts of the baseline fit (4)")
     p.add_argument("--jobs", type=int, default=1, help="flights diagnosed in parallel (processes)")
     p.add_argument("--jsonl", type=Path, default=None, help="append one JSON row per flight here; rows already "
@@ -293,7 +623,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--limit", type=int, default=None, help="run at most this many flights (a smoke test)")
     p.add_argument("--names", nargs="+", default=None, help="only flights whose name starts with one of these")
     args = p.parse_args(argv)
-    todo = jobs(args.only or ["shared", "power", "null", "pairs"], args.seeds, args.nulls)
+    todo = jobs(args.only or list(SECTIONS), args.seeds, args.nulls, args.conulls)
     if args.names:
         todo = [j for j in todo if any(j["name"].startswith(n) for n in args.names)]
     if args.limit:
@@ -321,8 +651,9 @@ def main(argv: list[str] | None = None) -> int:
             keep(run_one(j, args.starts))
     text, summary = report(rows)
     print(text)
-    if args.plot and any(r["kind"] == "power" for r in rows):
-        plot_power(power_table(rows)[1], args.plot)
+    curves = open_world_curves(rows)
+    if args.plot and (curves or any(r["kind"] == "power" for r in rows)):
+        plot_power({**power_table(rows)[1], **curves}, args.plot)
     if args.markdown:
         args.markdown.write_text(text)
     return 0

@@ -1,0 +1,157 @@
+"""The issue-30 scoring of benchmarks/diagnose_evaluate.py on hand-made rows and reports (no diagnose runs)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks import diagnose_evaluate as E
+
+
+def _row(kind: str, named: list[str], truth: list[str], **kw) -> dict:
+    return {"kind": kind, "name": kw.pop("name", f"{kind}-x"), "named": named, "truth": truth, "seconds": 1.0,
+            "cpu_seconds": 1.0, **kw}
+
+
+def test_named_nuclide_is_read_from_the_final_model_then_with_missing_then_candidates():
+    assert E.named_nuclide({}) is None
+    assert E.named_nuclide({"effect_params": {"second_source.nuclide": {"value": "Co-60", "error": None}}}) == "Co-60"
+    assert E.named_nuclide({"effect_params": {}, "with_missing": {
+        "effect_params": {"second_source.nuclide": {"value": "Ba-133"}}}}) == "Ba-133"
+    j = {"candidates": [{"effect": "dead_time", "params": {"tau_s": 1e-6}}],
+         "selection_steps": [{"candidates": [{"effect": "second_source", "params": {"nuclide": "Eu-152"}}]}]}
+    assert E.named_nuclide(j) == "Eu-152"
+
+
+def test_segment_and_wall_centre_distances_are_the_plane_geometry_ones():
+    a, b = np.array([-1.0, 0.0]), np.array([1.0, 0.0])
+    d = E.segment_distance(np.array([[0.0, 1.0], [3.0, 0.0], [-1.5, -2.0]]), a, b)
+    assert d == pytest.approx([1.0, 2.0, math.hypot(0.5, 2.0)])
+    true = [{"start": [0.0, 0.0], "end": [4.0, 0.0]}, {"start": [10.0, 10.0], "end": [10.0, 12.0]}]
+    named = [{"start": [0.5, 0.3], "end": [1.5, 0.3]}, {"start": [9.0, 11.0], "end": [9.0, 11.0 + 1e-9]}]
+    err = E.wall_errors(true, named)
+    assert err[0] == {"segment": 0.3, "centre": round(math.hypot(1.0, 0.3), 3)}  # named centre (1, 0.3)
+    assert err[1] == {"segment": 1.0, "centre": 1.0}  # named centre (9, 11): 1 m off the segment's middle
+    assert E.wall_errors(true, []) == [] and E.wall_errors([], named) == []
+
+
+def test_open_world_fields_default_before_the_report_has_them_and_read_them_after():
+    before = E.open_world_fields({"missing": []}, {"second_source": {"x": 1, "y": 1, "cps_at_1m": 5}}, "Cs-137")
+    assert before["unexplained"] is False and before["walls_named"] == 0 and before["nuclide_named"] is None
+    assert before["nuclide_true"] == "Cs-137" and before["wall_centre_err_m"] == [] and before["hotspots"] == 0
+    wall = {"start": [0.0, 0.0], "end": [2.0, 0.0], "thickness": 0.2, "height": 2.0}
+    j = {"unexplained": True, "partial": ["pose_drift"], "residual_hotspots": [{"x": 1}, {"x": 2}],
+         "unmapped_walls": [{**wall, "material": "unmapped", "mu_per_m": 2.0}],
+         "effect_params": {"second_source.nuclide": {"value": "Co-60"}}}
+    f = E.open_world_fields(j, {"unmapped_wall": {"walls": [wall], "mu_per_m": 2.0},
+                                "second_source": {"nuclide": "Co-60"}}, "Cs-137")
+    assert f["unexplained"] and f["partial"] == ["pose_drift"] and f["hotspots"] == 2 and f["walls_named"] == 1
+    assert f["wall_centre_err_m"] == [{"segment": 0.0, "centre": 0.0}]
+    assert f["nuclide_named"] == f["nuclide_true"] == "Co-60"
+
+
+def _wall_row(mt: float, named: list[str], errs: list[dict], n_true: int, walls_named: int, **kw) -> dict:
+    tp = {"unmapped_wall": {"walls": [{}] * n_true}}
+    return _row("walls", named, ["unmapped_wall"], strength=mt, wall_centre_err_m=errs, truth_params=tp,
+                walls_named=walls_named, **kw)
+
+
+def test_walls_table_rates_per_mu_t_and_the_target():
+    rows = [
+        _wall_row(0.3, ["unmapped_wall"], [{"segment": 0.2, "centre": 0.9}, {"segment": 0.7, "centre": 0.4}], 2, 1),
+        _wall_row(0.3, [], [], 1, 0),
+        _wall_row(1.0, ["unmapped_wall", "dead_time"], [{"segment": 0.1, "centre": 0.1}], 1, 1),
+        _row("null", [], []),  # other kinds are left out
+    ]
+    text, s = E.walls_table(rows)
+    assert s[0.3] == {"n": 2, "detected": 0.5, "located_segment": 1 / 3, "located_centre": 1 / 3,
+                      "every_located": 0.0}
+    assert s[1.0] == {"n": 1, "detected": 1.0, "located_segment": 1.0, "located_centre": 1.0, "every_located": 1.0}
+    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another effect named
+    assert "NOT met" in text
+    good = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.6}], 1, 1) for mt in (0.3, 0.5, 1.0)]
+    text, _ = E.walls_table(good + [_wall_row(0.1, [], [], 1, 0)])  # weak walls do not count for the target
+    assert "lowest detection 100%, lowest located 100%: met" in text
+
+
+def test_nuclides_table_right_rate_per_true_nuclide():
+    rows = [_row("nuclides", ["second_source"], ["second_source"], nuclide_true="Co-60", nuclide_named="Co-60"),
+            _row("nuclides", ["second_source"], ["second_source"], nuclide_true="Co-60", nuclide_named="Cs-137"),
+            _row("nuclides", [], ["second_source"], nuclide_true="Co-60", nuclide_named=None),
+            _row("nuclides", ["second_source"], ["second_source"], nuclide_true="Ba-133", nuclide_named="Ba-133")]
+    text, s = E.nuclides_table(rows)
+    assert s["Co-60"] == {"n": 3, "detected": 2 / 3, "right": 1 / 3, "right_of_named": 0.5}
+    assert s["Ba-133"]["right"] == 1.0 and "lowest 33%: NOT met" in text
+    assert "| Co-60 | 3 | 2/3 | 1/2 | 1/3 (33%) | Co-60, Cs-137 |" in text
+
+
+def test_offlist_table_counts_unexplained_and_any_named_effect_as_wrong():
+    rows = [_row("offlist", [], ["moving_source"], effect="moving_source", unexplained=True),
+            _row("offlist", ["pose_drift"], ["moving_source"], effect="moving_source", unexplained=True),
+            _row("offlist", [], ["background_drift"], effect="background_drift", unexplained=False, hotspots=2)]
+    text, s = E.offlist_table(rows)
+    assert s["moving_source"] == {"n": 2, "unexplained": 1.0, "wrong": 1}
+    assert s["background_drift"] == {"n": 1, "unexplained": 0.0, "wrong": 0}
+    assert "67%, 1 wrong: NOT met" in text and "(pose_drift)" in text
+    ok = [_row("offlist", [], ["moving_source"], effect="moving_source", unexplained=True)] * 10
+    assert "100%, 0 wrong: met" in E.offlist_table(ok)[0]
+
+
+def test_conull_false_alarms_allow_the_true_over_dispersion_and_count_unexplained():
+    assert not E.false_alarm(_row("conull", ["over_dispersion"], ["over_dispersion"]))
+    assert E.false_alarm(_row("conull", ["over_dispersion"], []))
+    assert E.false_alarm(_row("conull", [], [], unexplained=True))
+    rows = [_row("conull", [], [], primary_nuclide="Co-60") for _ in range(49)]
+    rows += [_row("conull", ["gain_drift"], [], primary_nuclide="Co-60", name="bad")]
+    rows += [_row("conull", [], [], primary_nuclide="Cs-137") for _ in range(50)]
+    text, s = E.conull_table(rows)
+    assert s["all"] == {"n": 100, "false_alarms": 1, "rate": 0.01}
+    assert s["Co-60"] == {"n": 50, "false_alarms": 1} and s["Cs-137"] == {"n": 50, "false_alarms": 0}
+    assert "1/100 (1.0%; target <= 2%): met (bad)" in text
+    rows += [_row("conull", [], [], primary_nuclide="Cs-137", unexplained=True)] * 2
+    assert "NOT met" in E.conull_table(rows)[0]
+
+
+def test_report_has_the_new_sections_and_jobs_build_them():
+    rows = [_wall_row(0.5, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.1}], 1, 1),
+            _row("nuclides", ["second_source"], ["second_source"], nuclide_true="Eu-152", nuclide_named="Eu-152"),
+            _row("conull", [], [], primary_nuclide="Co-60"),
+            _row("offlist", [], ["background_drift"], effect="background_drift", unexplained=True)]
+    text, s = E.report(rows)
+    for title in ("Unmapped walls", "Second sources of other nuclides", "Co-60 and Cs-137 primaries",
+                  "Off-list physics"):
+        assert title in text
+    assert set(s) >= {"walls", "nuclides", "conull", "offlist"}
+    js = E.jobs(["walls", "nuclides", "conull", "offlist"], 3, 0, 20)
+    walls = [j for j in js if j["kind"] == "walls"]
+    assert len(walls) == 3 * len(E.WALL_MU_T)
+    for j in walls:
+        uw = j["spec"]["effects"]["unmapped_wall"]
+        for w in uw.get("walls", []):
+            assert uw["mu_per_m"] * w["thickness"] == pytest.approx(j["strength"])
+    assert {len(j["spec"]["effects"]["unmapped_wall"].get("walls", [])) for j in walls} >= {1, 2, 3}
+    assert any(j["spec"].get("unmap_walls") for j in walls)
+    nuc = [j for j in js if j["kind"] == "nuclides"]
+    assert {j["spec"]["effects"]["second_source"]["nuclide"] for j in nuc} == set(E.NUCLIDES)
+    co = [j for j in js if j["kind"] == "conull"]
+    assert len(co) == 20 and sum(j["spec"]["nuclide"] == "Co-60" for j in co) == 10
+    assert all(set(j["spec"]["effects"]) <= {"over_dispersion"} for j in co)
+    assert {j["spec"]["pose_error"] for j in co} == {"random_walk", "independent"}
+    off = [j for j in js if j["kind"] == "offlist"]
+    assert {e for j in off for e in j["spec"]["effects"]} == {"moving_source", "background_drift"}
+    assert len({j["name"] for j in js}) == len(js)
+
+
+def test_open_world_curves_rate_per_strength():
+    rows = [_wall_row(0.1, [], [], 1, 0), _wall_row(0.1, ["unmapped_wall"], [], 1, 1),
+            _wall_row(0.5, ["unmapped_wall"], [], 1, 1),
+            _row("nuclides", ["second_source"], ["second_source"], strength=300.0, nuclide_true="Co-60",
+                 nuclide_named="Cs-137"),
+            _row("nuclides", ["second_source"], ["second_source"], strength=1300.0, nuclide_true="Co-60",
+                 nuclide_named="Co-60")]
+    c = E.open_world_curves(rows)
+    assert c["unmapped_wall"] == {"strengths": [0.1, 0.5], "rates": [0.5, 1.0], "p50": 0.1}
+    assert c["second_source Co-60"]["rates"] == [0.0, 1.0]
+    assert c["second_source Co-60"]["p50"] == pytest.approx(math.sqrt(300.0 * 1300.0))  # log-linear half way
