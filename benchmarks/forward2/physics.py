@@ -18,7 +18,9 @@ scenario.walls; U_ij the path length inside them), a ``second_source`` of anothe
 spectrum), a primary of another nuclide (``FlightSpec.nuclide``), and two effects that vocabulary lacks, to test
 an honest "none of these": ``moving_source`` (the primary moves at a constant ``vx``, ``vy`` m/s; truth holds
 its position at t = 0) and ``background_drift`` (``amplitude`` a, ``period_s`` T, ``phase`` phi and
-``percent_per_min`` r in the formula above, each optional).
+``percent_per_min`` r in the formula above, each optional). Every nuclide is seen through the flight's
+``crystal`` (``fill`` is Cs-137 only: other nuclides then get their measured ``real`` spectrum); the
+scattered-photon buildup (``scatter``) keeps its Cs-137 continuum whatever the nuclide.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ RW_SD_PER_SQRT_M = 0.02  # odometry random walk (m per sqrt(m) flown), horizonta
 @dataclass(frozen=True)
 class FlightSpec:
     geometry: str = "lattice"
-    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    effects: dict[str, dict[str, Any]] = field(default_factory=dict)
     crystal: str = "real"
     cps_at_1m: float | None = None
     background_cps: float = 30.0
@@ -135,11 +137,6 @@ def unmapped_walls(fx: dict[str, Any]) -> list[Wall]:
         out.append(Wall(tuple(map(float, w["start"])), tuple(map(float, w["end"])), float(w["thickness"]),
                         float(w.get("height", 3.0)), str(w.get("material", "unmapped"))))
     return out
-
-
-def wall_dict(w: Wall) -> dict[str, Any]:
-    """A wall in the scenario's own form (start, end, thickness, height, material)."""
-    return w.to_dict()
 
 
 def drift_factor(p: dict[str, float], t: np.ndarray) -> np.ndarray:
@@ -326,7 +323,7 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
                         nuclide=spec.nuclide)
     effects = {k: dict(v) for k, v in fx.items()}
     if uwalls:
-        effects["unmapped_wall"] = {**effects["unmapped_wall"], "walls": [wall_dict(w) for w in uwalls]}
+        effects["unmapped_wall"] = {**effects["unmapped_wall"], "walls": [w.to_dict() for w in uwalls]}
     truth = Truth(sources=(TruthSource(float(src0[0]), float(src0[1]), 0.0, float(S), spec.nuclide),),
                   background_cps=B, effects=effects)
     return Dataset(frames=frames, scenario=scenario, truth=truth, path=None)
