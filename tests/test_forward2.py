@@ -197,6 +197,12 @@ def test_unmap_walls_moves_the_geometry_walls_from_the_scenario_to_truth():
     assert np.array_equal(mapped.frames.counts, hidden.frames.counts)  # the same slabs, the same shadow
     with pytest.raises(ValueError, match="mu_per_m"):
         simulate(FlightSpec("wall", {}, unmap_walls=True), 5)
+    # mapped walls stay in the scenario beside an unmapped one, which alone is in truth's unmapped_wall
+    extra = {"start": [0.5, 0.5], "end": [0.5, 2.5], "thickness": 0.2, "height": 2.0}
+    both = simulate(FlightSpec("lshape", {"wall_attenuation": {"mu_per_m": 3.0},
+                                          "unmapped_wall": {"walls": [extra], "mu_per_m": 1.0}}), 5)
+    assert both.scenario.walls == mapped.scenario.walls
+    assert both.truth.effects["unmapped_wall"]["walls"] == [{**extra, "material": "unmapped"}]
 
 
 @pytest.mark.parametrize("nuclide", ["Co-60", "Eu-152", "Ba-133"])
