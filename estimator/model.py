@@ -284,6 +284,102 @@ def _soft_max(values: list[np.ndarray], top: np.ndarray, eps: np.ndarray) -> np.
     return top + eps * np.log(acc)
 
 
+class UnmappedWall(Effect):
+    """A slab the map lacks: Beer-Lambert exp(-mu L) through one vertical slab whose placement is free (paper 004
+    eq. 5.19 with the wall's geometry unknown), seen from the (primary) source: its centre ``r`` m away in the
+    direction ``phi_deg``, turned ``tilt_deg`` from square to that direction, ``length`` long.
+
+    The slab is ``thickness`` thick (fixed: only mu x thickness is identified by a thin slab's shadow) and
+    ``height`` tall (fixed: a flight below the wall's top cannot see it); its edges are ramps ``EDGE_M`` wide so
+    that the likelihood is smooth in the placement. A point source's shadow fixes the sector the wall blocks,
+    not its distance from the source (a wall twice as far and twice as long casts the same shadow); the length
+    is bounded (``MIN_LENGTH_M`` to ``MAX_LENGTH_M``: real obstacles, walls, shelves, vehicles) and the centre
+    kept ``MIN_DISTANCE_M`` from the source; the rest of that degeneracy shows in the reported uncertainties."""
+
+    name = "unmapped_wall"
+    #: m: the shadow's edges are ramps this wide, so MIGRAD can move the placement
+    EDGE_M = 0.08
+    THICKNESS_M = 0.2
+    HEIGHT_M = 3.0
+    MIN_LENGTH_M = 1.0
+    #: m: beyond the flown lines of sight a wall's length is not seen; the longest slab the effect places
+    MAX_LENGTH_M = 8.0
+    #: m: the wall's centre is at least this far from the source (a source inside a slab shields itself, which
+    #: is not a wall's shadow)
+    MIN_DISTANCE_M = 0.4
+    #: deg: the wall's direction turns at most this far from square to the line source -> wall centre
+    MAX_TILT_DEG = 75.0
+    #: m: the screen looks for walls this far beyond the flight and the source
+    MARGIN_M = 3.0
+    #: lengths memoised for the last few (placement, source, poses): MIGRAD's steps in strength, background and
+    #: mu ask again for lengths it just computed
+    MEMO_SIZE = 8
+
+    def __init__(self) -> None:
+        self._memo: dict[bytes, np.ndarray] = {}
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        p = self.name
+        return [
+            Param(f"{p}.r", 1.0, self.MIN_DISTANCE_M, 30.0, unit="m", step=0.2),
+            Param(f"{p}.phi_deg", 0.0, -400.0, 400.0, unit="deg", step=10.0),
+            Param(f"{p}.tilt_deg", 0.0, -self.MAX_TILT_DEG, self.MAX_TILT_DEG, unit="deg", step=10.0),
+            Param(f"{p}.length", 2.0, self.MIN_LENGTH_M, self.MAX_LENGTH_M, unit="m", step=0.3),
+            Param(f"{p}.thickness", self.THICKNESS_M, 0.01, 2.0, fixed=True, unit="m", step=0.05),
+            Param(f"{p}.height", self.HEIGHT_M, 0.1, 100.0, fixed=True, unit="m", step=0.5),
+            Param(f"{p}.mu_per_m", 2.0, 0.0, 100.0, unit="1/m", step=0.5),
+        ]
+
+    @classmethod
+    def wall_of(cls, values: Mapping[str, Any], name: str | None = None) -> np.ndarray:
+        """(6,) slab (x0, y0, x1, y1, thickness, height) from the parameter values (the source's ``x``, ``y``
+        among them)."""
+        p = name or cls.name
+        v = {k: float(np.ravel(values[k])[0]) for k in ("x", "y")}
+        v.update({k: float(np.ravel(values[f"{p}.{k}"])[0]) for k in ("r", "phi_deg", "tilt_deg", "length",
+                                                                      "thickness", "height")})
+        phi = np.radians(v["phi_deg"])
+        c = np.array([v["x"], v["y"]]) + v["r"] * np.array([np.cos(phi), np.sin(phi)])
+        a = phi + np.pi / 2 + np.radians(v["tilt_deg"])
+        h = v["length"] / 2 * np.array([np.cos(a), np.sin(a)])
+        return np.array([*(c - h), *(c + h), v["thickness"], v["height"]])
+
+    @classmethod
+    def placement(cls, wall: np.ndarray, source_xy: np.ndarray) -> dict[str, float] | None:
+        """The effect's parameters (r, phi_deg, tilt_deg, length) of a slab (x0, y0, x1, y1, ...) seen from the
+        source, or None when the slab is outside the effect's range (too near the source, too oblique)."""
+        c = (wall[0:2] + wall[2:4]) / 2
+        d = wall[2:4] - wall[0:2]
+        rel = c - np.asarray(source_xy, float)[:2]
+        r = float(np.hypot(*rel))
+        phi = float(np.degrees(np.arctan2(rel[1], rel[0])))
+        tilt = (float(np.degrees(np.arctan2(d[1], d[0]))) - phi - 90.0 + 90.0) % 180.0 - 90.0
+        if r < cls.MIN_DISTANCE_M or abs(tilt) > cls.MAX_TILT_DEG:
+            return None
+        return {"r": r, "phi_deg": phi, "tilt_deg": tilt, "length": float(np.hypot(*d))}
+
+    def source_factor(self, th, src, ctx, dist):
+        p = self.name
+        if any(np.size(th[k]) != 1 for k in ("x", "y", f"{p}.r", f"{p}.phi_deg", f"{p}.tilt_deg", f"{p}.length")):
+            raise ValueError(f"{p}: the wall's placement must be scalar (one hypothesis at a time)")
+        wall = self.wall_of(th, p)
+        s = np.asarray(src, dtype=float)
+        key = wall.tobytes() + s.tobytes() + np.ascontiguousarray(ctx.pos).tobytes()
+        lengths = self._memo.get(key)
+        if lengths is None:
+            lengths = _SlabFrame(wall[None, :], self.EDGE_M).lengths(ctx.pos, s)
+            if len(self._memo) >= self.MEMO_SIZE:
+                del self._memo[next(iter(self._memo))]
+            self._memo[key] = lengths
+        return np.exp(-th[f"{p}.mu_per_m"] * lengths)
+
+
+class UnmappedWall2(UnmappedWall):
+    """A second unmapped slab, offered once the first is in the model (stepwise)."""
+
+    name = "unmapped_wall_2"
+
+
 class Anisotropy(Effect):
     """Reduced sensitivity in a cone behind the detector (paper 003 calibration, ~50 %):
     factor 1 - f (1 - tanh((theta - half_angle) / edge)) / 2, theta the angle between the detector's
@@ -373,9 +469,15 @@ class PoseDrift(Effect):
 
 EFFECT_PARTS: dict[str, type[Effect]] = {
     cls.name: cls
-    for cls in (DeadTime, WallAttenuation, Anisotropy, AirAttenuation, SecondSource, BackgroundGradient, PoseDrift)
+    for cls in (DeadTime, WallAttenuation, UnmappedWall, UnmappedWall2, Anisotropy, AirAttenuation, SecondSource,
+                BackgroundGradient, PoseDrift)
 }
-assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS)
+#: effects beyond the dataset spec's base table (EFFECTS, which the emulator's scenes mirror): a wall the map
+#: lacks (the spec's ``unmapped_wall``; ``unmapped_wall_2`` is a second one, reported under the same name)
+OPEN_WORLD_EFFECTS = ("unmapped_wall", "unmapped_wall_2")
+#: every count-model effect, in the order models and fits are keyed by
+COUNT_EFFECTS: tuple[str, ...] = tuple(EFFECT_PARTS)
+assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS) | set(OPEN_WORLD_EFFECTS)
 
 
 # ------------------------------------------------------------------------------------------ model

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from estimator.mle import fit
-from estimator.model import MeasurementModel
+from estimator.model import COUNT_EFFECTS, OPEN_WORLD_EFFECTS, MeasurementModel, UnmappedWall
 from radseek.dataset import EFFECTS, Frames, Scenario
 
 SPECTRAL_EFFECTS = ("gain_drift",)
@@ -24,8 +24,18 @@ SPECTRAL_EFFECTS = ("gain_drift",)
 VARIANCE_EFFECTS = ("over_dispersion",)
 #: effects that are not part of the count model's mean: each has its own likelihood factor or test
 NON_COUNT_EFFECTS = SPECTRAL_EFFECTS + VARIANCE_EFFECTS
-#: every effect diagnose can name, in report order
-VOCABULARY: tuple[str, ...] = (*EFFECTS, *VARIANCE_EFFECTS)
+#: every effect diagnose can name, in report order: the dataset spec's base table, a wall the map lacks (the
+#: spec's ``unmapped_wall``; ``unmapped_wall_2`` is a second one, offered once the first is in) and the variance
+#: effect
+VOCABULARY: tuple[str, ...] = (*EFFECTS, *OPEN_WORLD_EFFECTS, *VARIANCE_EFFECTS)
+#: the unmapped walls, first and second
+WALLS = OPEN_WORLD_EFFECTS
+
+
+def count_key(effects: Iterable[str]) -> tuple[str, ...]:
+    """The count-model effects of ``effects`` in the order fits are keyed by."""
+    effects = set(effects)
+    return tuple(e for e in COUNT_EFFECTS if e in effects)
 
 
 def split_effects(effects: Iterable[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -141,9 +151,12 @@ class CountFitter:
     def fit(self, effects: tuple[str, ...], init: dict[str, float] | None = None, n_starts: int | None = None,
             label: str = "", cache: bool = True) -> Any:
         """Fit the model with ``effects``; the best fit per effect set is kept and returned next time."""
-        key = tuple(e for e in EFFECTS if e in effects)
+        key = count_key(effects)
         if cache and key in self._cache:
             return self._cache[key]
+        for wall in WALLS:
+            if wall in key and not (init and f"{wall}.r" in init):
+                return self._fit_wall(key, wall, init, label, cache)
         t0 = time.perf_counter()
         model = self.model(key)
         names = set(model.param_names)
@@ -156,6 +169,33 @@ class CountFitter:
             self._cache[key] = res
         return res
 
+    def _fit_wall(self, key: tuple[str, ...], wall: str, init: dict[str, float] | None, label: str, cache: bool
+                  ) -> Any:
+        """Fit a model with an unmapped wall from the best placements of its shadow screen
+        (``estimator.diagnose.shadow``) given the fit without it; the result carries ``wall_looks``, the number
+        of placements screened (the test's look-elsewhere factor)."""
+        from estimator.diagnose.shadow import screen
+
+        inner = tuple(e for e in key if e != wall and not (wall == "unmapped_wall" and e == "unmapped_wall_2"))
+        base = self.fit(inner, init=init)
+        th = dict(base.values)
+        zero = {k: 0.0 for k in ("cps_at_1m", "second_source.cps_at_1m") if k in th}
+        background = self.model(inner).expected_counts({**th, **zero}, self.fit_frames)
+        exclude = [UnmappedWall.wall_of(th, w) for w in WALLS if w != wall and f"{w}.r" in th]
+        src = np.array([th["x"], th["y"], th.get("z", self.scenario.source_z)])
+        pl = screen(self.fit_frames, base.expected, background, src, self.scenario.bounds_min,
+                    self.scenario.bounds_max, np.array(exclude) if exclude else None)
+        starts = pl.best(src[:2], 3)
+        progress(f"{wall}: {pl.scored} placements screened, best shadow LR "
+                 f"{float(pl.lr.max()) if len(pl.lr) else 0.0:.1f}", self.quiet)
+        best = None
+        for st in starts or [{}]:
+            res = self.fit(key, init={**th, **(init or {}), **{f"{wall}.{k}": v for k, v in st.items()}}, n_starts=1,
+                           label=f"{label or describe(key)} (shadow start)", cache=cache)
+            if best is None or res.nll < best.nll:
+                best = res
+        best.wall_looks = pl.scored
+        return best
 
     def fit_many(self, tasks: list[FitTask], side: dict[str, Any] | None = None, label: str = "fits"
                  ) -> tuple[list[Any], dict[str, Any]]:
@@ -170,7 +210,7 @@ class CountFitter:
         side_out: dict[str, Any] = {}
         todo = []
         for i, task in enumerate(tasks):
-            key = tuple(e for e in EFFECTS if e in task.effects)
+            key = count_key(task.effects)
             if task.cache and key in self._cache:
                 out[i] = self._cache[key]
                 done += 1
@@ -204,7 +244,7 @@ class CountFitter:
                 done += 1
                 progress_bar(label, done, total, t0, self.quiet)
         for i in todo:
-            key = tuple(e for e in EFFECTS if e in tasks[i].effects)
+            key = count_key(tasks[i].effects)
             if tasks[i].cache and (key not in self._cache or out[i].nll < self._cache[key].nll):
                 self._cache[key] = out[i]
         return out, side_out

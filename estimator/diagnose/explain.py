@@ -16,6 +16,13 @@ PHYSICS: dict[str, tuple[str, str]] = {
         "see fewer counts than the inverse-square law predicts.",
         "wall",
     ),
+    "unmapped_wall": (
+        "Something the map does not show (a wall, a shelf, a vehicle, the operator's body) stands between the "
+        "source and part of the flight: lines of sight through it lose a fraction 1 - exp(-mu L) of the source's "
+        "photons, so a sector of directions from the source sees fewer counts than 1/d^2 predicts. The shadow "
+        "fixes the sector the obstacle blocks and its mu x thickness; add it to scenario.json's walls.",
+        "x",
+    ),
     "anisotropy": (
         "The detector is not equally sensitive in all directions: electronics and mounting behind the crystal "
         "shield it, so a source in a cone behind the detector axis is seen with reduced efficiency and the "
@@ -57,6 +64,9 @@ PHYSICS: dict[str, tuple[str, str]] = {
         "frame-to-frame scatter",
     ),
 }
+
+#: a second unmapped wall is the same physics
+PHYSICS["unmapped_wall_2"] = PHYSICS["unmapped_wall"]
 
 
 def physics(effect: str) -> str:

@@ -75,6 +75,11 @@ def plot_map(rep: ModelReport, path: Path, scenario=None, title: str = "") -> Pa
     if scenario is not None:
         for w in scenario.walls:
             ax.plot([w.start[0], w.end[0]], [w.start[1], w.end[1]], color="0.3", lw=4, alpha=0.6)
+    from estimator.diagnose.verdict import unmapped_walls
+
+    for i, w in enumerate(unmapped_walls(rep.fit)):
+        ax.plot([w["start"][0], w["end"][0]], [w["start"][1], w["end"][1]], color="C2", lw=4, alpha=0.8,
+                label=f"unmapped wall (mu x t {w['mu_x_thickness']:.2f})" if i == 0 else None)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -10,6 +11,7 @@ from estimator.diagnose.features import unit_of
 from estimator.diagnose.residuals import describe_trend
 from estimator.diagnose.runner import Diagnosis, ModelReport
 from estimator.diagnose.selection import Selection
+from estimator.diagnose.verdict import excess_sd, unmapped_walls
 
 
 def model_name(effects: tuple[str, ...] | list[str]) -> str:
@@ -119,18 +121,38 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
                 lines.append(f"  Physics of {e}: {physics(e)}")
             if d.after_selection is not None:
                 lines += ["", "6. Is anything still missing?"] + _selection_text(d.after_selection)
-    verdict = final_missing(d)
-    lines += ["", "Verdict: " + (f"missing effect(s): {', '.join(verdict)}" if verdict else
-                                 f"{model_name(final.effects)} is adequate at alpha {d.alpha}.")]
+    walls = unmapped_walls(d.final.fit)
+    if walls:
+        lines += ["", "Unmapped walls (paste into scenario.json's \"walls\"; mu x thickness is what the shadow "
+                      "measures):"]
+        for w in walls:
+            e = w["errors"]
+            lines.append(f"  {json.dumps({k: w[k] for k in ('start', 'end', 'thickness', 'height', 'material')})}"
+                         f"  mu_per_m {_fmt(w['mu_per_m'], e.get('mu_per_m'))}, centre +- "
+                         f"{e.get('centre_x', float('nan')):.2g} / {e.get('centre_y', float('nan')):.2g} m")
+    if d.unexplained:
+        g = d.final.gof
+        lines += ["", "Verdict: the model still misses something none of the candidates explains "
+                      f"(deviance/dof {g.deviance_per_dof:.3f}, expected {g.expected_per_dof:.3f} +- "
+                      f"{g.sd_per_dof:.3f}, {excess_sd(d.final):.1f} sd above)."]
+        if d.partial:
+            lines.append(f"  Effects that help but do not make the fit adequate (not the missing physics): "
+                         f"{', '.join(d.partial)}")
+    else:
+        verdict = final_missing(d)
+        lines += ["", "Verdict: " + (f"missing effect(s): {', '.join(verdict)}" if verdict else
+                                     f"{model_name(final.effects)} is adequate at alpha {d.alpha}.")]
+    if d.hotspots:
+        lines.append("  Where the residual lives (z = (observed - expected) / sqrt(expected), largest first):")
+        lines += [f"    {h['kind']:9s} z {h['z']:+7.1f}  {h['where']}" for h in d.hotspots]
     if plots:
         lines += ["", "Plots:"] + [f"  {p}" for p in plots]
     return "\n".join(lines) + "\n"
 
 
 def final_missing(d: Diagnosis) -> list[str]:
-    if d.added:
-        return list(d.after_selection.missing) if d.after_selection is not None else []
-    return list(d.selection.missing)
+    """Effects whose addition is supported by their test and leaves an adequate fit (``verdict``)."""
+    return list(d.missing)
 
 
 def _model_json(rep: ModelReport) -> dict[str, Any]:
@@ -158,8 +180,12 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     out["candidates"] = [c.to_json() for c in sel.first]
     out["selection_steps"] = [{"model": list(st.effects), "chosen": st.chosen,
                                "candidates": [c.to_json() for c in st.candidates]} for st in sel.steps]
-    out["missing"] = list(sel.missing)
-    out["physics"] = {e: physics(e) for e in sel.missing}
+    out["missing"] = final_missing(d)
+    out["partial"] = list(d.partial)
+    out["unexplained"] = bool(d.unexplained)
+    out["residual_hotspots"] = list(d.hotspots)
+    out["unmapped_walls"] = unmapped_walls(d.final.fit)
+    out["physics"] = {e: physics(e) for e in (*d.missing, *d.partial)}
     out["trends"] = [{"feature": t.feature, "chi2": t.chi2, "dof": t.dof, "p_value": t.p_value,
                       "summary": describe_trend(t, unit_of(t.feature), d.alpha)} for t in final.trends.values()]
     if d.spectral is not None:

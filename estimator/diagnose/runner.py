@@ -15,6 +15,7 @@ from estimator.diagnose.backend import (
     NON_COUNT_EFFECTS,
     SPECTRAL_EFFECTS,
     VARIANCE_EFFECTS,
+    WALLS,
     CountFitter,
     describe,
     progress,
@@ -35,6 +36,7 @@ from estimator.diagnose.residuals import (
 )
 from estimator.diagnose.selection import Selection, forward_select
 from estimator.diagnose.threads import blas_threads
+from estimator.diagnose.verdict import adequate, excess_sd, hotspots
 from estimator.spectral import SpectralFit, SpectralModel
 from radseek.dataset import Dataset, Truth
 
@@ -188,6 +190,18 @@ class Diagnosis:
     after: ModelReport | None  # model with --add effects, else with the selected missing effects (or None)
     after_selection: Selection | None  # what is still missing after --add
     spectral: SpectralFit | None
+    #: the verdict (``estimator.diagnose.verdict``): effects whose addition is supported and leaves an adequate
+    #: fit; supported effects that still leave the fit inadequate; whether the final model misses something no
+    #: candidate explains, and where its residual lives
+    missing: list[str] = field(default_factory=list)
+    partial: list[str] = field(default_factory=list)
+    unexplained: bool = False
+    hotspots: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def final(self) -> ModelReport:
+        """The model the verdict is about: with --add effects, else with the selected effects, else the start."""
+        return self.after if self.after is not None else self.current
 
 
 def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = (), alpha: float = 0.01,
@@ -227,4 +241,22 @@ def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: 
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
             _fill_explains(ds, fitter, after_sel, spectral_fit.value or spectral)
-    return Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)
+    d = Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)
+    named = list(after_sel.missing if add and after_sel is not None else sel.missing)
+    final = d.final
+    if named and final is not after:  # --add with more still missing: judge the model with those in too
+        tc, ts = split_effects((*final.effects, *named))
+        final = analyse(ds, (*tc, *ts), fitter.fit(tc, init=dict(final.fit.values)), spectral)
+    ok = adequate(final)
+    d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
+    d.unexplained = not ok
+    d.hotspots = hotspots(final, ds.scenario.channel_edges_keV)
+    if d.unexplained:
+        progress(f"the final model is still {excess_sd(final):.1f} sd above its expected deviance: it misses something "
+                 "none of the candidates explains", quiet)
+    return d
+
+
+def _report_names(effects: list[str]) -> list[str]:
+    """Effect names as the dataset spec has them (a second unmapped wall is an ``unmapped_wall`` too)."""
+    return list(dict.fromkeys("unmapped_wall" if e in WALLS else e for e in effects))

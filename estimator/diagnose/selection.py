@@ -14,6 +14,9 @@ is turned into a p-value with the null distribution that is right for that effec
   (Davies). Conservative: Bonferroni over the number of distinguishable locations, the search area divided
   by the squared median detector height above the floor (the width of one source's count-rate hill),
   p = min(1, M * 1/2 P(chi2_1 > LR)).
+- ``unmapped_wall`` (and a second one, ``unmapped_wall_2``, offered once the first is in): mu on its boundary
+  and the slab's ends not identified under the null (Davies). Conservative: Bonferroni over the placements its
+  shadow screen scored (``estimator.diagnose.shadow``), p = min(1, M * 1/2 P(chi2_1 > LR)).
 - ``background_gradient``, ``pose_drift``: two unbounded parameters, chi2_2. ``gain_drift``: chi2_1 (spectral
   likelihood, ``estimator.spectral``), on LR divided by the spectral fit's over-dispersion when it exceeds 1.
 - ``over_dispersion``: frame-to-frame extra-Poisson variance, tested on pairs of consecutive frames so that a
@@ -42,6 +45,7 @@ from estimator.diagnose.backend import (
     SPECTRAL_EFFECTS,
     VARIANCE_EFFECTS,
     VOCABULARY,
+    WALLS,
     CountFitter,
     FitTask,
     progress,
@@ -70,10 +74,19 @@ def chi2_logsf(x: float, k: int) -> float:
     return -x / 2 + (k / 2 - 1) * math.log(x / 2) - math.lgamma(k / 2)
 
 
-def null_log10_p(effect: str, lr: float, k: int, scenario: Scenario, frames: Frames) -> tuple[float, str]:
-    """log10 p-value of LR under the effect's null, and the null's name."""
+def null_log10_p(effect: str, lr: float, k: int, scenario: Scenario, frames: Frames, looks: int | None = None
+                 ) -> tuple[float, str]:
+    """log10 p-value of LR under the effect's null, and the null's name (``looks``: placements an unmapped
+    wall's screen scored)."""
     lr = max(float(lr), 0.0)
     ln10 = math.log(10)
+    if effect in WALLS:
+        m = max(int(looks or 1), 1)
+        name = (f"Bonferroni over {m} wall placements x (1/2 chi2_0 + 1/2 chi2_1) (Davies: the slab's ends are not "
+                "identified under the null)")
+        if lr <= 0:
+            return 0.0, name
+        return min(0.0, (math.log(0.5 * m) + chi2_logsf(lr, 1)) / ln10), name
     if effect in BOUNDARY_ONE:
         if lr <= 0:
             return 0.0, "1/2 chi2_0 + 1/2 chi2_1 (parameter on its boundary)"
@@ -186,6 +199,8 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
         phi = fit_dispersion(fitter.fit_frames, cur.expected).phi if "over_dispersion" in spec else 1.0
         if not scenario.walls:
             todo = [e for e in todo if e != "wall_attenuation"]
+        if "unmapped_wall" not in count:
+            todo = [e for e in todo if e != "unmapped_wall_2"]
         if not todo:
             break
         cands: list[Candidate] = []
@@ -251,7 +266,7 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
             ext = best[e]
             lr = max(2.0 * (cur.nll - ext.nll), 0.0) / phi
             params, errors, k = _new_params(ext, cur)
-            lp, null = null_log10_p(e, lr, k, scenario, frames)
+            lp, null = null_log10_p(e, lr, k, scenario, frames, getattr(ext, "wall_looks", None))
             if phi > 1.0:
                 null += f" on LR / {phi:.3g} (over-dispersion)"
             cands.append(Candidate(e, lr, k, 2 * k - lr, lp, null, params, errors, fit=ext))

@@ -1,0 +1,141 @@
+"""The verdict: is the final model adequate, and if not, where does the residual live.
+
+A forward selection can only name effects it knows. After it, the final model's deviance is compared with its
+expectation (exact Poisson moments, ``residuals.goodness_of_fit``): more than ``ADEQUATE_SD`` standard deviations
+above it, and the verdict is "the model still misses something none of the candidates explains". The effects the
+selection added are then helpers (``partial``), not the missing physics; with an adequate fit they are
+``missing``. Either way ``hotspots`` ranks where the residual lives: segments (dwells, 1 s of transit), directions
+from the fitted source, times, and spectral channels, each as a z-score of observed against expected counts.
+
+Unmapped walls are reported in the scenario's own ``walls`` form (dataset-format.md) with ``material:
+"unmapped"``, ``mu_per_m`` and 1-sigma uncertainties propagated from the fit's covariance, so that a user can paste
+them into scenario.json.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from estimator.diagnose.backend import WALLS
+from estimator.diagnose.residuals import aggregate, group_mean
+from estimator.model import UnmappedWall
+
+if TYPE_CHECKING:
+    from estimator.diagnose.runner import ModelReport
+
+#: a fit whose deviance is more than this many standard deviations above its expectation is not adequate
+ADEQUATE_SD = 3.0
+#: hotspots below this |z| are not listed
+HOTSPOT_Z = 3.0
+N_DIRECTIONS = 8
+N_TIMES = 8
+
+
+def excess_sd(rep: ModelReport) -> float:
+    """(deviance/dof - expected) / sd of the final model's per-frame goodness of fit."""
+    g = rep.gof
+    return (g.deviance_per_dof - g.expected_per_dof) / max(g.sd_per_dof, 1e-12)
+
+
+def adequate(rep: ModelReport) -> bool:
+    return excess_sd(rep) <= ADEQUATE_SD
+
+
+def _z(n: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    return (n - mu) / np.sqrt(np.maximum(mu, 1e-9))
+
+
+def hotspots(rep: ModelReport, edges_keV: np.ndarray | None = None, limit: int = 10) -> list[dict[str, Any]]:
+    """Where the final model's residual lives, most significant first (|z| >= :data:`HOTSPOT_Z`)."""
+    f = rep.features
+    n = rep.counts.astype(float)
+    mu = np.asarray(rep.fit.expected, dtype=float)
+    out: list[dict[str, Any]] = []
+    # segments: the residual map
+    lab = rep.segment_labels
+    sx, sy, st = (group_mean(lab, v) for v in (f.x, f.y, f.time_s))
+    sn, smu = aggregate(lab, n, mu)
+    for i in np.argsort(-np.abs(rep.segment_pearson))[:4]:
+        out.append({"kind": "segment", "z": float(rep.segment_pearson[i]),
+                    "where": f"t {st[i]:.0f} s at ({sx[i]:.2f}, {sy[i]:.2f}) m",
+                    "x": float(sx[i]), "y": float(sy[i]), "t_s": float(st[i]),
+                    "observed": float(sn[i]), "expected": float(smu[i])})
+    # directions from the fitted (primary) source
+    src = rep.sources[0]
+    az = np.degrees(np.arctan2(f.y - src["y"], f.x - src["x"])) % 360.0
+    k = (az // (360.0 / N_DIRECTIONS)).astype(int)
+    dn, dmu = np.bincount(k, n, N_DIRECTIONS), np.bincount(k, mu, N_DIRECTIONS)
+    for j in np.flatnonzero(dmu > 0):
+        lo = j * 360.0 / N_DIRECTIONS
+        out.append({"kind": "direction", "z": float(_z(dn[j], dmu[j])),
+                    "where": f"bearing {lo:.0f}-{lo + 360 / N_DIRECTIONS:.0f} deg from the fitted source "
+                             "(counter-clockwise from +x)", "bearing_deg": [lo, lo + 360.0 / N_DIRECTIONS],
+                    "observed": float(dn[j]), "expected": float(dmu[j])})
+    # times
+    t = f.time_s
+    edges = np.quantile(t, np.linspace(0, 1, N_TIMES + 1))
+    k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, N_TIMES - 1)
+    tn, tmu = np.bincount(k, n, N_TIMES), np.bincount(k, mu, N_TIMES)
+    for j in np.flatnonzero(tmu > 0):
+        out.append({"kind": "time", "z": float(_z(tn[j], tmu[j])), "where": f"t {edges[j]:.0f}-{edges[j + 1]:.0f} s",
+                    "t_s": [float(edges[j]), float(edges[j + 1])], "observed": float(tn[j]),
+                    "expected": float(tmu[j])})
+    # energies: the spectral model's residuals per channel (summed over time groups)
+    sp = rep.spectral
+    if sp is not None:
+        r = sp.pearson(null="gain_drift" not in rep.effects)
+        chi2 = np.nansum(r**2, axis=0)
+        dof = np.maximum(np.sum(np.isfinite(r), axis=0), 1)
+        zc = (chi2 - dof) / np.sqrt(2.0 * dof)
+        for c in np.argsort(-zc)[:4]:
+            rng = "" if edges_keV is None else f" ({edges_keV[c]:.0f}-{edges_keV[c + 1]:.0f} keV)"
+            out.append({"kind": "energy", "z": float(zc[c]), "where": f"channel {c}{rng}, over time",
+                        "channel": int(c), "chi2": float(chi2[c]), "dof": int(dof[c])})
+    out = [h for h in out if math.isfinite(h["z"]) and abs(h["z"]) >= HOTSPOT_Z]
+    out.sort(key=lambda h: -abs(h["z"]))
+    return out[:limit]
+
+
+def _wall_errors(fit: Any, wall: str) -> dict[str, float]:
+    """1-sigma of the slab's end points and centre, propagated from the fit's covariance (numerical Jacobian)."""
+    names = list(fit.free_names)
+    cov = np.asarray(fit.covariance, dtype=float)
+    base = dict(fit.values)
+
+    def ends(v: dict[str, float]) -> np.ndarray:
+        w = UnmappedWall.wall_of(v, wall)
+        return np.r_[w[:4], (w[0:2] + w[2:4]) / 2]
+
+    e0 = ends(base)
+    jac = np.zeros((len(e0), len(names)))
+    for i, nm in enumerate(names):
+        h = 1e-4 * max(abs(base[nm]), 1.0)
+        jac[:, i] = (ends({**base, nm: base[nm] + h}) - e0) / h
+    if cov.shape != (len(names), len(names)) or not np.all(np.isfinite(cov)):
+        return {}
+    sd = np.sqrt(np.maximum(np.diag(jac @ cov @ jac.T), 0.0))
+    return dict(zip(("start_x", "start_y", "end_x", "end_y", "centre_x", "centre_y"), map(float, sd), strict=True))
+
+
+def unmapped_walls(fit: Any) -> list[dict[str, Any]]:
+    """The fit's unmapped walls in the scenario's ``walls`` form, with mu_per_m and uncertainties."""
+    out = []
+    for wall in WALLS:
+        if f"{wall}.r" not in fit.values:
+            continue
+        w = UnmappedWall.wall_of(fit.values, wall)
+        mu = float(fit.values[f"{wall}.mu_per_m"])
+        err = _wall_errors(fit, wall)
+        mu_err = float(fit.errors.get(f"{wall}.mu_per_m", float("nan")))
+        out.append({"start": [round(float(w[0]), 3), round(float(w[1]), 3)],
+                    "end": [round(float(w[2]), 3), round(float(w[3]), 3)],
+                    "thickness": float(w[4]), "height": float(w[5]), "material": "unmapped",
+                    "mu_per_m": mu, "mu_x_thickness": mu * float(w[4]),
+                    "errors": {**err, "mu_per_m": mu_err},
+                    "note": "a point source's shadow fixes the sector the wall blocks; its distance along those "
+                            "lines of sight is known only as the errors say (thickness and height are fixed "
+                            "assumptions: mu x thickness is what the shadow measures)"})
+    return out
