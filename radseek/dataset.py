@@ -328,8 +328,9 @@ def _read_wall(w: Any, where: str, file: Path) -> Wall:
         raise _err(file, f"{where}: missing key 'thickness'")
     thickness = _number(w["thickness"], f"{where}.thickness", file)
     height = _number(w.get("height", 3.0), f"{where}.height", file)
-    if thickness <= 0 or height <= 0:
-        raise _err(file, f"{where}: thickness and height must be > 0, got {thickness} and {height}")
+    for key, value in (("thickness", thickness), ("height", height)):
+        if value <= 0:  # a slab without volume: no path length through it, an attenuation with nothing to fit
+            raise _err(file, f"key '{where}.{key}' must be > 0 (metres), got {w.get(key, value)!r}")
     length = float(np.hypot(*(pts[1] - pts[0])))
     if length == 0:
         raise _err(file, f"{where}: start and end are the same point {pts[0].tolist()} (a zero-length wall)")
