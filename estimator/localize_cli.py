@@ -23,6 +23,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,15 @@ import numpy as np
 from estimator.inflight import GOOD_FIT_P  # one goodness-of-fit threshold for localize, run and replay
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
-from radseek.dataset import DatasetError, DatasetWarning, Truth, read_dataset, stderr_progress
+from radseek.dataset import (
+    DatasetError,
+    DatasetWarning,
+    Truth,
+    check_walls_disjoint,
+    read_dataset,
+    read_scenario,
+    stderr_progress,
+)
 
 __all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_with_warnings"]
 
@@ -102,9 +111,14 @@ def read_with_warnings(prog: str) -> Iterator[None]:
 
 def read_for_cli(prog: str, path: str, quiet: bool = False):
     """The dataset at ``path`` for command ``prog`` (progress and reader warnings on stderr), or None after
-    printing the reader's error (which names file, row and column)."""
+    printing one line on stderr: the reader's error (which names file, row and column, or key), or walls that
+    overlap (``check_walls_disjoint``: every model here attenuates through each wall, so an overlap would count
+    twice)."""
+    scenario_file = Path(path) / "scenario.json"
     try:
         with read_with_warnings(prog):
+            if scenario_file.is_file():  # walls first: a long flight's frames take minutes to read
+                check_walls_disjoint(read_scenario(scenario_file), scenario_file)
             progress = None if quiet else stderr_progress(f"{prog}: reading frames.csv")
             return read_dataset(path, progress=progress)
     except DatasetError as exc:

@@ -8,6 +8,7 @@ The bad datasets are lattice-clean copies with an edited scenario.json or a trun
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -15,7 +16,8 @@ import pytest
 
 from estimator.diagnose_cli import main as diagnose
 from estimator.localize_cli import main as localize
-from radseek.dataset import DatasetError, read_scenario
+from estimator.localize_cli import read_for_cli
+from radseek.dataset import DatasetError, Wall, read_scenario, wall_overlaps
 
 REPO = Path(__file__).resolve().parents[1]
 BASE = "lattice-clean"
@@ -98,3 +100,78 @@ def test_zero_thickness_message_is_exact(shared_datasets, tmp_path, capsys):
     path = _walls(_copy(shared_datasets, tmp_path), [_wall((1, 1), (1, 3)), _wall((4, 1), (4, 3), thickness=0)])
     line, _ = _refused_by_both(capsys, path)
     assert line == f"radseek diagnose: {path}/scenario.json: key 'walls[1].thickness' must be > 0 (metres), got 0"
+
+
+# ---------------------------------------------------------------------------------------- overlapping walls
+
+
+@pytest.mark.parametrize(("walls", "pair", "area"), [
+    # the same wall listed twice: every path through it would be attenuated twice
+    ([_wall((1, 1), (1, 3)), _wall((4, 1), (4, 3)), _wall((4, 1), (4, 3))], (1, 2), 0.4),
+    # collinear segments overlapping by 1 m
+    ([_wall((1, 1), (1, 3)), _wall((4, 1), (4, 3)), _wall((4, 2), (4, 5))], (1, 2), 0.2),
+    # parallel walls 0.1 m apart, 0.2 m thick: half of each inside the other over 2 m
+    ([_wall((4, 1), (4, 3)), _wall((1, 1), (1, 3)), _wall((4.1, 1), (4.1, 3))], (0, 2), 0.2),
+    # a shallow (10 degree) crossing: a 1.15 m sliver
+    ([_wall((2, 4), (6, 4)), _wall((2, 4 - 2 * math.tan(math.radians(10))), (6, 4 + 2 * math.tan(math.radians(10))))],
+     (0, 1), 0.2 * 0.2 / math.sin(math.radians(10))),
+])
+def test_overlapping_walls_are_refused_naming_both(shared_datasets, tmp_path, capsys, walls, pair, area):
+    path = _walls(_copy(shared_datasets, tmp_path), walls)
+    found = wall_overlaps(read_scenario(path / "scenario.json").walls)
+    assert [(i, j) for i, j, _, _ in found] == [pair]
+    assert found[0][2] == pytest.approx(area, rel=1e-6)
+    i, j = pair
+    for line in _refused_by_both(capsys, path):
+        assert f"{path / 'scenario.json'}: key 'walls': walls[{i}] and walls[{j}] overlap by {area:.3g} m^2" in line
+        assert "trim or merge the walls" in line
+
+
+def test_overlapping_walls_are_refused_before_a_long_read(shared_datasets, tmp_path, capsys):
+    """The walls are checked before frames.csv is read: a broken frames.csv is not reached."""
+    path = _walls(_copy(shared_datasets, tmp_path), [_wall((4, 1), (4, 3)), _wall((4, 1), (4, 3))])
+    (path / "frames.csv").write_text("not a header\n")
+    for line in _refused_by_both(capsys, path):
+        assert "walls[0] and walls[1] overlap" in line
+
+
+def test_walls_that_meet_are_accepted(shared_datasets, tmp_path, capsys):
+    """Corners and T-joints whose centre lines share a point (the outdoor scene's enclosure), a right-angle
+    crossing and lattice-wall's L (footprints touching along an edge) are how walls are drawn, not overlaps."""
+    walls = [_wall((3, 6), (7, 6), 0.15), _wall((7, 6), (7, 7.5), 0.15), _wall((7, 7.5), (3, 7.5), 0.15),
+             _wall((3, 7.5), (3, 6), 0.15), _wall((5, 6), (5, 4), 0.2),  # a T-joint below the enclosure
+             _wall((8, 0.5), (8, 3.5)), _wall((6.5, 2), (9.5, 2))]  # a crossing at right angles
+    path = _walls(_copy(shared_datasets, tmp_path), walls)
+    ds = read_for_cli("radseek diagnose", str(path), quiet=True)
+    assert ds is not None and len(ds.scenario.walls) == 7
+    assert capsys.readouterr().err == ""
+    assert wall_overlaps(read_scenario(shared_datasets / "lattice-wall" / "scenario.json").walls) == []
+
+
+def test_shipped_scenes_and_shared_datasets_have_no_overlapping_walls(shared_datasets):
+    from detector_fw_sim.scene import SCENES_DIR, load_scene
+
+    for scene in sorted(SCENES_DIR.glob("*.toml")):
+        assert wall_overlaps(load_scene(scene).scenario().walls) == [], scene.name
+    for p in sorted(shared_datasets.iterdir()):
+        if (p / "scenario.json").exists():
+            assert wall_overlaps(read_scenario(p / "scenario.json").walls) == [], p.name
+
+
+def test_overlap_area_is_exact_and_touching_walls_share_nothing():
+    w = Wall((0.0, 0.0), (2.0, 0.0), 0.2, 3.0)
+    assert wall_overlaps([w, Wall((2.0, 0.0), (4.0, 0.0), 0.2, 3.0)]) == []  # end to end
+    assert wall_overlaps([w, Wall((0.0, 0.2), (2.0, 0.2), 0.2, 3.0)]) == []  # side by side, touching
+    assert wall_overlaps([w, Wall((1.0, 0.0), (1.0, 0.0), 0.2, 3.0)]) == []  # no length, no footprint
+    # rotated copies overlapping by a known area: 2 m x 0.2 m, half of it shifted out (0.1 m across)
+    for deg in (0.0, 30.0, 90.0, 137.0):
+        c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+
+        def rot(x, y, c=c, s=s):
+            return (c * x - s * y, s * x + c * y)
+
+        a = Wall(rot(0, 0), rot(2, 0), 0.2, 3.0)
+        b = Wall(rot(0.5, 0.1), rot(2.5, 0.1), 0.2, 3.0)
+        (i, j, area, allowed), = wall_overlaps([a, b])
+        assert (i, j) == (0, 1) and area == pytest.approx(1.5 * 0.1) and allowed == pytest.approx(0.2 * 0.2 * 2**0.5
+                                                                                                  + 1e-4)
