@@ -23,6 +23,11 @@ from radseek.dataset import EFFECTS
 #: the dataset spec's effects plus the variance effect diagnose also knows (estimator.diagnose.backend.VOCABULARY)
 VOCABULARY = (*EFFECTS, "over_dispersion")
 
+#: fewer usable frames than this are refused: the baseline already fits the source (position, strength) and the
+#: background, each candidate effect adds up to 4 parameters, and on a handful of frames no test has power, so
+#: "the baseline is adequate" would be said of any flight (it was, of lattice-clean's first 3 frames)
+MIN_FRAMES = 50
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -73,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from estimator.localize_cli import read_for_cli
 
-    ds = read_for_cli("radseek diagnose", args.dataset, args.quiet)
+    ds = read_for_cli("radseek diagnose", args.dataset, args.quiet, min_frames=MIN_FRAMES,
+                      needed_for="to fit the model and test effects")
     if ds is None:
         return 2
     if not np.any(ds.frames.total_counts > 0):

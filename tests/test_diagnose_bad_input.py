@@ -10,10 +10,13 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
+from estimator import diagnose_cli, localize_cli
 from estimator.diagnose_cli import main as diagnose
 from estimator.localize_cli import main as localize
 from estimator.localize_cli import read_for_cli
@@ -175,3 +178,55 @@ def test_overlap_area_is_exact_and_touching_walls_share_nothing():
         (i, j, area, allowed), = wall_overlaps([a, b])
         assert (i, j) == (0, 1) and area == pytest.approx(1.5 * 0.1) and allowed == pytest.approx(0.2 * 0.2 * 2**0.5
                                                                                                   + 1e-4)
+
+
+# ---------------------------------------------------------------------------------------- too few frames
+
+
+def test_diagnose_refuses_fewer_than_50_usable_frames(shared_datasets, tmp_path, capsys):
+    path = _keep_frames(_copy(shared_datasets, tmp_path), 49)
+    assert diagnose([str(path), "--quiet", "--no-plots"]) == 2
+    assert _one_line(capsys.readouterr().err) == (
+        f"radseek diagnose: {path}/frames.csv: only 49 usable frames (at least 50 are needed to fit the model and "
+        "test effects)")
+    enough = _keep_frames(_copy(shared_datasets, tmp_path, "ds50"), 50)
+    assert read_for_cli("radseek diagnose", str(enough), True, diagnose_cli.MIN_FRAMES) is not None
+
+
+def test_a_skipped_truncated_row_does_not_count(shared_datasets, tmp_path, capsys):
+    """50 rows of which the last is cut short (a recorder stopped mid-write): the reader's warning, then the
+    refusal counting the 49 it kept."""
+    path = _copy(shared_datasets, tmp_path)
+    row_51 = (path / "frames.csv").read_text().splitlines()[50]
+    _keep_frames(path, 49, extra=row_51[: len(row_51) // 2] + "\n")
+    assert diagnose([str(path), "--quiet", "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    warning, refusal = err.strip().splitlines()
+    assert warning.startswith("radseek diagnose: warning: ") and "truncated last row" in warning
+    assert refusal.endswith("only 49 usable frames (at least 50 are needed to fit the model and test effects)")
+
+
+@pytest.mark.parametrize("n", [1, 9])
+def test_localize_refuses_fewer_frames_than_a_fit_needs(shared_datasets, tmp_path, capsys, n):
+    """localize needs fewer frames than diagnose (no effects to test), as many as the in-flight estimator's first
+    fit (``estimator.inflight.MIN_FRAMES``); on 1 frame it used to print an estimate with deviance/dof -0.000."""
+    path = _keep_frames(_copy(shared_datasets, tmp_path), n)
+    assert localize([str(path), "--quiet"]) == 2
+    plural = "" if n == 1 else "s"
+    assert _one_line(capsys.readouterr().err) == (
+        f"radseek localize: {path}/frames.csv: only {n} usable frame{plural} (at least {localize_cli.MIN_FRAMES} "
+        "are needed to fit a source's position and strength and the background)")
+    enough = _keep_frames(_copy(shared_datasets, tmp_path, "ds10"), 10)
+    assert read_for_cli("radseek localize", str(enough), True) is not None
+
+
+# ---------------------------------------------------------------------------------------- the whole command
+
+
+def test_radseek_diagnose_command_prints_one_line(shared_datasets, tmp_path):
+    path = _walls(_copy(shared_datasets, tmp_path), [_wall((4, 1), (4, 3)), _wall((4, 2), (4, 5))])
+    r = subprocess.run([sys.executable, "-m", "radseek.cli", "diagnose", str(path), "--no-plots"], cwd=REPO,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == ""
+    assert "walls[0] and walls[1] overlap by 0.2 m^2" in _one_line(r.stderr)
