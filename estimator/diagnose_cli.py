@@ -18,10 +18,29 @@ from typing import Any
 
 import numpy as np
 
-from radseek.dataset import EFFECTS
+#: fewer usable frames than this are refused: the baseline already fits the source (position, strength) and the
+#: background, each candidate effect adds up to 4 parameters, and on a handful of frames no test has power, so
+#: "the baseline is adequate" would be said of any flight (it was, of lattice-clean's first 3 frames)
+MIN_FRAMES = 50
 
-#: the dataset spec's effects plus the variance effect diagnose also knows (estimator.diagnose.backend.VOCABULARY)
-VOCABULARY = (*EFFECTS, "over_dispersion")
+
+def __getattr__(name: str) -> Any:
+    """``VOCABULARY``: the effects diagnose can name, from ``estimator.diagnose.backend`` (one list to keep; that
+    module imports the fit machinery, ~0.6 s, so it is loaded only when an effect is named or this is asked for)."""
+    if name == "VOCABULARY":
+        from estimator.diagnose.backend import VOCABULARY
+
+        return VOCABULARY
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _effect(name: str) -> str:
+    """argparse type of --model and --add: a name of the diagnose vocabulary."""
+    from estimator.diagnose.backend import VOCABULARY
+
+    if name not in VOCABULARY:
+        raise argparse.ArgumentTypeError(f"invalid choice: {name!r} (choose from {', '.join(VOCABULARY)})")
+    return name
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -31,9 +50,9 @@ def _parser() -> argparse.ArgumentParser:
         "physical effect (forward selection by likelihood ratio) and show what adding it changes.",
     )
     p.add_argument("dataset", help="dataset directory (frames.csv, scenario.json, optional truth.json)")
-    p.add_argument("--model", nargs="+", action="extend", default=[], metavar="EFFECT", choices=list(VOCABULARY),
+    p.add_argument("--model", nargs="+", action="extend", default=[], metavar="EFFECT", type=_effect,
                    help="effects already in the model (default: the baseline, sources + constant background)")
-    p.add_argument("--add", action="append", default=[], metavar="EFFECT", choices=list(VOCABULARY),
+    p.add_argument("--add", action="append", default=[], metavar="EFFECT", type=_effect,
                    help="refit with this effect added and show before/after (repeatable)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON report")
     p.add_argument("--out", type=Path, default=None, help="folder for the PNG plots (default ./diagnose-<name>/)")
@@ -73,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from estimator.localize_cli import read_for_cli
 
-    ds = read_for_cli("radseek diagnose", args.dataset, args.quiet)
+    ds = read_for_cli("radseek diagnose", args.dataset, args.quiet, min_frames=MIN_FRAMES,
+                      needed_for="to fit the model and test effects")
     if ds is None:
         return 2
     if not np.any(ds.frames.total_counts > 0):

@@ -23,14 +23,24 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from estimator.inflight import GOOD_FIT_P  # one goodness-of-fit threshold for localize, run and replay
+# one goodness-of-fit threshold for localize, run and replay; as in flight, fewer than MIN_FRAMES are not fitted
+from estimator.inflight import GOOD_FIT_P, MIN_FRAMES
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
-from radseek.dataset import DatasetError, DatasetWarning, Truth, read_dataset, stderr_progress
+from radseek.dataset import (
+    DatasetError,
+    DatasetWarning,
+    Truth,
+    check_walls_disjoint,
+    read_dataset,
+    read_scenario,
+    stderr_progress,
+)
 
 __all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_with_warnings"]
 
@@ -100,16 +110,29 @@ def read_with_warnings(prog: str) -> Iterator[None]:
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
-def read_for_cli(prog: str, path: str, quiet: bool = False):
+def read_for_cli(prog: str, path: str, quiet: bool = False, min_frames: int = MIN_FRAMES,
+                 needed_for: str = "to fit a source's position and strength and the background"):
     """The dataset at ``path`` for command ``prog`` (progress and reader warnings on stderr), or None after
-    printing the reader's error (which names file, row and column)."""
+    printing one line on stderr: the reader's error (which names file, row and column, or key), walls that
+    overlap (``check_walls_disjoint``: every model here attenuates through each wall, so an overlap would count
+    twice), or fewer than ``min_frames`` usable frames (the reader keeps only rows with a finite pose and
+    duration > 0; a truncated last row is skipped), with what they are ``needed_for``."""
+    scenario_file = Path(path) / "scenario.json"
     try:
         with read_with_warnings(prog):
+            if scenario_file.is_file():  # walls first: a long flight's frames take minutes to read
+                check_walls_disjoint(read_scenario(scenario_file), scenario_file)
             progress = None if quiet else stderr_progress(f"{prog}: reading frames.csv")
-            return read_dataset(path, progress=progress)
+            ds = read_dataset(path, progress=progress)
     except DatasetError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return None
+    if len(ds.frames) < min_frames:
+        print(f"{prog}: {ds.path / 'frames.csv'}: only {len(ds.frames)} usable frame"
+              f"{'' if len(ds.frames) == 1 else 's'} (at least {min_frames} are needed {needed_for})",
+              file=sys.stderr)
+        return None
+    return ds
 
 
 @contextmanager
