@@ -1,0 +1,149 @@
+"""The unmapped wall: its geometry (analytic cases), the shadow screen, and diagnose naming it on a flight from the
+independent forward model (``benchmarks.forward2``) whose wall is not in the scenario."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimator.diagnose.shadow import candidate_walls, score_placements, thin_slab_lengths
+from estimator.model import MeasurementModel, UnmappedWall
+from radseek.dataset import Frames, Scenario
+from radseek.geometry import path_lengths_per_wall
+
+EDGES = np.linspace(40.0, 3000.0, 33)
+
+
+def _scenario() -> Scenario:
+    return Scenario(channel_edges_keV=EDGES, background_cps=30.0, source_z=0.0, bounds_min=np.array([0.0, 0.0, 0.0]),
+                    bounds_max=np.array([10.0, 8.0, 0.5]), walls=())
+
+
+def _frames(pos: np.ndarray, t: np.ndarray | None = None) -> Frames:
+    n = len(pos)
+    z = np.zeros(n)
+    return Frames(t=np.arange(1, n + 1) * 0.1 if t is None else t, duration=np.full(n, 0.1), x=pos[:, 0],
+                  y=pos[:, 1], z=pos[:, 2], yaw=z, var_x=z, var_y=z, var_z=z, dwell=np.arange(n),
+                  counts=np.zeros((n, 32), dtype=np.int64))
+
+
+def test_wall_of_and_placement_round_trip():
+    src = np.array([5.0, 4.0])
+    vals = {"x": 5.0, "y": 4.0, "unmapped_wall.r": 1.5, "unmapped_wall.phi_deg": 30.0, "unmapped_wall.tilt_deg": 20.0,
+            "unmapped_wall.length": 2.5, "unmapped_wall.thickness": 0.2, "unmapped_wall.height": 3.0}
+    w = UnmappedWall.wall_of(vals)
+    centre = (w[0:2] + w[2:4]) / 2
+    assert np.hypot(*(centre - src)) == pytest.approx(1.5)
+    assert np.hypot(*(w[2:4] - w[0:2])) == pytest.approx(2.5)
+    # square to the bearing when tilt is 0: the wall's direction is perpendicular to source -> centre
+    vals0 = {**vals, "unmapped_wall.tilt_deg": 0.0}
+    w0 = UnmappedWall.wall_of(vals0)
+    assert np.dot(w0[2:4] - w0[0:2], (w0[0:2] + w0[2:4]) / 2 - src) == pytest.approx(0.0, abs=1e-9)
+    back = UnmappedWall.placement(w, src)
+    for k in ("r", "phi_deg", "tilt_deg", "length"):
+        assert back[k] == pytest.approx(vals[f"unmapped_wall.{k}"], abs=1e-9)
+    # a slab through the source, or lying along the line of sight, is outside the effect's range
+    assert UnmappedWall.placement(np.array([4.8, 4.0, 5.2, 4.0, 0.2, 3.0]), src) is None
+    assert UnmappedWall.placement(np.array([6.0, 4.0, 8.0, 4.0, 0.2, 3.0]), src) is None
+
+
+def test_model_attenuates_exactly_the_lines_of_sight_through_the_slab():
+    """Normal incidence through a 0.2 m slab of mu 2.5 /m: factor exp(-0.5) behind it, 1 beside it (analytic)."""
+    sc = _scenario()
+    model = MeasurementModel(sc, effects=("unmapped_wall",))
+    # source at (5, 4, 0); wall 1 m east, square to +x, 2 m long; detectors at z = 0 so the geometry is planar
+    theta = {"x": 5.0, "y": 4.0, "cps_at_1m": 1000.0, "background_cps": 0.0, "unmapped_wall.r": 1.0,
+             "unmapped_wall.phi_deg": 0.0, "unmapped_wall.tilt_deg": 0.0, "unmapped_wall.length": 2.0,
+             "unmapped_wall.mu_per_m": 2.5}
+    pos = np.array([[8.0, 4.0, 0.0], [8.0, 4.5, 0.0], [2.0, 4.0, 0.0], [5.0, 7.0, 0.0], [6.5, 7.5, 0.0]])
+    f = _frames(pos)
+    with_wall = model.expected_counts(theta, f)
+    free = model.expected_counts({**theta, "unmapped_wall.mu_per_m": 0.0}, f)
+    ratio = with_wall / free
+    # behind the wall: the line of sight crosses 0.2 m at normal incidence (first) or 0.2 / cos(angle) (second);
+    # the slab's faces are ramps EDGE_M wide (soft max / min), which lengthen a path by a small part of a ramp
+    length = -np.log(ratio) / 2.5
+    tol = 0.1 * UnmappedWall.EDGE_M
+    assert length[0] == pytest.approx(0.2, abs=tol)
+    cos = 3.0 / math.hypot(3.0, 0.5)
+    assert length[1] == pytest.approx(0.2 / cos, abs=tol)
+    assert length[1] > length[0]
+    # west of the source, north of it, and past the wall's end (the line crosses x = 6 at y = 6.3 > 5): no shadow
+    assert ratio[2:] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_screen_lengths_match_the_slab_geometry_of_tall_thin_walls():
+    """The screen's thin-slab lengths against radseek.geometry's slab method on random lines of sight."""
+    rng = np.random.default_rng(3)
+    walls = candidate_walls(np.array([2.0, 2.0]), np.array([7.0, 6.0]), spacing=1.0, n_angles=6, thickness=0.02,
+                            height=50.0)
+    pos = np.column_stack([rng.uniform(0, 10, 40), rng.uniform(0, 8, 40), rng.uniform(0.5, 2.5, 40)])
+    src = np.array([5.0, 4.0, 0.0])
+    got = thin_slab_lengths(pos, src, walls)  # (P, J)
+    ref = path_lengths_per_wall(pos[:, None, :], src[None, None, :], walls)[:, 0, :].T  # (P, J)
+    crossing = ref > 0
+    # where both say the line crosses, the length agrees to the thin-slab approximation (a thickness of 2 cm) but
+    # where the line grazes the slab or clips a corner (the exact slab cuts it short)
+    both = crossing & (got > 0)
+    assert both.sum() > 50
+    close = np.abs(got[both] - ref[both]) <= 0.05 * ref[both] + 2e-3
+    assert close.mean() > 0.9
+    assert np.all(got[both] >= ref[both] - 2e-3)  # the thin-slab length is never short: a screen over-scores
+    # the thin slab never shadows a line the exact slab misses; it misses only lines clipping an end's corner
+    assert not np.any((got > 0) & ~crossing)
+    missed = crossing & (got == 0)
+    assert np.all(ref[missed] < 3 * 0.02)
+
+
+def test_screen_finds_the_placement_of_a_known_shadow():
+    """Expected counts of a 12-point ring around a source with one sector shadowed by exp(-0.6): the screen's best
+    placement shadows exactly that sector, with an optical depth near 0.6."""
+    ang = np.radians(np.arange(0, 360, 15))
+    pos = np.column_stack([5 + 2.5 * np.cos(ang), 4 + 2.5 * np.sin(ang), np.full(len(ang), 1.5)])
+    frames = _frames(np.repeat(pos, 40, axis=0), t=np.arange(1, 40 * len(ang) + 1) * 0.1)
+    frames = Frames(**{**frames.__dict__, "dwell": np.repeat(np.arange(len(ang)), 40)})
+    src = np.array([5.0, 4.0, 0.0])
+    d2 = ((frames.positions - src) ** 2).sum(1)
+    s = 5000.0 / d2 * 0.1
+    shadowed = np.abs(np.degrees(np.arctan2(frames.y - 4, frames.x - 5))) < 40  # east, within +-40 deg
+    counts_mean = 3.0 + s * np.where(shadowed, math.exp(-0.6), 1.0)
+    rng = np.random.default_rng(0)
+    counts = rng.poisson(counts_mean)
+    frames = Frames(**{**frames.__dict__, "counts": np.column_stack([counts, np.zeros((len(counts), 31), int)])})
+    expected = 3.0 + s * (counts.sum() - 3.0 * len(counts)) / s.sum()  # the best wall-free fit's strength
+    walls = candidate_walls(np.array([3.0, 1.5]), np.array([7.5, 6.5]))
+    pl = score_placements(frames, expected, np.full(len(counts), 3.0), src, walls)
+    i = int(np.argmax(pl.lr))
+    best = walls[i]
+    centre = (best[0:2] + best[2:4]) / 2
+    bearing = math.degrees(math.atan2(centre[1] - 4, centre[0] - 5))
+    assert abs(bearing) < 25
+    assert 0.4 <= pl.mu_t[i] <= 0.8
+    assert pl.lr[i] > 100
+
+
+@pytest.mark.slow
+def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
+    """forward2's straight wall, removed from the scenario (mu x t = 0.5): diagnose names unmapped_wall, its fit is
+    adequate, its centre is within 0.5 m of the true slab, and the source error falls."""
+    from benchmarks.forward2 import FlightSpec, simulate
+    from estimator.diagnose.report import json_report
+    from estimator.diagnose.runner import diagnose
+
+    ds = simulate(FlightSpec(geometry="wall", effects={"unmapped_wall": {"mu_per_m": 2.5}}, unmap_walls=True,
+                             dwell_s=5.0), seed=11)
+    assert ds.scenario.walls == ()
+    d = diagnose(ds, quiet=True, n_starts=2)
+    j = json_report(d)
+    assert "unmapped_wall" in j["missing"] and not j["unexplained"]
+    truth = ds.truth.effects["unmapped_wall"]["walls"][0]
+    a, b = np.array(truth["start"], float), np.array(truth["end"], float)
+    dists = []
+    for w in j["unmapped_walls"]:
+        c = (np.array(w["start"]) + np.array(w["end"])) / 2
+        t = np.clip(np.dot(c - a, b - a) / np.dot(b - a, b - a), 0, 1)
+        dists.append(float(np.hypot(*(c - (a + t * (b - a))))))
+    assert min(dists) < 0.5
+    assert d.after.source_error_m < d.current.source_error_m
