@@ -4,7 +4,8 @@ physical effect is missing, add it and watch the error fall.
     radseek diagnose DATASET [--model EFFECT ...] [--add EFFECT ...] [--json] [--out DIR] [--alpha 0.01] [--jobs N]
 
 Progress goes to stderr; the report (text, or JSON with --json) to stdout; PNG plots to --out
-(default ./diagnose-<dataset name>/). Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
+(default ./diagnose-<dataset name>/), with the run's fits (fits.pkl): run again with --add and nothing already
+fitted is fitted again. Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,8 @@ import numpy as np
 #: background, each candidate effect adds up to 4 parameters, and on a handful of frames no test has power, so
 #: "the baseline is adequate" would be said of any flight (it was, of lattice-clean's first 3 frames)
 MIN_FRAMES = 50
+#: the fits and selections of a run, in its output folder: a later run on the same data (``--add``) reuses them
+SAVED_FITS = "fits.pkl"
 
 
 def __getattr__(name: str) -> Any:
@@ -60,7 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=float, default=0.01, help="significance level for naming an effect (0.01)")
     p.add_argument("--starts", type=int, default=8, help="multi-start count of the model fit (8)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--jobs", type=int, default=1, help="processes for the candidate fits of each step (1); the "
+    p.add_argument("--jobs", type=int, default=min(2, len(os.sched_getaffinity(0))),
+                   help="processes for the candidate fits of each step (default: 2, or 1 on one core); the "
                    "spectral fit runs alongside them")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     return p
@@ -111,9 +116,14 @@ def main(argv: list[str] | None = None) -> int:
     from estimator.diagnose.runner import diagnose
 
     added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
+    out = args.out or Path.cwd() / f"diagnose-{ds.name}"
+    saved = None
+    if not args.no_plots or args.out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        saved = out / SAVED_FITS
     try:
         d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts,
-                     seed=args.seed, quiet=args.quiet, jobs=args.jobs)
+                     seed=args.seed, quiet=args.quiet, jobs=args.jobs, saved=saved)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         print(f"radseek diagnose: the analysis failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
@@ -121,8 +131,6 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_plots:
         from estimator.diagnose import plots as P
 
-        out = args.out or Path.cwd() / f"diagnose-{ds.name}"
-        out.mkdir(parents=True, exist_ok=True)
         progress(f"writing plots to {out}", args.quiet)
         cur = d.current
         plots.append(str(P.plot_features(cur, out / "residuals_vs_features.png")))

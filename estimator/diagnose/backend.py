@@ -6,10 +6,14 @@ in ``estimator.spectral`` and its likelihood is a separate factor.
 
 from __future__ import annotations
 
+import hashlib
+import os
+import pickle
 import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,6 +22,8 @@ from estimator.mle import fit
 from estimator.model import COUNT_EFFECTS, OPEN_WORLD_EFFECTS, MeasurementModel, UnmappedWall
 from radseek.dataset import EFFECTS, Frames, Scenario
 
+#: bump when a saved diagnosis (``CountFitter.save``) can no longer be reused as it is
+CACHE_FORMAT = 1
 SPECTRAL_EFFECTS = ("gain_drift",)
 #: effects on the counts' variance only (``estimator.diagnose.dispersion``); not in the dataset spec's table
 #: (the emulator's scene format mirrors that table), so diagnose's vocabulary extends it here
@@ -144,6 +150,41 @@ class CountFitter:
     def __post_init__(self) -> None:
         self.fit_frames = split_transit_legs(self.frames)
         self._cache: dict[tuple[str, ...], Any] = {}
+        #: forward selections already run, by (start effects, alpha, steps): ``--add`` reuses the baseline's
+        self.selections: dict[tuple[Any, ...], Any] = {}
+        #: the spectral fit, once computed (``runner.LazySpectral``)
+        self.spectral: Any = None
+
+    # ---- a saved diagnosis: ``radseek diagnose --add`` after a first run reuses its fits and selection
+
+    def fingerprint(self) -> str:
+        """What the fits depend on: the frames, the scenario, the fit settings and the cache format."""
+        h = hashlib.sha256(f"{CACHE_FORMAT}|{self.n_starts}|{self.seed}|{self.scenario!r}".encode())
+        for name in self.frames.__dataclass_fields__:
+            h.update(np.ascontiguousarray(getattr(self.frames, name)).tobytes())
+        return h.hexdigest()
+
+    def save(self, path: Path) -> None:
+        """Write the fits, selections and spectral fit to ``path`` (atomically: a reader never sees half)."""
+        tmp = path.with_name(path.name + ".tmp")
+        with tmp.open("wb") as fh:
+            pickle.dump({"fingerprint": self.fingerprint(), "fits": self._cache, "selections": self.selections,
+                         "spectral": self.spectral}, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+
+    def load(self, path: Path) -> bool:
+        """Reuse a saved diagnosis of the same data and settings; False (and nothing loaded) otherwise."""
+        try:
+            with path.open("rb") as fh:
+                saved = pickle.load(fh)
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError):
+            return False
+        if not isinstance(saved, dict) or saved.get("fingerprint") != self.fingerprint():
+            return False
+        self._cache.update(saved["fits"])
+        self.selections.update(saved["selections"])
+        self.spectral = saved["spectral"]
+        return True
 
     def model(self, effects: tuple[str, ...]) -> MeasurementModel:
         return MeasurementModel(self.scenario, effects=tuple(effects))

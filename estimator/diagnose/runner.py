@@ -7,6 +7,7 @@ one thing, the source error in the report.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -205,21 +206,32 @@ class Diagnosis:
 
 
 def diagnose(ds: Dataset, model: tuple[str, ...] = (), add: tuple[str, ...] = (), alpha: float = 0.01,
-             n_starts: int = 8, seed: int = 0, quiet: bool = False, jobs: int = 1) -> Diagnosis:
-    """The whole loop (see the module docstring); BLAS runs single-threaded inside (``threads``)."""
+             n_starts: int = 8, seed: int = 0, quiet: bool = False, jobs: int = 1, saved: Path | None = None
+             ) -> Diagnosis:
+    """The whole loop (see the module docstring); BLAS runs single-threaded inside (``threads``). ``saved``: a
+    file of this dataset's fits and selections (``CountFitter.save``), reused when it matches and rewritten after:
+    ``--add`` after a first run refits nothing it has already fitted."""
     with blas_threads(1):
-        return _diagnose(ds, model, add, alpha, n_starts, seed, quiet, jobs)
+        fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet, jobs=jobs)
+        if saved is not None and saved.exists():
+            reused = fitter.load(saved)
+            progress(f"reusing the fits and selections saved in {saved}" if reused else
+                     f"{saved} holds another dataset's or setting's fits: fitting anew", quiet)
+        d = _diagnose(ds, fitter, model, add, alpha, quiet)
+        if saved is not None:
+            fitter.save(saved)
+        return d
 
 
-def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: float, n_starts: int, seed: int,
-              quiet: bool, jobs: int) -> Diagnosis:
+def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tuple[str, ...], alpha: float,
+              quiet: bool) -> Diagnosis:
     count, spec = split_effects(model)
     add_count, add_spec = split_effects(add)
-    fitter = CountFitter(ds.scenario, ds.frames, n_starts=n_starts, seed=seed, quiet=quiet, jobs=jobs)
     progress(f"{ds.name}: {len(ds.frames)} frames; fitting {describe((*count, *spec))}",
              quiet)
     sm = SpectralModel(ds.scenario.channel_edges_keV)
     spectral_fit = LazySpectral(sm, ds.frames, quiet)
+    spectral_fit.value = fitter.spectral
 
     base = fitter.fit(count)
     spectral = spectral_fit() if "gain_drift" in (*spec, *add_spec) else None
@@ -241,6 +253,7 @@ def _diagnose(ds: Dataset, model: tuple[str, ...], add: tuple[str, ...], alpha: 
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
             _fill_explains(ds, fitter, after_sel, spectral_fit.value or spectral)
+    fitter.spectral = spectral_fit.value
     d = Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)
     named = list(after_sel.missing if add and after_sel is not None else sel.missing)
     final = d.final

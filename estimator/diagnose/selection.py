@@ -186,7 +186,16 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
     """Forward selection from the effects ``start`` (count effects plus possibly ``gain_drift``).
 
     ``spectral_fit()`` returns the ``estimator.spectral.SpectralFit`` (with drift profiled), computed lazily.
+    A selection the fitter has already run (from the same start, alpha and steps) is returned as it was.
     """
+    key = (tuple(start), alpha, max_steps)
+    if key not in fitter.selections:
+        fitter.selections[key] = _forward_select(fitter, spectral_fit, start, alpha, max_steps, quiet)
+    return fitter.selections[key]
+
+
+def _forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: tuple[str, ...], alpha: float,
+                    max_steps: int, quiet: bool) -> Selection:
     scenario, frames = fitter.scenario, fitter.frames
     count = tuple(e for e in start if e not in NON_COUNT_EFFECTS)
     spec = tuple(e for e in start if e in NON_COUNT_EFFECTS)
