@@ -17,11 +17,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from estimator.mle import fit
 from estimator.model import COUNT_EFFECTS, OPEN_WORLD_EFFECTS, MeasurementModel, UnmappedWall
 from radseek.dataset import EFFECTS, Frames, Scenario
 
+#: an unmapped wall is fitted in full only when its shadow screen's best LR reaches this share of the LR its test
+#: needs at the step's threshold
+SCREEN_GATE = 0.2
 #: bump when a saved diagnosis (``CountFitter.save``) can no longer be reused as it is
 CACHE_FORMAT = 1
 SPECTRAL_EFFECTS = ("gain_drift",)
@@ -146,6 +150,9 @@ class CountFitter:
     seed: int = 0
     quiet: bool = False
     jobs: int = 1  # processes for fit_many (candidate fits); 1 = in this process
+    #: the p-value an effect must beat at the current selection step (alpha / candidates): an unmapped wall whose
+    #: shadow screen is far from what that needs is not fitted in full (``_fit_wall``)
+    wall_threshold: float | None = None
 
     def __post_init__(self) -> None:
         self.fit_frames = split_transit_legs(self.frames)
@@ -193,7 +200,7 @@ class CountFitter:
             label: str = "", cache: bool = True) -> Any:
         """Fit the model with ``effects``; the best fit per effect set is kept and returned next time."""
         key = count_key(effects)
-        if cache and key in self._cache:
+        if cache and key in self._cache and not getattr(self._cache[key], "screened_only", False):
             return self._cache[key]
         for wall in WALLS:
             if wall in key and not (init and f"{wall}.r" in init):
@@ -227,8 +234,16 @@ class CountFitter:
         pl = screen(self.fit_frames, base.expected, background, src, self.scenario.bounds_min,
                     self.scenario.bounds_max, np.array(exclude) if exclude else None)
         starts = pl.best(src[:2], 3)
-        progress(f"{wall}: {pl.scored} placements screened, best shadow LR "
-                 f"{float(pl.lr.max()) if len(pl.lr) else 0.0:.1f}", self.quiet)
+        top = float(pl.lr.max()) if len(pl.lr) else 0.0
+        thr = self.wall_threshold
+        needed = float(stats.chi2.isf(min(2.0 * thr / max(pl.scored, 1), 1.0), 1)) if thr is not None else 0.0
+        progress(f"{wall}: {pl.scored} placements screened, best shadow LR {top:.1f}"
+                 + (f" (significant from ~{needed:.0f})" if thr is not None else ""), self.quiet)
+        if not starts or (self.wall_threshold is not None and top < SCREEN_GATE * needed):
+            # the screen holds the source; a wall the data call for shows there at a third or more of its full
+            # LR (lattice-wall unmapped: 149 against 522), so one this far below cannot become significant:
+            # report the screen's LR (a lower bound of the full fit's) without fitting in full
+            return self._screened_only(base, wall, starts[0] if starts else {}, top, pl.scored)
         best = None
         for st in starts or [{}]:
             res = self.fit(key, init={**th, **(init or {}), **{f"{wall}.{k}": v for k, v in st.items()}}, n_starts=1,
@@ -237,6 +252,18 @@ class CountFitter:
                 best = res
         best.wall_looks = pl.scored
         return best
+
+    def _screened_only(self, base: Any, wall: str, start: dict[str, float], lr: float, looks: int) -> Any:
+        """The fit without the wall, carrying the wall's best screened placement and the screen's LR (nll lowered
+        by LR / 2): a candidate that was not fitted in full (``screened_only``)."""
+        model = self.model((*base.model.effects, wall))
+        values = {**model.defaults(), **base.values, **{f"{wall}.{k}": float(v) for k, v in start.items()}}
+        res = replace(base, model=model, values=values, nll=base.nll - lr / 2,
+                      free_names=[*base.free_names, *(n for n in model.free_names if n.startswith(wall + "."))],
+                      errors={**base.errors, **{n: float("nan") for n in model.free_names if n.startswith(wall + ".")}})
+        res.wall_looks = looks
+        res.screened_only = True
+        return res
 
     def fit_many(self, tasks: list[FitTask], side: dict[str, Any] | None = None, label: str = "fits"
                  ) -> tuple[list[Any], dict[str, Any]]:
@@ -252,7 +279,7 @@ class CountFitter:
         todo = []
         for i, task in enumerate(tasks):
             key = count_key(task.effects)
-            if task.cache and key in self._cache:
+            if task.cache and key in self._cache and not getattr(self._cache[key], "screened_only", False):
                 out[i] = self._cache[key]
                 done += 1
             else:
@@ -286,7 +313,8 @@ class CountFitter:
                 progress_bar(label, done, total, t0, self.quiet)
         for i in todo:
             key = count_key(tasks[i].effects)
-            if tasks[i].cache and (key not in self._cache or out[i].nll < self._cache[key].nll):
+            if tasks[i].cache and not getattr(out[i], "screened_only", False) and \
+                    (key not in self._cache or out[i].nll < self._cache[key].nll):
                 self._cache[key] = out[i]
         return out, side_out
 

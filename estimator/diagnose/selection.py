@@ -190,7 +190,10 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
     """
     key = (tuple(start), alpha, max_steps)
     if key not in fitter.selections:
-        fitter.selections[key] = _forward_select(fitter, spectral_fit, start, alpha, max_steps, quiet)
+        try:
+            fitter.selections[key] = _forward_select(fitter, spectral_fit, start, alpha, max_steps, quiet)
+        finally:
+            fitter.wall_threshold = None  # outside a selection an unmapped wall is always fitted in full
     return fitter.selections[key]
 
 
@@ -245,6 +248,7 @@ def _forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start:
                 tasks.append(FitTask((*count, e), {k: v for k, v in init.items() if k not in ("x", "y", "cps_at_1m")},
                                      3, f"{label} (grid starts)", cache=False))
                 owner.append(e)
+        fitter.wall_threshold = alpha / len(todo)
         side = {}
         if "gain_drift" in todo and getattr(spectral_fit, "value", None) is None and hasattr(spectral_fit, "compute"):
             side["spectral"] = spectral_fit.compute
@@ -278,6 +282,8 @@ def _forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start:
             lp, null = null_log10_p(e, lr, k, scenario, frames, getattr(ext, "wall_looks", None))
             if phi > 1.0:
                 null += f" on LR / {phi:.3g} (over-dispersion)"
+            if getattr(ext, "screened_only", False):
+                null += "; LR from the shadow screen (source held), a lower bound: too small to fit in full"
             cands.append(Candidate(e, lr, k, 2 * k - lr, lp, null, params, errors, fit=ext))
         thr = alpha / len(cands)
         for c in cands:
