@@ -14,7 +14,7 @@ import numpy as np
 import pydecay
 import xraydb
 from pydecay.nuclide import Nuclide
-from scipy import optimize
+from scipy import optimize, stats
 from scipy.special import ndtr
 
 from radseek.dataset import Frames
@@ -249,7 +249,10 @@ def calibrate(nuclide: str, shape: np.ndarray, counts: float, edges_keV: np.ndar
         return -n * float((p * np.log(np.maximum(q, 1e-12))).sum())
 
     x0 = (start or Crystal()).vector()
-    res = optimize.minimize(nll, x0, method="L-BFGS-B", bounds=BOUNDS, options={"maxiter": 200})
+    # stop at 1e-7 relative (0.01 in log-likelihood for 1e5 counts); finite differences of 1e-5 step over the
+    # Klein-Nishina sampling's jitter
+    res = optimize.minimize(nll, x0, method="L-BFGS-B", bounds=BOUNDS,
+                            options={"maxiter": 150, "ftol": 1e-7, "eps": 1e-5})
     return Crystal(*(float(v) for v in res.x))
 
 
@@ -350,6 +353,8 @@ def _fit(n: np.ndarray, E: np.ndarray, q_shape: np.ndarray | None, same: bool, c
 
 #: the log-likelihood (over-dispersion scaled) by which the best nuclide must beat the runner-up
 GAP_MIN = 5.0
+#: the transported shapes' own error, nats per second-source count (KL divergence); beyond it: none fits
+MISFIT_PER_COUNT = 0.045
 
 
 @dataclass
@@ -369,6 +374,8 @@ class NuclideChoice:
     crystal: Crystal | None = None
     #: expected second-source counts in the flight (the count model's, times the spectral fit's scale)
     second_counts: float = 0.0
+    #: nats per second-source count by which the free shape beats the best nuclide, beyond noise
+    misfit: float = 0.0
 
 
 def identify_second_nuclide(frames: Frames, edges_keV: np.ndarray, primary_nuclide: str,
@@ -403,13 +410,13 @@ def identify_second_nuclide(frames: Frames, edges_keV: np.ndarray, primary_nucli
     # the crystal: fitted on the primary's own channel shares, then each candidate's lines through it
     p_counts = float(E[:, 0].sum() * free.p.sum())
     crystal = calibrate(primary_nuclide, free.p, p_counts, edges)
-    ll: dict[str, float] = {}
+    fits: dict[str, _Fit] = {}
     for name in names:
         if name == primary_nuclide:
-            ll[name] = same.ll
+            fits[name] = same
             continue
-        q = channel_shape(name, edges, crystal)
-        ll[name] = _fit(n, E, q, False, const, start=free).ll
+        fits[name] = _fit(n, E, channel_shape(name, edges, crystal), False, const, start=free)
+    ll = {name: f.ll for name, f in fits.items()}
     # over-dispersion of the most flexible fit (Pearson): 3 free shapes of K - 1 and 3 scales
     dof = max(int((free.mu > 0).sum()) - 3 * K, 1)
     pearson = float((((n - free.mu) ** 2) / np.maximum(free.mu, 1e-9)).sum())
@@ -419,12 +426,24 @@ def identify_second_nuclide(frames: Frames, edges_keV: np.ndarray, primary_nucli
     gap = ll[best] - ll[runner] if runner else float("inf")
     gain_free = free.ll - same.ll
     explained = (ll[best] - same.ll) / gain_free if gain_free > 0 else float("nan")
-    s_counts = float(E[:, 2].sum() * free.q.sum())
-    chosen = best if gap / disp >= GAP_MIN else None
-    if chosen is None:
+    s_counts = float(E[:, 2].sum() * fits[best].q.sum())
+    # none of the candidates: the free shape beats the best by more than noise (chi-square, K - 1 dof) and
+    # by more than the transport's own error (MISFIT_PER_COUNT nats per second-source count)
+    excess = (free.ll - ll[best]) / disp
+    misfit = max(excess - (K - 1) / 2, 0.0) / max(s_counts, 1.0)
+    unlisted = 2 * excess > stats.chi2.isf(1e-3, K - 1) and misfit > MISFIT_PER_COUNT
+    if unlisted:
+        chosen = None
+        note = (f"second source's nuclide undetermined: none of {', '.join(names)} fits its spectrum (best "
+                f"{best} leaves {misfit:.3f} nats per count, over {MISFIT_PER_COUNT:g}; ~{s_counts:.0f} counts)")
+    elif gap / disp >= GAP_MIN:
+        chosen = best
+        same_as = "same as the primary" if chosen == primary_nuclide else "not the primary"
+        note = (f"second source is {chosen} ({same_as}): log-likelihood {gap / disp:.1f} above {runner}, "
+                f"~{s_counts:.0f} second-source counts")
+    else:
+        chosen = None
         note = (f"second source's nuclide undetermined: {best} leads {runner} by only {gap / disp:.1f} in "
                 f"log-likelihood (needs {GAP_MIN:g}; ~{s_counts:.0f} second-source counts)")
-    else:
-        note = (f"second source is {chosen} ({'same as the primary' if chosen == primary_nuclide else 'not the primary'}"
-                f"): log-likelihood {gap / disp:.1f} above {runner}, ~{s_counts:.0f} second-source counts")
-    return NuclideChoice(chosen, ll, runner, float(gap), note, disp, free.ll, float(explained), crystal, s_counts)
+    return NuclideChoice(chosen, ll, runner, float(gap), note, disp, free.ll, float(explained), crystal, s_counts,
+                         float(misfit))
