@@ -1,7 +1,8 @@
 """Which nuclide the second source is (estimator.diagnose.nuclide), checked on flights built from MEASURED spectra.
 
 The synthetic flights draw their counts from RadiaCode-102 measurements (shared/real-spectra: Cs-137, Co-60,
-Ba-133, Eu-152 check sources, background subtracted by live time, and the room background), rebinned onto the
+Ba-133, Eu-152 check sources, background subtracted by live time, the room background, and Am-241 measured on
+another RC-102), rebinned onto the
 shared datasets' comparator edges with ``benchmarks.forward2`` (an independent forward model's rebinning): the
 identification never saw these shapes, it knows only pydecay's line energies and xraydb's cross-sections.
 """
@@ -42,6 +43,8 @@ def measured(name: str) -> np.ndarray:
     bg = read_spectrum(Path(REAL_SPECTRA) / "bg.xml")
     if name == "bg":
         c = bg.rebin(EDGES)
+    elif name == "Am-241":  # another RC-102, no background of its own: ~500 cps of source against ~5 of room
+        c = read_spectrum(Path(REAL_SPECTRA) / "data_am241.n42").rebin(EDGES)
     else:
         s = read_spectrum(Path(REAL_SPECTRA) / FILES[name])
         c = np.clip(s.rebin(EDGES) - bg.rebin(EDGES) * s.live_time_s / bg.live_time_s, 0.0, None)
@@ -50,11 +53,13 @@ def measured(name: str) -> np.ndarray:
 
 def flight(primary: str, second: str, second_cps: float, seed: int, primary_cps: float = 2000.0,
            background_cps: float = 30.0, dwells: int = 40, dwell_s: float = 5.0, frame_s: float = 0.1,
-           scatter_per_m: float = 0.0, data_second_cps: float | None = None
+           scatter_per_m: float = 0.0, data_second_cps: float | None = None, model_offset_m: float = 0.0
            ) -> tuple[Frames, dict[str, np.ndarray]]:
     """A dwell-only flight: ``dwells`` hover points at 1-2 m over a 12 m x 9 m field, a primary source and
     a second one 4-5 m apart on the floor; per-frame counts drawn from the measured shapes. Returns the frames
-    and the true expected total counts per frame of each component (inverse square, as the count model)."""
+    and the true expected total counts per frame of each component (inverse square, as the count model);
+    ``model_offset_m``: the expected second-source counts are those of a source that far off the true one
+    (a count fit that placed it wrong), ``data_second_cps``: the strength in the data when not the model's."""
     rng = np.random.default_rng(seed)
     s1 = np.array([3.5 + rng.uniform(-0.5, 0.5), 5.0 + rng.uniform(-0.5, 0.5), 0.0])
     s2 = np.array([8.0 + rng.uniform(-0.5, 0.5), 3.0 + rng.uniform(-0.5, 0.5), 0.0])
@@ -71,8 +76,10 @@ def flight(primary: str, second: str, second_cps: float, seed: int, primary_cps:
     t = np.cumsum(dur)
     d1 = ((pos - s1) ** 2).sum(1)
     d2 = ((pos - s2) ** 2).sum(1)
-    e = {"primary": primary_cps / d1 * dur, "second": second_cps / d2 * dur, "background": background_cps * dur}
-    e2 = e["second"] if data_second_cps is None else data_second_cps / d2 * dur
+    s2_model = s2 + np.array([model_offset_m, 0.0, 0.0])
+    e = {"primary": primary_cps / d1 * dur, "second": second_cps / ((pos - s2_model) ** 2).sum(1) * dur,
+         "background": background_cps * dur}
+    e2 = (second_cps if data_second_cps is None else data_second_cps) / d2 * dur
     # scattered photons grow with distance (the primary's shape changes along the flight): a share
     # min(scatter_per_m d, 0.5) of each source's counts is the forward model's down-scattered continuum
     sc = scatter_response().channel_probs(EDGES, np.ones(1))[0]
@@ -146,7 +153,7 @@ def test_shapes_carried_from_the_primary_match_the_measured_spectra():
 
 
 @needs_spectra
-@pytest.mark.parametrize("second", ["Co-60", "Ba-133", "Eu-152", "Cs-137"])
+@pytest.mark.parametrize("second", ["Co-60", "Ba-133", "Eu-152", "Cs-137", "Am-241"])
 def test_second_nuclide_named_under_a_cs137_primary(second):
     # strong (1300 cps at 1 m, ~40k counts) and moderate (~60-100 cps, ~2-3k counts) second sources: at the
     # dwells near it the second source gives about as many counts as the primary 4-5 m away
@@ -249,3 +256,12 @@ def test_two_cs137_sources_dataset_calls_the_second_cs137():
     assert time.process_time() - t0 < 10.0
     assert choice.nuclide == "Cs-137", choice.note
     assert choice.gap / choice.dispersion > 100  # ~20k second-source counts: not a close call
+
+
+@needs_spectra
+def test_a_misplaced_count_fit_still_names_the_nuclide():
+    # the count fit put the second source 1 m off and half as strong as it is: the expected counts per dwell
+    # are wrong, the scales and the over-dispersion take it, the nuclide is still named
+    f, e = flight("Cs-137", "Eu-152", 50.0, 7, model_offset_m=1.0, data_second_cps=100.0)
+    choice = identify_timed(f, e, "Cs-137")
+    assert choice.nuclide == "Eu-152", choice.note

@@ -1,6 +1,48 @@
 """Which nuclide is the second source? (issue 30): line energies from the library, the crystal from the flight.
 
-DRAFT
+When ``radseek diagnose`` finds a ``second_source``, the count model gives the expected total counts per frame
+of the primary (E_P), the second source (E_S) and the background (E_B). The flight's 32-channel spectra then say
+which nuclide the second source is. Frames are summed into groups g (a dwell, or <= 2 s of transit: the
+component mix is nearly constant inside one) and
+
+    n_gk ~ Poisson(E_P,g p_k + E_B,g b_k + E_S,g a Q_k)
+
+- ``p`` and ``b``, the primary's and the background's channel spectra, are FREE (31 shape parameters and a scale
+  each): estimated from the flight itself, so the answer does not depend on how a template looks (a real
+  RadiaCode-102 CsI(Tl) spectrum differs from any), nor on the count model's absolute strengths (the scales
+  absorb them);
+- ``Q`` is the hypothesis: for "same nuclide as the primary" Q = p (the flight's own primary shape, exactly);
+  for another candidate nuclide, Q is predicted: its photon lines (pydecay, ICRP-107, with short-lived
+  daughters) carried through a small physical response of the crystal (``Crystal``) that is FITTED ON THE
+  PRIMARY'S OWN SPECTRUM p: photopeak and Klein-Nishina Compton continuum with the scattered photon's escape,
+  photo/Compton attenuation of CsI from xraydb, Gaussian resolution growing as sqrt(E), backscatter and
+  down-scatter from the surroundings, a gain. So the crystal's shape is learned at the primary's line(s) and
+  transported to the candidate's lines; line energies and cross-sections come from the libraries.
+
+Each hypothesis is fitted by EM (the Poisson likelihood is concave in p, b, a for a fixed Q) and scored by its
+maximised log-likelihood; all candidate hypotheses have the same number of free parameters, so the log-likelihoods
+compare directly (no BIC penalty needed).
+
+Design choices, and why:
+- design (a) of the issue, with Q *predicted* rather than free: a free Q compared afterwards with predictions
+  loses power, and refitting the crystal per candidate (tried) lets wrong nuclides bend towards the data
+  (measured Eu-152: Co-60 and K-40 come within 2x of Eu-152's own misfit), while the crystal fixed by the primary
+  keeps them 7x-30x apart (measured shapes, KL divergence);
+- the verdict needs the best nuclide to beat the runner-up by ``GAP_MIN`` = 5 in log-likelihood (a likelihood
+  ratio e^5 ~ 150): by Royall's bound the chance that data from one simple hypothesis favour another by a
+  ratio k is <= 1/k, here 0.7 %; gaps are divided by the free fit's Pearson over-dispersion (>= 1) first, a
+  quasi-likelihood guard when the spectra scatter more than Poisson. Below it: ``None`` (undetermined);
+- "none of the candidates": the fit with Q free is the ceiling; when it beats the best nuclide beyond noise
+  (chi-square, K - 1 dof, p < 1e-3) AND by more than ``MISFIT_PER_COUNT`` = 0.045 nats per second-source count
+  (the transported shapes' own error: <= 0.038 measured on real RadiaCode-102 Co-60 / Ba-133 / Eu-152 / Cs-137
+  spectra in the tests; a strong source whose nuclide is missing from the list left >= 0.057), the answer is
+  ``None`` rather than the nearest neighbour.
+
+Limits: the primary's shape is taken as one shape along the flight (a shape changing with distance ends in the
+over-dispersion and the free-shape ceiling, making the verdict more cautious, not wrong in the tests); no gain
+drift; the transport was checked on one device's spectra (RC-102, 10 mm CsI); Am-241 and K-40 were not
+measured as second sources here; between Ba-133 and Eu-152, whose low-energy parts look alike, a moderate source
+of one with the other missing from the candidates can still be named as the other.
 """
 
 from __future__ import annotations
