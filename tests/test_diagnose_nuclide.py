@@ -265,3 +265,14 @@ def test_a_misplaced_count_fit_still_names_the_nuclide():
     f, e = flight("Cs-137", "Eu-152", 50.0, 7, model_offset_m=1.0, data_second_cps=100.0)
     choice = identify_timed(f, e, "Cs-137")
     assert choice.nuclide == "Eu-152", choice.note
+
+
+@needs_spectra
+def test_a_primary_unknown_to_the_library_falls_back_to_the_nominal_crystal():
+    f, e = flight("Cs-137", "Co-60", 300.0, 5)
+    choice = identify_second_nuclide(f, EDGES, "Unobtainium", e["primary"], e["second"], e["background"],
+                                     candidates=("Co-60", "Ba-133"))
+    assert choice.nuclide == "Co-60" and "not fitted" in choice.note
+    with pytest.raises(ValueError, match="unknown nuclide"):
+        identify_second_nuclide(f, EDGES, "Cs-137", e["primary"], e["second"], e["background"],
+                                candidates=("Co-60", "Xx-999"))

@@ -451,7 +451,11 @@ def identify_second_nuclide(frames: Frames, edges_keV: np.ndarray, primary_nucli
     same = _fit(n, E, None, True, const, start=free)
     # the crystal: fitted on the primary's own channel shares, then each candidate's lines through it
     p_counts = float(E[:, 0].sum() * free.p.sum())
-    crystal = calibrate(primary_nuclide, free.p, p_counts, edges)
+    try:
+        crystal = calibrate(primary_nuclide, free.p, p_counts, edges)
+        uncalibrated = ""
+    except ValueError:  # a primary pydecay does not know: the nominal crystal, and say so
+        crystal, uncalibrated = Crystal(), f" (crystal not fitted: {primary_nuclide!r} has no library lines)"
     fits: dict[str, _Fit] = {}
     for name in names:
         if name == primary_nuclide:
@@ -487,5 +491,5 @@ def identify_second_nuclide(frames: Frames, edges_keV: np.ndarray, primary_nucli
         chosen = None
         note = (f"second source's nuclide undetermined: {best} leads {runner} by only {gap / disp:.1f} in "
                 f"log-likelihood (needs {GAP_MIN:g}; ~{s_counts:.0f} second-source counts)")
-    return NuclideChoice(chosen, ll, runner, float(gap), note, disp, free.ll, float(explained), crystal, s_counts,
-                         float(misfit))
+    return NuclideChoice(chosen, ll, runner, float(gap), note + uncalibrated, disp, free.ll, float(explained),
+                         crystal, s_counts, float(misfit))
