@@ -276,3 +276,14 @@ def test_a_primary_unknown_to_the_library_falls_back_to_the_nominal_crystal():
     with pytest.raises(ValueError, match="unknown nuclide"):
         identify_second_nuclide(f, EDGES, "Cs-137", e["primary"], e["second"], e["background"],
                                 candidates=("Co-60", "Xx-999"))
+
+
+def test_crystal_attenuation_keeps_falling_above_xraydbs_tables():
+    # xraydb's Elam tables stop at 800 keV (they return the 800 keV values above): the Compton part must follow
+    # Klein-Nishina there and the photoelectric part keep falling, or Co-60's peaks come out 1.5x too strong
+    from estimator.diagnose.nuclide import mu_crystal
+
+    e = np.array([662.0, 800.0, 1173.0, 1332.0, 1461.0])
+    ph, co = mu_crystal(e)
+    assert np.all(np.diff(ph) < 0) and np.all(np.diff(co) < 0)
+    assert co[3] / co[1] == pytest.approx(0.78, abs=0.02)  # Klein-Nishina sigma(1332) / sigma(800)
