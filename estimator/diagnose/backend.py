@@ -153,6 +153,10 @@ class CountFitter:
     #: the p-value an effect must beat at the current selection step (alpha / candidates): an unmapped wall whose
     #: shadow screen is far from what that needs is not fitted in full (``_fit_wall``)
     wall_threshold: float | None = None
+    #: parameters held at their start values (a selection step holds the placement of the unmapped walls already
+    #: in the model while it tests other effects: the LR is then a lower bound, and a walled fit costs a third);
+    #: fits with held parameters are not cached
+    hold: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         self.fit_frames = split_transit_legs(self.frames)
@@ -209,11 +213,16 @@ class CountFitter:
         model = self.model(key)
         names = set(model.param_names)
         init = {k: float(v) for k, v in (init or {}).items() if k in names}
+        held = {k: init[k] for k in self.hold if k in init}
+        if held:
+            model = model.with_params(**{k: {"value": v, "fixed": True} for k, v in held.items()})
         res = fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
                         pose_uncertainty=True, init=init or None)
         progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
                  f"({time.perf_counter() - t0:.1f} s)", self.quiet)
-        if key not in self._cache or res.nll < self._cache[key].nll:
+        if held:
+            res.held = tuple(held)
+        elif key not in self._cache or res.nll < self._cache[key].nll:
             self._cache[key] = res
         return res
 
@@ -313,7 +322,7 @@ class CountFitter:
                 progress_bar(label, done, total, t0, self.quiet)
         for i in todo:
             key = count_key(tasks[i].effects)
-            if tasks[i].cache and not getattr(out[i], "screened_only", False) and \
+            if tasks[i].cache and not getattr(out[i], "screened_only", False) and not getattr(out[i], "held", ()) and \
                     (key not in self._cache or out[i].nll < self._cache[key].nll):
                 self._cache[key] = out[i]
         return out, side_out

@@ -55,6 +55,8 @@ from estimator.diagnose.residuals import aggregate, group_mean, pearson, segment
 from radseek.dataset import Frames, Scenario
 
 ANISO_LOOKS = 10
+#: an unmapped wall's placement parameters (held while a step tests other effects)
+PLACEMENT = ("r", "phi_deg", "tilt_deg", "length")
 BOUNDARY_ONE = ("dead_time", "wall_attenuation", "air_attenuation", "over_dispersion")
 
 
@@ -194,6 +196,7 @@ def forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start: 
             fitter.selections[key] = _forward_select(fitter, spectral_fit, start, alpha, max_steps, quiet)
         finally:
             fitter.wall_threshold = None  # outside a selection an unmapped wall is always fitted in full
+            fitter.hold = ()
     return fitter.selections[key]
 
 
@@ -249,6 +252,7 @@ def _forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start:
                                      3, f"{label} (grid starts)", cache=False))
                 owner.append(e)
         fitter.wall_threshold = alpha / len(todo)
+        fitter.hold = tuple(f"{w}.{k}" for w in WALLS if w in count for k in PLACEMENT)
         side = {}
         if "gain_drift" in todo and getattr(spectral_fit, "value", None) is None and hasattr(spectral_fit, "compute"):
             side["spectral"] = spectral_fit.compute
