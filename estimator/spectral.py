@@ -35,12 +35,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import stats
 from scipy.interpolate import PchipInterpolator
 
 from radseek.dataset import Frames
 
 LOW_EXTENSION = 0.2  # the first energy bin reaches this fraction below the threshold
+FIRST_CHANNEL = 0
+C_FLOOR = 1e-12  # the scattered-continuum template's masses stay above this (log parameters)
 SUB_BINS = 3  # template bins per channel: a 7 % FWHM photopeak is about one channel wide
 
 
@@ -220,13 +222,15 @@ class SpectralFit:
     deviance_per_dof_null: float  # spectral deviance per dof at zero drift
     deviance_per_dof: float
     nuisance: np.ndarray | None = None  # (32,) the template-mismatch template (None when not fitted)
+    pearson_per_dof: float = float("nan")  # Pearson chi-square per dof of the drifting fit
 
     @property
     def dispersion(self) -> float:
-        """Over-dispersion of the no-drift fit (>= 1). When the two-template model itself misfits (the source
-        spectrum changing shape along the flight, e.g. air-scattered photons outdoors), the drift parameter
-        can soak up part of that misfit; the likelihood ratio is then scaled by this factor (quasi-likelihood)."""
-        return max(1.0, float(self.deviance_per_dof_null))
+        """Over-dispersion of the spectral fit (>= 1): the Pearson chi-square per dof of the drifting fit (the
+        no-drift deviance when that is not known). The likelihood ratio is divided by it (quasi-likelihood), a
+        guard against misfit the model has no term for; misfit the drift explains does not count against it."""
+        v = self.pearson_per_dof if np.isfinite(self.pearson_per_dof) else self.deviance_per_dof_null
+        return max(1.0, float(v))
 
     @property
     def lr_scaled(self) -> float:
@@ -253,13 +257,16 @@ class SpectralModel:
     """Source + background spectral templates with a linear gain drift; see the module docstring."""
 
     def __init__(self, edges: np.ndarray, sub: int = SUB_BINS, source_template: np.ndarray | None = None,
-                 nuisance: bool = True):
+                 nuisance: bool = False, first_channel: int = FIRST_CHANNEL):
         self.edges = np.asarray(edges, dtype=float)
         self.sub = sub
         #: a third free template with free group amplitudes: the source spectrum's shape may change along the
         #: flight (scattered photons grow with distance, a crystal unlike the templates), and drift must not be
         #: the only way the model can follow that (template mismatch as a nuisance)
         self.nuisance = nuisance
+        #: channels below this are left out of the spectral likelihood (the threshold channel: its drift signal is
+        #: the density just below the threshold, which the channel counts never show)
+        self.first_channel = first_channel
         #: (32,) source masses per energy bin from a calibrated detector file, held fixed in the fit; None = free
         self.source_template = None if source_template is None else np.asarray(source_template, dtype=float)
 
@@ -327,9 +334,10 @@ class SpectralModel:
         R = response(self.edges, 1.0 + pct / 100.0 * t / 60.0, self.sub)
         return tuple(R @ sh for sh in shapes)
 
-    def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple) -> tuple[float, tuple]:
+    def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple,
+                iters: int = 3000) -> tuple[float, tuple]:
         Ms, Mb, *Mc = self._responses(pct, t, shapes)
-        return _em(Ms, Mb, n, x0, fix_s=self.source_template is not None, Mc=Mc[0] if Mc else None)
+        return _em(Ms, Mb, n, x0, iters=iters, fix_s=self.source_template is not None, Mc=Mc[0] if Mc else None)
 
     def expected(self, x: tuple, pct: float, t: np.ndarray, shapes: tuple) -> np.ndarray:
         Ms = self._responses(pct, t, shapes)
@@ -338,82 +346,314 @@ class SpectralModel:
 
     def fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
             max_shift: float = 0.15) -> SpectralFit:
-        """Fit with zero drift and (if ``drift``) with the drift profiled over |shift| <= ``max_shift``.
+        """Fit with zero drift and (if ``drift``) with the drift free, |shift| <= ``max_shift`` over the flight.
 
-        The profile is searched on a grid, then by Brent's method around the best grid point, each point a
-        warm-started refit; the zero-drift fit is redone from the best drift solution so that an
-        under-converged null cannot fake evidence.
+        Every fit is damped Fisher scoring on all parameters at once (template log masses, the distance
+        nuisance, group log amplitudes and the drift itself); the drifting fit starts from the no-drift one and
+        from two drifts either side, and the best is kept (never worse than the null).
         """
-        n, t, lab = self._prepare(frames, labels)
-        x_start = self._start(n)
-        if self.source_template is not None:
+        n_all, t, lab = self._prepare(frames, labels)
+        g_, k = n_all.shape
+        used = np.ones(k, dtype=bool)
+        used[: self.first_channel] = False
+        n = n_all[:, used]
+        x_start = self._start(n_all)
+        fix_s = self.source_template is not None
+        if fix_s:
             x_start = (self.source_template, *x_start[1:])
-        sat = _poisson_nll(np.maximum(n, 1e-300), n)
-        g_, k = n.shape
-
-        def dof_of(n_t: int) -> int:  # group totals fixed; (n_t - 1) fractions per group; n_t templates of k - 1
-            return max(n.size - g_ - (n_t - 1) * g_ - n_t * (k - 1), 1)
-
         flat = (self.shape(None),) * 2
-        _, xc = self._fit_at(0.0, n, t, x_start, flat)
-        shapes = (self.shape(xc[0]), self.shape(xc[1]))
-        nll0, x0 = self._fit_at(0.0, n, t, xc, shapes)
-        n_t = 2
-        disp2 = 2 * (nll0 - sat) / dof_of(2)
-        # template mismatch: the two-template null misfits by more than 3 sd of its deviance/dof -> the
-        # mismatch template joins (decided on the null fit alone, so the drift test stays calibrated); with no
-        # mismatch it stays out, since it can also follow part of a drift and costs power
-        if self.nuisance and g_ >= 4 and disp2 > 1 + 3 * np.sqrt(2.0 / dof_of(2)):
-            lo, hi = energy_bins(self.edges, 1)
-            c0 = np.exp(-(lo + hi) / 2 / 300.0) * (hi - lo)  # a smooth low-energy continuum (scattered photons)
-            x3 = (*xc, c0 / c0.sum(), 0.1 * xc[2] + 1e-3 * n.sum(1))
-            _, xc3 = self._fit_at(0.0, n, t, x3, (*shapes, self.shape(None)))
-            shapes3 = (self.shape(xc3[0]), self.shape(xc3[1]), self.shape(xc3[4]))
-            nll3, x03 = self._fit_at(0.0, n, t, xc3, shapes3)
-            if nll3 < nll0:
-                n_t, nll0, x0, shapes = 3, nll3, x03, shapes3
-        dof = dof_of(n_t)
-        res = dict(pct=0.0, err=float("nan"), nll=nll0, x=x0)
+        _, xc = self._fit_at(0.0, n_all, t, x_start, flat, iters=300)
+        tau = self._durations(frames, lab, g_)
+        fitter = _Scorer(self.edges, t, n, used, (xc[0], xc[1]), fix_s, tau)
+        # EM leaves exact zeros (a zero mass never moves again under log steps, and a drift moving mass into a
+        # cell the model holds empty would freeze the drift): floor the masses
+        qs, qb = (np.maximum(q, 1e-7 * q.max()) for q in xc[:2])
+        bb = np.array([np.log(max(float(xc[3].sum() * qb.sum()), 1e-300) / tau.sum()), 0.0])
+        p0 = dict(qs=qs / qs.sum(), qb=qb / qb.sum(), a_s=np.maximum(xc[2], 1e-6 * xc[2].max()) * qs.sum(),
+                  bb=bb, a_b=fitter.background(bb), c=None, gamma=0.0)
+        nll0, p0 = fitter.fit(p0, None, gamma_free=False)
+        z = self._distance(p0["a_s"], frames, lab, g_) if self.nuisance else None
+        if z is not None:
+            nll0, p0 = fitter.fit(dict(p0, c=np.full(k, 1e-3 / k)), z, gamma_free=False)
+        res = dict(nll=nll0, p=p0)
+        err = float("nan")
         if drift and t.max() > 0:
             gmax = max_shift * 100.0 * 60.0 / max(float(t.max()), 1.0)
-            cache: dict[float, tuple[float, tuple]] = {0.0: (nll0, x0)}
-
-            def prof(p: float) -> float:
-                p = float(np.clip(p, -gmax, gmax))
-                if p not in cache:
-                    near = min(cache, key=lambda q: abs(q - p))
-                    cache[p] = self._fit_at(p, n, t, cache[near][1], shapes)
-                return cache[p][0]
-
-            grid = np.linspace(-gmax, gmax, 7)
-            for g in grid:
-                prof(g)
-            i0 = int(np.argmin([prof(g) for g in grid]))
-            lo_b, hi_b = grid[max(i0 - 1, 0)], grid[min(i0 + 1, len(grid) - 1)]
-            optimize.minimize_scalar(prof, bounds=(lo_b, hi_b), method="bounded",
-                                     options={"xatol": (hi_b - lo_b) * 1e-3, "maxiter": 15})
-            best = min(cache, key=lambda q: cache[q][0])
-            f_best = cache[best][0]
-            # redo the null from the best solution: the smaller null nll wins
-            f0b, x0b = self._fit_at(0.0, n, t, cache[best][1], shapes)
-            if f0b < nll0:
-                nll0, x0 = f0b, x0b
-            if f_best > nll0:
-                best, f_best = 0.0, nll0
-            hh = max(abs(best) * 0.2, gmax * 0.02)
-            curv = (prof(best + hh) - 2 * prof(best) + prof(best - hh)) / hh**2
-            err = float(1.0 / np.sqrt(curv)) if curv > 0 else float("nan")
-            res = dict(pct=best, err=err, nll=f_best, x=cache[best][1] if best != 0.0 else x0)
-        exp0 = self.expected(x0, 0.0, t, shapes)
-        exp1 = self.expected(res["x"], res["pct"], t, shapes)
+            fitter.gmax = gmax
+            for g0 in (0.0, gmax / 4, -gmax / 4):
+                nll1, p1 = fitter.fit(dict(p0, gamma=g0), z, gamma_free=True)
+                if nll1 < res["nll"]:
+                    res = dict(nll=nll1, p=p1)
+            # the null again from the drifting solution and the drift from the null, until neither improves
+            # (the template fit has flat directions along which scoring crawls: a better null optimum found
+            # from elsewhere must not count as evidence, nor a better drifting one be missed)
+            for _ in range(4):
+                nll0b, p0b = fitter.fit(dict(res["p"], gamma=0.0), z, gamma_free=False)
+                nll1, p1 = fitter.fit(dict(p0b, gamma=res["p"]["gamma"]), z, gamma_free=True)
+                better = max(nll0 - nll0b, res["nll"] - nll1)
+                if nll0b < nll0:
+                    nll0, p0 = nll0b, p0b
+                if nll1 < res["nll"]:
+                    res = dict(nll=nll1, p=p1)
+                if better < 0.05:
+                    break
+            var = fitter.variance(res["p"], z)
+            err = float(np.sqrt(var)) if var > 0 else float("nan")
+        p1 = res["p"]
+        # cells, minus group amplitudes, template masses (mass sums fixed), the nuisance, and the drift
+        n_par = g_ + 2 + (1 if fix_s else 2) * (used.sum() - 1) + (used.sum() if z is not None else 0)
+        dof = max(n.size - n_par, 1)
+        sat = _poisson_nll(np.maximum(n, 1e-300), n)
+        mu1 = fitter.mu(p1, z)
+        # Pearson chi-square per dof over the cells expecting >= 2 counts (a cell expecting 0.01 that holds one
+        # count adds 100: a few such cells would scale a real drift away), dof in proportion
+        big = mu1 >= 2.0
+        pearson = float(((n - mu1)[big] ** 2 / mu1[big]).sum() / max((dof - 1) * big.mean(), 1.0))
         lr = max(2 * (nll0 - res["nll"]), 0.0)
-        s0, b0, A0, B0 = x0[:4]
+        disp = max(1.0, pearson)
         return SpectralFit(
-            percent_per_min=float(res["pct"]), error=float(res["err"]), nll=float(res["nll"]), nll_null=nll0, lr=lr,
-            p_value=float(stats.chi2.sf(lr / max(1.0, 2 * (nll0 - sat) / dof), 1)), counts=n, expected=exp1,
-            expected_null=exp0, group_t=t, labels=lab,
-            templates=np.vstack([s0, b0]), weights=A0 / np.maximum(A0 + B0, 1e-300),
+            percent_per_min=float(p1["gamma"]), error=err * np.sqrt(disp), nll=float(res["nll"]), nll_null=nll0,
+            lr=lr, p_value=float(stats.chi2.sf(lr / disp, 1)), counts=n_all,
+            expected=fitter.mu(p1, z, full=True), expected_null=fitter.mu(p0, z, full=True), group_t=t, labels=lab,
+            templates=np.vstack([p0["qs"], p0["qb"]]), weights=p0["a_s"] / np.maximum(p0["a_s"] + p0["a_b"], 1e-300),
             deviance_per_dof_null=2 * (nll0 - sat) / dof,
             deviance_per_dof=2 * (float(res["nll"]) - sat) / max(dof - 1, 1),
-            nuisance=x0[4] if len(x0) > 4 else None,
+            nuisance=p0["c"], pearson_per_dof=pearson,
         )
+
+    @staticmethod
+    def _durations(frames: Frames, lab: np.ndarray, g_: int) -> np.ndarray:
+        """(G,) live durations of the groups (frames counted as one unit each when durations are unknown)."""
+        dur = getattr(frames, "duration", None)
+        dur = np.ones(len(lab)) if dur is None else np.asarray(dur, dtype=float)
+        ok = lab >= 0
+        return np.maximum(np.bincount(lab[ok], weights=dur[ok], minlength=g_)[:g_], 1e-9)
+
+    def _distance(self, a_s: np.ndarray, frames: Frames, lab: np.ndarray, g_: int) -> np.ndarray | None:
+        """(G,) the covariate of the shape nuisance: the distance proxy d = (source rate)^-1/2 (proportional to
+        the distance for an inverse-square source) minus its smallest value, in units of its sd (weights:
+        source counts); None when the distance hardly varies (the nuisance would only duplicate the source
+        template)."""
+        tau = self._durations(frames, lab, g_)
+        rate = a_s / np.maximum(tau, 1e-9)
+        rate = np.maximum(rate, 1e-3 * max(float(rate.max()), 1e-300))
+        d = rate ** -0.5
+        w = a_s / max(float(a_s.sum()), 1e-300)
+
+        m = float(w @ d)
+        sd = float(np.sqrt(w @ (d - m) ** 2))
+        if g_ < 4 or sd < 0.02 * m:
+            return None
+        return np.minimum((d - d.min()) / sd, 8.0)
+
+
+class _Scorer:
+    """Damped Fisher scoring of the spectral model on the used channels of the group counts ``n``:
+
+        mu_gk = A_g (M_S(a_g) q_S + z_g M_F(a_g) c)_k + B_g (M_B(a_g) q_B)_k,    a_g = 1 + gamma / 100 * t_g / 60
+
+    with log parameters for the template masses q and the amplitudes A, B, and linear ones for the (signed)
+    shape nuisance c and the drift gamma (percent per minute). M_T(a) = response(a) @ within-channel shape_T.
+    """
+
+    def __init__(self, edges: np.ndarray, t: np.ndarray, n: np.ndarray, used: np.ndarray,
+                 templates: tuple[np.ndarray, np.ndarray], fix_s: bool, tau: np.ndarray):
+        self.edges, self.t, self.n, self.used, self.fix_s = edges, t, n, used, fix_s
+        self.tau = np.asarray(tau, dtype=float)
+        self.tt = (t - t.mean()) / max(float(t.std()), 1e-9)
+        self.lo, self.hi = energy_bins(edges, 1)
+        knots = np.r_[self.lo[0], self.hi]
+        #: within-channel shapes, fixed: monotone cubics (PCHIP) through each template's cumulative mass
+        self.cdfs = [PchipInterpolator(knots, np.r_[0.0, np.cumsum(np.maximum(q, 0.0))]) for q in templates]
+        self.masses = [np.maximum(q, 0.0) for q in templates]
+        self.gmax = np.inf
+        self._cache: dict[float, tuple[np.ndarray, ...]] = {}
+
+    def background(self, bb: np.ndarray) -> np.ndarray:
+        """(G,) background amplitudes: duration x exp(b0 + b1 t~), t~ the standardised group time."""
+        return self.tau * np.exp(bb[0] + bb[1] * self.tt)
+
+    def mats(self, gamma: float) -> tuple[np.ndarray, ...]:
+        """(M_S, M_B, M_F) at drift gamma, each (G, channels, energy bins): the fraction of energy bin j
+        recorded in channel k, integrated exactly over the stretched channel boundaries (no sub-bins: a
+        piecewise-constant sub-bin leaks mass over an edge where the density has fallen to zero)."""
+        key = float(gamma)
+        if key not in self._cache:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            a = 1.0 + key / 100.0 * self.t / 60.0
+            c = self.edges[None, :] / a[:, None]
+            c[:, -1] = np.inf
+            X = np.clip(c[:, :, None], self.lo[None, None, :], self.hi[None, None, :])  # (G, 33, 32)
+            flat = np.diff(X, axis=1) / (self.hi - self.lo)[None, None, :]
+            out = []
+            for cdf, m in zip(self.cdfs, self.masses, strict=True):
+                ok = m > 1e-12 * m.max()
+                P = np.diff(cdf(X), axis=1) / np.where(ok, m, 1.0)[None, None, :]
+                out.append(np.where(ok[None, None, :], np.clip(P, 0.0, None), flat))
+            self._cache[key] = (*out, flat)
+        return self._cache[key]
+
+    def parts(self, p: dict, z: np.ndarray | None, gamma: float | None = None, full: bool = False) -> tuple:
+        """(source, background) channel masses per group: M_S q_S + z_g M_F c (the scattered continuum,
+        growing with distance) and M_B q_B."""
+        Ms, Mb, Mf = self.mats(p["gamma"] if gamma is None else gamma)
+        us = Ms @ p["qs"]
+        if z is not None and p["c"] is not None:
+            us = us + z[:, None] * (Mf @ p["c"])
+        ub = Mb @ p["qb"]
+        if not full:
+            us, ub = us[:, self.used], ub[:, self.used]
+        return us, ub
+
+    def mu(self, p: dict, z: np.ndarray | None, gamma: float | None = None, full: bool = False) -> np.ndarray:
+        us, ub = self.parts(p, z, gamma, full)
+        return p["a_s"][:, None] * us + p["a_b"][:, None] * ub
+
+    def nll(self, p: dict, z: np.ndarray | None) -> float:
+        mu = self.mu(p, z)
+        if (mu < 0).any() or ((mu <= 0) & (self.n > 0)).any():
+            return np.inf
+        return _poisson_nll(mu, self.n)
+
+    def jacobian(self, p: dict, z: np.ndarray | None, gamma_free: bool) -> tuple[np.ndarray, list[str]]:
+        """(cells, parameters) d mu / d (log q_S, c, log q_B, log A, log B, gamma), and the blocks' names.
+
+        Gauge freedoms are removed so that the Fisher matrix is regular: each template's largest mass is held
+        (its log masses and the amplitudes trade a common factor), and so is c there (a constant c only
+        rescales the amplitudes)."""
+        G, K = self.n.shape
+        Ms, Mb = (M[:, self.used, :] for M in self.mats(p["gamma"])[:2])
+        us, ub = self.parts(p, z)
+        cols, names = [], []
+
+        def drop_max(blk: np.ndarray, q: np.ndarray) -> np.ndarray:
+            return np.delete(blk, int(np.argmax(q)), axis=1)
+
+        if not self.fix_s:
+            cols.append(drop_max((p["a_s"][:, None, None] * Ms * p["qs"][None, None, :]).reshape(G * K, -1), p["qs"]))
+            names.append("qs")
+        if z is not None and p["c"] is not None:
+            Mf = self.mats(p["gamma"])[2][:, self.used, :]
+            cols.append(((p["a_s"] * z)[:, None, None] * Mf * p["c"][None, None, :]).reshape(G * K, -1))
+            names.append("c")
+        cols.append(drop_max((p["a_b"][:, None, None] * Mb * p["qb"][None, None, :]).reshape(G * K, -1), p["qb"]))
+        names.append("qb")
+        blk = np.zeros((G, K, G))
+        blk[np.arange(G), :, np.arange(G)] = us * p["a_s"][:, None]
+        cols.append(blk.reshape(G * K, G))
+        names.append("a_s")
+        # the background rate: log-linear in time, not free per group (free, it would follow a drift: a
+        # drifting spectrum is to first order the source plus a second spectrum growing with time)
+        jb = p["a_b"][:, None] * ub
+        cols.append(np.column_stack([jb.ravel(), (jb * self.tt[:, None]).ravel()]))
+        names.append("bb")
+        if gamma_free:
+            h = 1e-3
+            d = (self.mu(p, z, p["gamma"] + h) - self.mu(p, z, p["gamma"] - h)) / (2 * h)
+            cols.append(d.reshape(G * K, 1))
+            names.append("gamma")
+        return np.hstack(cols), names
+
+    def at_bounds(self, p: dict, names: list[str]) -> np.ndarray:
+        """(parameters,) -1 where a parameter sits on its lower bound (a mass or amplitude at its floor, c at
+        floor), else 0, in the Jacobian's column order."""
+        out = []
+        for nm in names:
+            if nm in ("gamma", "bb"):
+                out.append(np.zeros(1 if nm == "gamma" else 2))
+            elif nm == "c":
+                out.append(np.where(p["c"] <= 1.001 * C_FLOOR, -1.0, 0.0))
+            else:
+                v = p[nm] if nm in ("a_s", "a_b") else np.delete(p[nm], int(np.argmax(p[nm])))
+                out.append(np.where(v <= 1.001e-12 * p[nm].max(), -1.0, 0.0))
+        return np.concatenate(out)
+
+    def step(self, p: dict, names: list[str], delta: np.ndarray) -> dict:
+        q = dict(p)
+        i = 0
+        for nm in names:
+            m = 1 if nm == "gamma" else len(p[nm]) - (nm in ("qs", "qb"))
+            d = delta[i:i + m]
+            i += m
+            if nm == "bb":
+                q["bb"] = p["bb"] + np.clip(d, -3.0, 3.0)
+                q["a_b"] = self.background(q["bb"])
+            elif nm == "c":
+                q["c"] = np.maximum(p["c"] * np.exp(np.clip(d, -3.0, 3.0)), C_FLOOR)
+            elif nm == "gamma":
+                q["gamma"] = float(np.clip(p["gamma"] + d[0], -self.gmax, self.gmax))
+            else:  # floors keep masses away from denormals (which make every product slow)
+                if nm in ("qs", "qb"):
+                    d = np.insert(d, int(np.argmax(p[nm])), 0.0)
+                q[nm] = np.maximum(p[nm] * np.exp(np.clip(d, -3.0, 3.0)), 1e-12 * p[nm].max())
+        for tm, am in (("qs", "a_s"), ("qb", "a_b")):
+            s = q[tm].sum()
+            q[tm], q[am] = q[tm] / s, q[am] * s
+            if tm == "qb":
+                q["bb"] = q["bb"] + np.r_[np.log(s), 0.0]
+        return q
+
+    def fit(self, p: dict, z: np.ndarray | None, gamma_free: bool, iters: int = 200,
+            tol: float = 1e-6) -> tuple[float, dict]:
+        """Levenberg-Marquardt damped Fisher scoring from ``p``; stops when the Newton decrement (the
+        decrease a full step would bring) is below ``tol``."""
+        y = self.n.ravel()
+        nll = self.nll(p, z)
+        lam = 1e-3
+        hist = [nll]
+        restarts = 0
+        for _ in range(iters):
+            if len(hist) > 10 and hist[-11] - nll < 10 * tol:  # crawling: a flat direction, or over-damped
+                if lam <= 1e-3 or restarts >= 3:
+                    break
+                lam, hist, restarts = 1e-4, hist[-1:], restarts + 1
+            J, names = self.jacobian(p, z, gamma_free)
+            m = np.maximum(self.mu(p, z).ravel(), 1e-12)
+            grad = J.T @ (1.0 - y / m)
+            # active set: a parameter on its bound that the gradient pushes further out stays where it is
+            b = self.at_bounds(p, names)
+            free = ~(((b < 0) & (grad > 0)) | ((b > 0) & (grad < 0)))
+            Jf = J[:, free]
+            gf = grad[free]
+            F = (Jf / m[:, None]).T @ Jf
+            dg = np.diag(F).copy()
+            reg = 1e-9 * dg.max() * np.eye(len(dg))
+            try:
+                if gf @ np.linalg.solve(F + reg, gf) < 2 * tol:
+                    break
+            except np.linalg.LinAlgError:
+                pass
+            improved = False
+            for _ in range(12):
+                try:
+                    df = np.linalg.solve(F + lam * np.diag(dg) + reg, -gf)
+                except np.linalg.LinAlgError:
+                    lam *= 8
+                    continue
+                delta = np.zeros(len(grad))
+                delta[free] = df
+                q = self.step(p, names, delta)
+                nll2 = self.nll(q, z)
+                if nll2 <= nll:
+                    improved = True
+                    lam = max(lam / 5, 1e-9)
+                    break
+                lam *= 8
+            if not improved:
+                if lam <= 1e-3 or restarts >= 3:
+                    break
+                lam, restarts = 1e-4, restarts + 1
+                continue
+            p, nll = q, nll2
+            hist.append(nll)
+        return nll, p
+
+    def variance(self, p: dict, z: np.ndarray | None) -> float:
+        """Variance of the drift estimate from the Fisher information (pseudo-inverse: the template masses'
+        normalisation is a free direction of the log parameters, orthogonal to the drift)."""
+        J, _ = self.jacobian(p, z, gamma_free=True)
+        m = np.maximum(self.mu(p, z).ravel(), 1e-12)
+        F = (J / m[:, None]).T @ J
+        sc = np.sqrt(np.maximum(np.diag(F), 1e-300))
+        return float(np.linalg.pinv(F / sc[:, None] / sc[None, :], rcond=1e-10)[-1, -1] / sc[-1] ** 2)
