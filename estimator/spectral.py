@@ -42,6 +42,7 @@ from radseek.dataset import Frames
 
 LOW_EXTENSION = 0.2  # the first energy bin reaches this fraction below the threshold
 FIRST_CHANNEL = 0
+SHAPE = "spline"
 C_FLOOR = 1e-12  # the scattered-continuum template's masses stay above this (log parameters)
 SUB_BINS = 3  # template bins per channel: a 7 % FWHM photopeak is about one channel wide
 
@@ -364,7 +365,10 @@ class SpectralModel:
         flat = (self.shape(None),) * 2
         _, xc = self._fit_at(0.0, n_all, t, x_start, flat, iters=300)
         tau = self._durations(frames, lab, g_)
-        fitter = _Scorer(self.edges, t, n, used, (xc[0], xc[1]), fix_s, tau)
+        # the gain is 1 at the count-weighted mean time: the templates are then the flight's mean spectrum,
+        # whose within-channel shapes the start (a fit to all groups) estimates
+        t_ref = float(np.average(t, weights=np.maximum(n.sum(1), 1e-9)))
+        fitter = _Scorer(self.edges, t - t_ref, n, used, (xc[0], xc[1]), fix_s, tau)
         # EM leaves exact zeros (a zero mass never moves again under log steps, and a drift moving mass into a
         # cell the model holds empty would freeze the drift): floor the masses
         qs, qb = (np.maximum(q, 1e-7 * q.max()) for q in xc[:2])
@@ -377,8 +381,8 @@ class SpectralModel:
             nll0, p0 = fitter.fit(dict(p0, c=np.full(k, 1e-3 / k)), z, gamma_free=False)
         res = dict(nll=nll0, p=p0)
         err = float("nan")
-        if drift and t.max() > 0:
-            gmax = max_shift * 100.0 * 60.0 / max(float(t.max()), 1.0)
+        if drift and t.max() > t.min():
+            gmax = max_shift * 100.0 * 60.0 / max(float(t.max() - t.min()), 1.0)
             fitter.gmax = gmax
             for g0 in (0.0, gmax / 4, -gmax / 4):
                 nll1, p1 = fitter.fit(dict(p0, gamma=g0), z, gamma_free=True)
@@ -397,6 +401,15 @@ class SpectralModel:
                     res = dict(nll=nll1, p=p1)
                 if better < 0.05:
                     break
+            # the within-channel shapes again from the drifting fit's templates (the start's are those of a
+            # spectrum smeared by the drift), and both fits redone with them
+            fitter = _Scorer(self.edges, t - t_ref, n, used, (res["p"]["qs"], res["p"]["qb"]), fix_s, tau)
+            fitter.gmax = gmax
+            nll0, p0 = fitter.fit(p0, z, gamma_free=False)
+            nll1, p1 = fitter.fit(res["p"], z, gamma_free=True)
+            res = dict(nll=nll1, p=p1)
+            if nll0 < nll1:  # never: the null is nested
+                res = dict(nll=nll0, p=p0)
             var = fitter.variance(res["p"], z)
             err = float(np.sqrt(var)) if var > 0 else float("nan")
         p1 = res["p"]
@@ -447,6 +460,39 @@ class SpectralModel:
         return np.minimum((d - d.min()) / sd, 8.0)
 
 
+def histospline_cdf(lo: np.ndarray, hi: np.ndarray, q: np.ndarray, fine: int = 48, iters: int = 60):
+    """A smooth density with the bins' masses ``q`` exactly: exp of a natural cubic spline through the log
+    densities at the bin centres (so a Gaussian photopeak, a parabola in log density, keeps its curvature
+    inside a channel and its density at the channel edges), the knot values found by a fixed-point iteration
+    on the bin masses. Returns the cumulative mass as a function of energy (linear between ``fine`` points per
+    bin). A monotone cubic through the cumulative masses (PCHIP) instead puts the density at an edge near the
+    harmonic mean of the two bins: half the true value at the flank of a photopeak one channel wide."""
+    from scipy.interpolate import CubicSpline
+
+    q = np.maximum(np.asarray(q, dtype=float), 1e-12 * max(float(np.max(q)), 1e-300))
+    w = hi - lo
+    x = np.concatenate([np.linspace(a, b, fine + 1)[:-1] for a, b in zip(lo, hi, strict=True)] + [hi[-1:]])
+    owner = np.minimum(np.searchsorted(hi, x, side="right"), len(q) - 1)
+    centre = (lo + hi) / 2
+    phi = np.log(q / w)
+    phi = np.maximum(phi, phi.max() - 12.0)
+    for _ in range(iters):
+        dens = np.exp(np.clip(CubicSpline(centre, phi, bc_type="natural")(x), -700, 700))
+        seg = 0.5 * (dens[1:] + dens[:-1]) * np.diff(x)
+        m = np.bincount(owner[:-1], weights=seg, minlength=len(q))
+        ratio = q / np.maximum(m, 1e-300)
+        phi = phi + np.log(ratio)
+        phi = np.maximum(phi, phi.max() - 12.0)  # a near-empty bin must not make the spline ring
+        if np.max(np.abs(np.log(ratio))) < 1e-6:
+            break
+    dens = np.exp(np.clip(CubicSpline(centre, phi, bc_type="natural")(x), -700, 700))
+    seg = 0.5 * (dens[1:] + dens[:-1]) * np.diff(x)
+    m = np.bincount(owner[:-1], weights=seg, minlength=len(q))
+    seg = seg * (q / np.maximum(m, 1e-300))[owner[:-1]]  # exact masses per bin
+    cum = np.r_[0.0, np.cumsum(seg)]
+    return lambda e: np.interp(e, x, cum)
+
+
 class _Scorer:
     """Damped Fisher scoring of the spectral model on the used channels of the group counts ``n``:
 
@@ -463,8 +509,11 @@ class _Scorer:
         self.tt = (t - t.mean()) / max(float(t.std()), 1e-9)
         self.lo, self.hi = energy_bins(edges, 1)
         knots = np.r_[self.lo[0], self.hi]
-        #: within-channel shapes, fixed: monotone cubics (PCHIP) through each template's cumulative mass
-        self.cdfs = [PchipInterpolator(knots, np.r_[0.0, np.cumsum(np.maximum(q, 0.0))]) for q in templates]
+        #: within-channel shapes, fixed: smooth densities with each template's channel masses
+        if SHAPE == "pchip":
+            self.cdfs = [PchipInterpolator(knots, np.r_[0.0, np.cumsum(np.maximum(q, 0.0))]) for q in templates]
+        else:
+            self.cdfs = [histospline_cdf(self.lo, self.hi, q) for q in templates]
         self.masses = [np.maximum(q, 0.0) for q in templates]
         self.gmax = np.inf
         self._cache: dict[float, tuple[np.ndarray, ...]] = {}
