@@ -1,33 +1,34 @@
 """The 32-channel spectral model: where gain drift shows (total counts barely change when the gain drifts).
 
-Counts of a frame group g in channel k, given the group's total, are multinomial with probabilities
+Counts of a frame group g in channel k are Poisson with means
 
-    p_gk = w_g P_S,k(a_g) + (1 - w_g) P_B,k(a_g),        a_g = 1 + (percent_per_min / 100) * t_g / 60
+    mu_gk = A_g P_S,k(a_g) + B_g P_B,k(a_g),        a_g = 1 + (percent_per_min / 100) * (t_g - t_ref) / 60
 
-- ``S`` and ``B`` are the source and background spectra of *deposited* energy, piecewise-constant densities on
-  the channel bins (the first bin extended 20 % below the threshold so that a rising gain can lift pulses over
-  it), estimated from the data themselves (softmax parameters, 32 each);
+- ``S`` and ``B`` are the source and background spectra of *deposited* energy, 32 masses on the channel bins
+  (the first bin extended 20 % below the threshold so that a rising gain can lift pulses over it), estimated
+  from the flight's own spectra: with ``t_ref`` the count-weighted mean time they are the flight's mean source
+  and background spectra, and the drift is each group's spectrum stretched against them. No template shape is
+  assumed (any crystal, Cs-137 or Co-60 alike);
 - the gain factor a maps deposited energy E onto the pulse height a E, so channel k collects deposited energies
-  in [edges_k / a, edges_k+1 / a): ``P_T,k(a)`` is the template's mass in that interval, renormalised over the
-  detected range (channel 31 is the overflow, open above);
-- ``w_g`` is each group's source fraction, free per group: the spectral test then does not depend on the
-  count-rate model being right (a wrong dead time or a missing wall changes w, not the spectral shapes), and the
-  spectral likelihood is a separate factor from the total-count likelihood.
+  in [edges_k / a, edges_k+1 / a); ``P_T,k(a)`` integrates the template's density over that interval, the
+  density inside a channel being a smooth curve with the channel masses (exp of a cubic spline through the log
+  densities: a photopeak one channel wide keeps its flanks, where the drift signal is);
+- ``A_g`` (the source amplitude) is free per group: the spectral test does not depend on the count-rate model
+  being right (a wrong dead time or a missing wall changes A, not the spectral shapes). The background rate is
+  steady, ``B_g = duration_g exp(b0 + b1 t~_g)``: free per group, the background amplitude would let the second
+  template become "the source, shifted" and follow a drift (to first order a drifting spectrum is the mean
+  spectrum plus its gain derivative growing with time) -- the reason a 0.9 %/min drift went unnamed on crystals
+  whose background is a small part of the counts (issue 30).
 
-The gain drift is profiled: for each trial ``percent_per_min`` the templates and group amplitudes are refitted
-(EM for the Poisson mixture, warm-started); the likelihood-ratio statistic 2 (nll(0) - nll(g_hat)) is chi-square
-with 1 dof under no drift (scaled by the no-drift fit's deviance per dof when that exceeds 1, a quasi-likelihood
-guard against misfit of the templates themselves).
+All parameters (log masses, amplitudes, the drift) are fitted by damped Fisher scoring; the likelihood-ratio
+statistic 2 (nll(0) - nll(drift)) is chi-square with 1 dof under no drift, divided by the drifting fit's Pearson
+chi-square per dof when that exceeds 1 (quasi-likelihood: misfit the model has no term for, such as a spectrum
+changing shape with distance beyond what the free source amplitudes absorb). An optional shape nuisance
+(``nuisance=True``: a scattered continuum growing with the distance proxy (source rate)^-1/2) is off by
+default: when the distance changes steadily along the flight it takes part of a real drift.
 
-Template mismatch (issue 14): the source spectrum's shape may change along the flight (scattered photons grow
-with distance outdoors, a crystal unlike any template); when the two-template null misfits by more than 3 sd, a
-third free template with free group amplitudes joins the model, null and drift alike, so the drift is not the
-model's only way to follow a changing shape (before, a 44x over-dispersion scaled a real drift away). Three
-templates are fitted by a few EM steps, then damped Fisher scoring on the log masses and amplitudes.
-
-Pearson residuals of the no-drift fit per group and channel
-are the "spectral channel over time" plot: a drifting gain leaves a dipole around the 662 keV photopeak that
-grows with time.
+Pearson residuals of the no-drift fit per group and channel are the "spectral channel over time" plot: a
+drifting gain leaves a dipole around the photopeak that grows with time.
 """
 
 from __future__ import annotations
@@ -75,15 +76,13 @@ def _poisson_nll(mu: np.ndarray, n: np.ndarray) -> float:
 
 
 def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 3000, tol: float = 3e-11,
-        fix_s: bool = False, Mc: np.ndarray | None = None) -> tuple[float, tuple]:
+        fix_s: bool = False) -> tuple[float, tuple]:
     """Poisson NMF by EM (multiplicative updates): mu_gk = A_g (Ms_g s)_k + B_g (Mb_g b)_k, all >= 0.
 
     With free group amplitudes this likelihood equals the multinomial one given the group totals (plus a
-    constant). Returns (nll, (s, b, A, B)); s, b normalised to unit mass over energy bins. With ``Mc`` a third
-    template c with amplitudes C (x = (s, b, A, B, c, C)) is fitted alongside: the template-mismatch nuisance.
+    constant). Returns (nll, (s, b, A, B)); s, b normalised to unit mass over energy bins. The scoring fit's
+    start (free background amplitudes, flat within-channel shapes, no drift).
     """
-    if Mc is not None:
-        return _em_multi([Ms, Mb, Mc], n, x, iters, tol, fix_first=fix_s)
     s, b, A, B = (np.array(v, dtype=float) for v in x)
     cs = Ms.sum(1)  # (G, j): detected fraction of energy bin j
     cb = Mb.sum(1)
@@ -111,98 +110,6 @@ def _em(Ms: np.ndarray, Mb: np.ndarray, n: np.ndarray, x: tuple, iters: int = 30
     return _poisson_nll(mu, n), (s, b, A, B)
 
 
-def _em_multi(Ms: list[np.ndarray], n: np.ndarray, x: tuple, iters: int, tol: float, fix_first: bool = False,
-              em_iters: int = 60) -> tuple[float, tuple]:
-    """``_em`` for three templates; x = (s, b, A, B, c, C): templates 0, 1, their amplitudes, then the extra
-    template and its amplitudes. A few EM steps, then damped Fisher scoring on the log masses and log amplitudes
-    (EM alone crawls on a three-template NMF: the mismatch template trades mass with the others slowly)."""
-    s, b, A, B, c, C = (np.array(v, dtype=float) for v in x)
-    q, a = [s, b, c], [A, B, C]
-    q, a = _em_steps(Ms, n, q, a, min(iters, em_iters), fix_first)
-    return _scoring(Ms, n, q, a, fix_first, tol)
-
-
-def _scoring(Ms: list[np.ndarray], n: np.ndarray, q: list[np.ndarray], a: list[np.ndarray], fix_first: bool,
-             tol: float, iters: int = 200) -> tuple[float, tuple]:
-    """Levenberg-damped Fisher scoring on the log masses and log amplitudes of a T-template Poisson NMF
-    (~250 parameters: the Fisher matrix is small and dense, so each step is one solve)."""
-    T = len(q)
-    G, K = n.shape
-    free = [not (fix_first and i == 0) for i in range(T)]
-    lam = 1e-3
-    y = n.ravel()
-
-    def state(qq: list[np.ndarray], aa: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, float]:
-        u = [M @ qi for M, qi in zip(Ms, qq, strict=True)]
-        mu = np.maximum(sum(ai[:, None] * ui for ai, ui in zip(aa, u, strict=True)), 1e-300)
-        return u, mu, _poisson_nll(mu, n)
-
-    u, mu, nll = state(q, a)
-    for _ in range(iters):
-        cols = []
-        for i in range(T):
-            if free[i]:
-                cols.append((a[i][:, None, None] * Ms[i] * q[i][None, None, :]).reshape(G * K, -1))
-        for i in range(T):
-            blk = np.zeros((G, K, G))
-            blk[np.arange(G), :, np.arange(G)] = u[i] * a[i][:, None]
-            cols.append(blk.reshape(G * K, G))
-        J = np.hstack(cols)  # d mu / d log(parameter)
-        m = mu.ravel()
-        grad = J.T @ (1.0 - y / m)
-        F = (J / m[:, None]).T @ J
-        d = np.diag(F).copy()
-        improved = False
-        for _ in range(12):
-            step = np.linalg.solve(F + lam * np.diag(d + 1e-9 * d.max()), -grad)
-            step = np.clip(step, -3.0, 3.0)
-            qq, aa, k = [v.copy() for v in q], [v.copy() for v in a], 0
-            for i in range(T):
-                if free[i]:
-                    qq[i] = qq[i] * np.exp(step[k:k + K])
-                    k += K
-            for i in range(T):
-                aa[i] = aa[i] * np.exp(step[k:k + G])
-                k += G
-            for i in range(T):
-                if free[i]:
-                    s_ = qq[i].sum()
-                    qq[i], aa[i] = qq[i] / s_, aa[i] * s_
-            u2, mu2, nll2 = state(qq, aa)
-            if nll2 <= nll:
-                improved = True
-                lam = max(lam / 5, 1e-9)
-                break
-            lam *= 8
-        if not improved:
-            break
-        gain = nll - nll2
-        q, a, u, mu, nll = qq, aa, u2, mu2, nll2
-        if gain < max(tol * abs(nll), 1e-7):
-            break
-    return nll, (q[0], q[1], a[0], a[1], *((q[2], a[2]) if T > 2 else ()))
-
-
-def _em_steps(Ms: list[np.ndarray], n: np.ndarray, q: list[np.ndarray], a: list[np.ndarray], iters: int,
-              fix_first: bool) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Plain multiplicative EM updates for any number of templates (a start for ``_lbfgs``)."""
-    cs = [M.sum(1) for M in Ms]
-    q, a = list(q), list(a)
-    for _ in range(iters):
-        u = [M @ qi for M, qi in zip(Ms, q, strict=True)]
-        mu = sum(ai[:, None] * ui for ai, ui in zip(a, u, strict=True))
-        R = n / np.maximum(mu, 1e-300)
-        new_a = [ai * (R * ui).sum(1) / np.maximum(ci @ qi, 1e-300) for ai, ui, ci, qi in zip(a, u, cs, q, strict=True)]
-        for i in range(len(q)):
-            if not (i == 0 and fix_first):
-                q[i] = q[i] * np.einsum("gk,gkj->j", R * a[i][:, None], Ms[i]) / np.maximum(a[i] @ cs[i], 1e-300)
-        a = new_a
-        for i in range(len(q)):
-            m = q[i].sum()
-            q[i], a[i] = q[i] / m, a[i] * m
-    return q, a
-
-
 @dataclass
 class SpectralFit:
     """A fit of the spectral model to frame groups (see the module docstring)."""
@@ -222,7 +129,7 @@ class SpectralFit:
     weights: np.ndarray  # (G,) source fraction (zero drift fit)
     deviance_per_dof_null: float  # spectral deviance per dof at zero drift
     deviance_per_dof: float
-    nuisance: np.ndarray | None = None  # (32,) the template-mismatch template (None when not fitted)
+    nuisance: np.ndarray | None = None  # (32,) the scattered-continuum masses (None when not fitted)
     pearson_per_dof: float = float("nan")  # Pearson chi-square per dof of the drifting fit
 
     @property
@@ -261,9 +168,10 @@ class SpectralModel:
                  nuisance: bool = False, first_channel: int = FIRST_CHANNEL):
         self.edges = np.asarray(edges, dtype=float)
         self.sub = sub
-        #: a third free template with free group amplitudes: the source spectrum's shape may change along the
-        #: flight (scattered photons grow with distance, a crystal unlike the templates), and drift must not be
-        #: the only way the model can follow that (template mismatch as a nuisance)
+        #: a scattered continuum (free masses) added to the source in proportion to the distance proxy
+        #: (source rate)^-1/2; off by default: with the distance changing steadily along a flight it takes part
+        #: of a real drift, and the free source amplitudes plus the dispersion guard kept the no-drift flights
+        #: with scattered photons calibrated without it
         self.nuisance = nuisance
         #: channels below this are left out of the spectral likelihood (the threshold channel: its drift signal is
         #: the density just below the threshold, which the channel counts never show)
@@ -331,27 +239,29 @@ class SpectralModel:
         S[np.arange(len(owner)), owner] = fine
         return S
 
-    def _responses(self, pct: float, t: np.ndarray, shapes: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-        R = response(self.edges, 1.0 + pct / 100.0 * t / 60.0, self.sub)
-        return tuple(R @ sh for sh in shapes)
-
     def _fit_at(self, pct: float, n: np.ndarray, t: np.ndarray, x0: tuple, shapes: tuple,
                 iters: int = 3000) -> tuple[float, tuple]:
-        Ms, Mb, *Mc = self._responses(pct, t, shapes)
-        return _em(Ms, Mb, n, x0, iters=iters, fix_s=self.source_template is not None, Mc=Mc[0] if Mc else None)
-
-    def expected(self, x: tuple, pct: float, t: np.ndarray, shapes: tuple) -> np.ndarray:
-        Ms = self._responses(pct, t, shapes)
-        q, a = (x[0], x[1], *x[4:5]), (x[2], x[3], *x[5:6])
-        return sum(ai[:, None] * (M @ qi) for ai, M, qi in zip(a, Ms, q, strict=True))
+        R = response(self.edges, 1.0 + pct / 100.0 * t / 60.0, self.sub)
+        Ms, Mb = (R @ sh for sh in shapes)
+        return _em(Ms, Mb, n, x0, iters=iters, fix_s=self.source_template is not None)
 
     def fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
             max_shift: float = 0.15) -> SpectralFit:
+        """See ``_fit``; run with one BLAS thread (its matrices are ~200 x 200: a thread pool only adds
+        synchronisation, ten times slower on a loaded machine)."""
+        from estimator.diagnose.threads import blas_threads
+
+        with blas_threads(1):
+            return self._fit(frames, labels, drift, max_shift)
+
+    def _fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
+             max_shift: float = 0.15) -> SpectralFit:
         """Fit with zero drift and (if ``drift``) with the drift free, |shift| <= ``max_shift`` over the flight.
 
-        Every fit is damped Fisher scoring on all parameters at once (template log masses, the distance
-        nuisance, group log amplitudes and the drift itself); the drifting fit starts from the no-drift one and
-        from two drifts either side, and the best is kept (never worse than the null).
+        Every fit is damped Fisher scoring on all parameters at once (template log masses, source amplitudes,
+        background rate, the optional shape nuisance and the drift itself); the drifting fit starts from the
+        no-drift one and from two drifts either side, null and drift are refitted from each other until neither
+        improves, then the within-channel shapes are re-estimated from the drifting fit's templates.
         """
         n_all, t, lab = self._prepare(frames, labels)
         g_, k = n_all.shape
@@ -372,6 +282,8 @@ class SpectralModel:
         # EM leaves exact zeros (a zero mass never moves again under log steps, and a drift moving mass into a
         # cell the model holds empty would freeze the drift): floor the masses
         qs, qb = (np.maximum(q, 1e-7 * q.max()) for q in xc[:2])
+        if fix_s:  # held as given
+            qs = self.source_template / self.source_template.sum()
         bb = np.array([np.log(max(float(xc[3].sum() * qb.sum()), 1e-300) / tau.sum()), 0.0])
         p0 = dict(qs=qs / qs.sum(), qb=qb / qb.sum(), a_s=np.maximum(xc[2], 1e-6 * xc[2].max()) * qs.sum(),
                   bb=bb, a_b=fitter.background(bb), c=None, gamma=0.0)
