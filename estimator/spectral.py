@@ -23,9 +23,10 @@ Counts of a frame group g in channel k are Poisson with means
 All parameters (log masses, amplitudes, the drift) are fitted by damped Fisher scoring; the likelihood-ratio
 statistic 2 (nll(0) - nll(drift)) is chi-square with 1 dof under no drift, divided by the drifting fit's Pearson
 chi-square per dof when that exceeds 1 (quasi-likelihood: misfit the model has no term for, such as a spectrum
-changing shape with distance beyond what the free source amplitudes absorb). An optional shape nuisance
-(``nuisance=True``: a scattered continuum growing with the distance proxy (source rate)^-1/2) is off by
-default: when the distance changes steadily along the flight it takes part of a real drift.
+changing shape with distance beyond what the free source amplitudes absorb). A shape nuisance, a scattered
+continuum (free masses) growing with the distance proxy (source rate)^-1/2, joins when the no-drift fit misfits
+by more than 3 sd (outdoor buildup): always in, it would take part of a real drift whenever the distance changes
+steadily along the flight.
 
 Pearson residuals of the no-drift fit per group and channel are the "spectral channel over time" plot: a
 drifting gain leaves a dipole around the photopeak that grows with time.
@@ -161,17 +162,37 @@ def group_frames(frames: Frames, n_groups: int = 40, min_s: float = 3.0) -> np.n
     return np.minimum((t / width).astype(int), int(span / width))
 
 
+def _alternate(fitter: _Scorer, z: np.ndarray | None, nll0: float, p0: dict, res: dict, rounds: int = 4
+               ) -> tuple[float, dict, dict]:
+    """The null again from the drifting solution and the drift from the null, until neither improves: the
+    template fit has flat directions along which scoring crawls, and a better null optimum found from elsewhere
+    must not count as evidence, nor a better drifting one be missed. The drifting fit is never worse than the
+    null (nested)."""
+    for _ in range(rounds):
+        nll0b, p0b = fitter.fit(dict(res["p"], gamma=0.0), z, gamma_free=False)
+        nll1, p1 = fitter.fit(dict(p0b, gamma=res["p"]["gamma"]), z, gamma_free=True)
+        better = max(nll0 - nll0b, res["nll"] - nll1)
+        if nll0b < nll0:
+            nll0, p0 = nll0b, p0b
+        if nll1 < res["nll"]:
+            res = dict(nll=nll1, p=p1)
+        if better < 0.05:
+            break
+    if nll0 < res["nll"]:
+        res = dict(nll=nll0, p=p0)
+    return nll0, p0, res
+
+
 class SpectralModel:
     """Source + background spectral templates with a linear gain drift; see the module docstring."""
 
     def __init__(self, edges: np.ndarray, sub: int = SUB_BINS, source_template: np.ndarray | None = None,
-                 nuisance: bool = False, first_channel: int = FIRST_CHANNEL):
+                 nuisance: bool | str = "auto", first_channel: int = FIRST_CHANNEL):
         self.edges = np.asarray(edges, dtype=float)
         self.sub = sub
         #: a scattered continuum (free masses) added to the source in proportion to the distance proxy
-        #: (source rate)^-1/2; off by default: with the distance changing steadily along a flight it takes part
-        #: of a real drift, and the free source amplitudes plus the dispersion guard kept the no-drift flights
-        #: with scattered photons calibrated without it
+        #: (source rate)^-1/2: True, False or "auto" (when the no-drift fit misfits by > 3 sd; with the distance
+        #: changing steadily along a flight it takes part of a real drift, so it stays out when not needed)
         self.nuisance = nuisance
         #: channels below this are left out of the spectral likelihood (the threshold channel: its drift signal is
         #: the density just below the threshold, which the channel counts never show)
@@ -288,7 +309,18 @@ class SpectralModel:
         p0 = dict(qs=qs / qs.sum(), qb=qb / qb.sum(), a_s=np.maximum(xc[2], 1e-6 * xc[2].max()) * qs.sum(),
                   bb=bb, a_b=fitter.background(bb), c=None, gamma=0.0)
         nll0, p0 = fitter.fit(p0, None, gamma_free=False)
-        z = self._distance(p0["a_s"], frames, lab, g_) if self.nuisance else None
+        z = None
+        if self.nuisance == "auto":
+            # the scattered continuum joins only when the no-drift fit misfits by more than 3 sd of its Pearson
+            # chi-square per dof: it can also take part of a drift, and without misfit it is not needed
+            mu = fitter.mu(p0, None)
+            big = mu >= 2.0
+            dof_big = max(big.sum() - (g_ + 2 * used.sum()) * big.mean(), 1.0)
+            disp0 = float(((n - mu)[big] ** 2 / mu[big]).sum() / dof_big)
+            if disp0 > 1 + 3 * np.sqrt(2 / dof_big):
+                z = self._distance(p0["a_s"], frames, lab, g_)
+        elif self.nuisance:
+            z = self._distance(p0["a_s"], frames, lab, g_)
         if z is not None:
             nll0, p0 = fitter.fit(dict(p0, c=np.full(k, 1e-3 / k)), z, gamma_free=False)
         res = dict(nll=nll0, p=p0)
@@ -300,28 +332,14 @@ class SpectralModel:
                 nll1, p1 = fitter.fit(dict(p0, gamma=g0), z, gamma_free=True)
                 if nll1 < res["nll"]:
                     res = dict(nll=nll1, p=p1)
-            # the null again from the drifting solution and the drift from the null, until neither improves
-            # (the template fit has flat directions along which scoring crawls: a better null optimum found
-            # from elsewhere must not count as evidence, nor a better drifting one be missed)
-            for _ in range(4):
-                nll0b, p0b = fitter.fit(dict(res["p"], gamma=0.0), z, gamma_free=False)
-                nll1, p1 = fitter.fit(dict(p0b, gamma=res["p"]["gamma"]), z, gamma_free=True)
-                better = max(nll0 - nll0b, res["nll"] - nll1)
-                if nll0b < nll0:
-                    nll0, p0 = nll0b, p0b
-                if nll1 < res["nll"]:
-                    res = dict(nll=nll1, p=p1)
-                if better < 0.05:
-                    break
+            nll0, p0, res = _alternate(fitter, z, nll0, p0, res)
             # the within-channel shapes again from the drifting fit's templates (the start's are those of a
             # spectrum smeared by the drift), and both fits redone with them
             fitter = _Scorer(self.edges, t - t_ref, n, used, (res["p"]["qs"], res["p"]["qb"]), fix_s, tau)
             fitter.gmax = gmax
             nll0, p0 = fitter.fit(p0, z, gamma_free=False)
             nll1, p1 = fitter.fit(res["p"], z, gamma_free=True)
-            res = dict(nll=nll1, p=p1)
-            if nll0 < nll1:  # never: the null is nested
-                res = dict(nll=nll0, p=p0)
+            nll0, p0, res = _alternate(fitter, z, nll0, p0, dict(nll=nll1, p=p1))
             var = fitter.variance(res["p"], z)
             err = float(np.sqrt(var)) if var > 0 else float("nan")
         p1 = res["p"]
