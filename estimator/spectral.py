@@ -44,7 +44,7 @@ from radseek.dataset import Frames
 
 LOW_EXTENSION = 0.2  # the first energy bin reaches this fraction below the threshold
 FIRST_CHANNEL = 0
-SHAPE = "spline"
+GAMMA_STEP = 0.01  # %/min: the grid on which the stretched responses are integrated exactly
 C_FLOOR = 1e-12  # the scattered-continuum template's masses stay above this (log parameters)
 SUB_BINS = 3  # template bins per channel: a 7 % FWHM photopeak is about one channel wide
 
@@ -438,15 +438,13 @@ class _Scorer:
         self.tau = np.asarray(tau, dtype=float)
         self.tt = (t - t.mean()) / max(float(t.std()), 1e-9)
         self.lo, self.hi = energy_bins(edges, 1)
-        knots = np.r_[self.lo[0], self.hi]
         #: within-channel shapes, fixed: smooth densities with each template's channel masses
-        if SHAPE == "pchip":
-            self.cdfs = [PchipInterpolator(knots, np.r_[0.0, np.cumsum(np.maximum(q, 0.0))]) for q in templates]
-        else:
-            self.cdfs = [histospline_cdf(self.lo, self.hi, q) for q in templates]
+        self.cdfs = [histospline_cdf(self.lo, self.hi, q) for q in templates]
+        self.f_lo = [cdf(self.lo) for cdf in self.cdfs]
+        self.f_hi = [cdf(self.hi) for cdf in self.cdfs]
         self.masses = [np.maximum(q, 0.0) for q in templates]
         self.gmax = np.inf
-        self._cache: dict[float, tuple[np.ndarray, ...]] = {}
+        self._cache: dict[int, tuple[np.ndarray, ...]] = {}
 
     def background(self, bb: np.ndarray) -> np.ndarray:
         """(G,) background amplitudes: duration x exp(b0 + b1 t~), t~ the standardised group time."""
@@ -456,19 +454,35 @@ class _Scorer:
         """(M_S, M_B, M_F) at drift gamma, each (G, channels, energy bins): the fraction of energy bin j
         recorded in channel k, integrated exactly over the stretched channel boundaries (no sub-bins: a
         piecewise-constant sub-bin leaks mass over an edge where the density has fallen to zero)."""
-        key = float(gamma)
+        # exact on a grid of drifts GAMMA_STEP apart, linear in between (the scoring steps and the derivative's
+        # finite difference then reuse a few grid points instead of integrating anew at every trial drift)
+        u = float(gamma) / GAMMA_STEP
+        i = int(np.floor(u))
+        w = u - i
+        lo_m, hi_m = self._exact(i), self._exact(i + 1)
+        if w == 0.0:
+            return lo_m
+        return tuple(x + w * (y - x) for x, y in zip(lo_m, hi_m, strict=True))
+
+    def _exact(self, i: int) -> tuple[np.ndarray, ...]:
+        key = i
         if key not in self._cache:
-            if len(self._cache) > 64:
+            if len(self._cache) > 256:
                 self._cache.clear()
-            a = 1.0 + key / 100.0 * self.t / 60.0
+            a = 1.0 + i * GAMMA_STEP / 100.0 * self.t / 60.0
             c = self.edges[None, :] / a[:, None]
             c[:, -1] = np.inf
-            X = np.clip(c[:, :, None], self.lo[None, None, :], self.hi[None, None, :])  # (G, 33, 32)
+            # a boundary below bin j counts as lo_j, above it as hi_j, inside as itself: (G, 33, 32), the
+            # cumulative masses evaluated at the 33 boundaries only
+            below = c[:, :, None] <= self.lo[None, None, :]
+            above = c[:, :, None] >= self.hi[None, None, :]
+            X = np.where(below, self.lo[None, None, :], np.where(above, self.hi[None, None, :], c[:, :, None]))
             flat = np.diff(X, axis=1) / (self.hi - self.lo)[None, None, :]
             out = []
-            for cdf, m in zip(self.cdfs, self.masses, strict=True):
+            for cdf, m, f_lo, f_hi in zip(self.cdfs, self.masses, self.f_lo, self.f_hi, strict=True):
                 ok = m > 1e-12 * m.max()
-                P = np.diff(cdf(X), axis=1) / np.where(ok, m, 1.0)[None, None, :]
+                FX = np.where(below, f_lo[None, None, :], np.where(above, f_hi[None, None, :], cdf(c)[:, :, None]))
+                P = np.diff(FX, axis=1) / np.where(ok, m, 1.0)[None, None, :]
                 out.append(np.where(ok[None, None, :], np.clip(P, 0.0, None), flat))
             self._cache[key] = (*out, flat)
         return self._cache[key]
