@@ -106,6 +106,13 @@ def test_a_drift_of_0_9_percent_per_min_is_found_for_every_crystal_shape(src):
     assert abs(fit.percent_per_min - 0.9) < 3 * fit.error, (fit.percent_per_min, fit.error)
 
 
+@pytest.mark.parametrize("shape", ["wide", "backscatter"])
+def test_a_drift_of_0_6_percent_per_min_is_found_in_a_two_and_a_half_minute_flight(shape):
+    fit = SpectralModel(EDGES).fit(flight(analytic(shape), 0.6, seed=7, duration=150.0))
+    assert fit.p_value < THRESHOLD, fit.p_value
+    assert abs(fit.percent_per_min - 0.6) < 3 * fit.error, (fit.percent_per_min, fit.error)
+
+
 @pytest.mark.parametrize("name", ["Cs137_b.xml", "Co60_a.xml"])
 def test_a_drift_of_0_6_percent_per_min_is_found_in_the_measured_spectra(name):
     fit = SpectralModel(EDGES).fit(flight(measured(name), 0.6, seed=4, duration=240.0))
