@@ -130,6 +130,14 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
             lines.append(f"  {json.dumps({k: w[k] for k in ('start', 'end', 'thickness', 'height', 'material')})}"
                          f"  mu_per_m {_fmt(w['mu_per_m'], e.get('mu_per_m'))}, centre +- "
                          f"{e.get('centre_x', float('nan')):.2g} / {e.get('centre_y', float('nan')):.2g} m")
+    if d.dropped:
+        lines += ["", f"Named by the forward selection but not needed once the others are in (dropped): "
+                      f"{', '.join(d.dropped)}"]
+    if d.nuclide is not None:
+        nu = d.nuclide
+        lines += ["", f"Second source's nuclide (from the flight's spectra): {nu.nuclide or 'undetermined'}"
+                      f"{f' (runner-up {nu.runner_up}, log-likelihood gap {nu.gap:.1f})' if nu.runner_up else ''}",
+                  f"  {nu.note}"]
     if d.unexplained:
         g = d.final.gof
         lines += ["", "Verdict: the model still misses something none of the candidates explains "
@@ -185,6 +193,7 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     out["unexplained"] = bool(d.unexplained)
     out["residual_hotspots"] = list(d.hotspots)
     out["unmapped_walls"] = unmapped_walls(d.final.fit)
+    out["dropped"] = list(d.dropped)
     out["physics"] = {e: physics(e) for e in (*d.missing, *d.partial)}
     out["trends"] = [{"feature": t.feature, "chi2": t.chi2, "dof": t.dof, "p_value": t.p_value,
                       "summary": describe_trend(t, unit_of(t.feature), d.alpha)} for t in final.trends.values()]
@@ -197,5 +206,15 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
         out["added"] = list(d.added)
     elif d.after is not None:
         out["with_missing"] = _model_json(d.after)
+    if d.nuclide is not None:
+        nu = d.nuclide
+        entry = {"value": nu.nuclide or "undetermined", "runner_up": nu.runner_up, "log_likelihood_gap": nu.gap,
+                 "log_likelihood": dict(nu.log_likelihood), "note": nu.note}
+        for block in (out, out.get("with_missing")):
+            if block is not None:
+                block["effect_params"]["second_source.nuclide"] = entry
+        for c in out["candidates"]:
+            if c["effect"] == "second_source":
+                c["params"]["second_source.nuclide"] = entry["value"]
     out["plots"] = list(plots or [])
     return out

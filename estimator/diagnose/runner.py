@@ -6,6 +6,7 @@ one thing, the source error in the report.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from estimator.diagnose.backend import (
 from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
+from estimator.diagnose.nuclide import NuclideChoice, identify_second_nuclide
 from estimator.diagnose.residuals import (
     GoodnessOfFit,
     Trend,
@@ -35,7 +37,7 @@ from estimator.diagnose.residuals import (
     trend,
     unit_deviance,
 )
-from estimator.diagnose.selection import Selection, forward_select
+from estimator.diagnose.selection import Selection, forward_select, null_log10_p
 from estimator.diagnose.threads import blas_threads
 from estimator.diagnose.verdict import adequate, excess_sd, hotspots
 from estimator.spectral import SpectralFit, SpectralModel
@@ -198,6 +200,10 @@ class Diagnosis:
     partial: list[str] = field(default_factory=list)
     unexplained: bool = False
     hotspots: list[dict[str, Any]] = field(default_factory=list)
+    #: effects the forward selection named that the final model no longer needs (``_backward``)
+    dropped: list[str] = field(default_factory=list)
+    #: the second source's nuclide, when the final model has one (``estimator.diagnose.nuclide``)
+    nuclide: NuclideChoice | None = None
 
     @property
     def final(self) -> ModelReport:
@@ -245,17 +251,27 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     after = None
     after_sel = None
     target = list(dict.fromkeys((*count, *spec, *add_count, *add_spec))) if add else [*count, *spec, *sel.missing]
+    dropped: list[str] = []
+    if not add and len(sel.missing) >= 2:
+        dropped = _backward(fitter, sel, (*count, *spec), alpha, quiet)
+        target = [e for e in target if e not in dropped]
     if add or sel.missing:
         tc, ts = split_effects(target)
         progress(f"refitting with {describe((*tc, *ts))}", quiet)
-        after_fit = fitter.fit(tc, init=dict(base.values))
+        # start from the selection's fits of these effects (an unmapped wall's placement among them)
+        init = dict(base.values)
+        for st in sel.steps:
+            if st.chosen and st.chosen in tc:
+                init.update(st.candidates[0].fit.values)
+        after_fit = fitter.fit(tc, init=init)
         after = analyse(ds, (*tc, *ts), after_fit, spectral)
         if add:
             after_sel = forward_select(fitter, spectral_fit, (*tc, *ts), alpha=alpha, quiet=quiet)
             _fill_explains(ds, fitter, after_sel, spectral_fit.value or spectral)
     fitter.spectral = spectral_fit.value
     d = Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)
-    named = list(after_sel.missing if add and after_sel is not None else sel.missing)
+    d.dropped = dropped
+    named = [e for e in (after_sel.missing if add and after_sel is not None else sel.missing) if e not in dropped]
     final = d.final
     if named and final is not after:  # --add with more still missing: judge the model with those in too
         tc, ts = split_effects((*final.effects, *named))
@@ -264,10 +280,61 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
     d.hotspots = hotspots(final, ds.scenario.channel_edges_keV)
+    if "second_source" in final.effects:
+        d.nuclide = second_nuclide(ds, final)
+        progress(f"second source: {d.nuclide.note}", quiet)
     if d.unexplained:
         progress(f"the final model is still {excess_sd(final):.1f} sd above its expected deviance: it misses something "
                  "none of the candidates explains", quiet)
     return d
+
+
+def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha: float, quiet: bool) -> list[str]:
+    """Effects the forward selection named that the final model no longer needs: each count effect is dropped in
+    turn from the model with all of them, and kept only if the drop is significant at alpha / (effects named)
+    by its own null (an effect named early can be taken over by one named later: a distance trend left by one
+    wall, explained by a second). Returns the effects to drop (at most one, the least needed)."""
+    named = [e for e in sel.missing if e not in NON_COUNT_EFFECTS]
+    if len(named) < 2:
+        return []
+    count = split_effects((*start, *sel.missing))[0]
+    init: dict[str, float] = {}
+    for st in sel.steps:
+        if st.chosen:
+            init.update(st.candidates[0].fit.values)
+    full = fitter.fit(count, init=init)
+    thr = math.log10(alpha / len(named))
+    worst: tuple[float, str] | None = None
+    for e in named:
+        if e == "unmapped_wall" and "unmapped_wall_2" in count:
+            continue  # the second wall goes first
+        rest = tuple(x for x in count if x != e)
+        red = fitter.fit(rest, init=init)
+        lr = max(2.0 * (red.nll - full.nll), 0.0)
+        looks = next((getattr(c.fit, "wall_looks", None) for st in sel.steps for c in st.candidates
+                      if c.effect == e), None)
+        k = len(set(full.free_names) - set(red.free_names))
+        lp, _ = null_log10_p(e, lr, k, fitter.scenario, fitter.frames, looks)
+        if lp > thr and (worst is None or lp > worst[0]):
+            worst = (lp, e)
+    if worst is None:
+        return []
+    progress(f"{worst[1]} is no longer needed once the other effects are in (p = {10 ** worst[0]:.2g}): dropped",
+             quiet)
+    return [worst[1]]
+
+
+def second_nuclide(ds: Dataset, rep: ModelReport) -> NuclideChoice:
+    """The second source's nuclide from the flight's spectra (``nuclide``), with the count model's expected
+    counts of each source and the background split out of the final fit."""
+    fit = rep.fit
+    model, th = fit.model, dict(fit.values)
+    no2 = {**th, "second_source.cps_at_1m": 0.0}
+    mu = model.expected_counts(th, ds.frames)
+    mu1 = model.expected_counts(no2, ds.frames)
+    bg = model.expected_counts({**no2, "cps_at_1m": 0.0}, ds.frames)
+    return identify_second_nuclide(ds.frames, ds.scenario.channel_edges_keV, ds.scenario.nuclide or "Cs-137",
+                                   np.maximum(mu1 - bg, 0.0), np.maximum(mu - mu1, 0.0), bg)
 
 
 def _report_names(effects: list[str]) -> list[str]:
