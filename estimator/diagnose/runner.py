@@ -309,7 +309,9 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
         if e == "unmapped_wall" and "unmapped_wall_2" in count:
             continue  # the second wall goes first
         rest = tuple(x for x in count if x != e)
-        red = fitter.fit(rest, init=init)
+        # from the full model's optimum (the other effects' placements as they are there): a reduced fit that
+        # fell into another basin would make every effect look needed
+        red = fitter.fit(rest, init=dict(full.values), cache=False)
         lr = max(2.0 * (red.nll - full.nll), 0.0)
         looks = next((getattr(c.fit, "wall_looks", None) for st in sel.steps for c in st.candidates
                       if c.effect == e), None)
