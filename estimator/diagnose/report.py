@@ -11,7 +11,7 @@ from estimator.diagnose.features import unit_of
 from estimator.diagnose.residuals import describe_trend
 from estimator.diagnose.runner import Diagnosis, ModelReport
 from estimator.diagnose.selection import Selection
-from estimator.diagnose.verdict import excess_sd, unmapped_walls
+from estimator.diagnose.verdict import misfit_text, unmapped_walls
 
 
 def model_name(effects: tuple[str, ...] | list[str]) -> str:
@@ -139,10 +139,8 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
                       f"{f' (runner-up {nu.runner_up}, log-likelihood gap {nu.gap:.1f})' if nu.runner_up else ''}",
                   f"  {nu.note}"]
     if d.unexplained:
-        g = d.final.gof
         lines += ["", "Verdict: the model still misses something none of the candidates explains "
-                      f"(deviance/dof {g.deviance_per_dof:.3f}, expected {g.expected_per_dof:.3f} +- "
-                      f"{g.sd_per_dof:.3f}, {excess_sd(d.final):.1f} sd above)."]
+                      f"({misfit_text(d.final)})."]
         if d.partial:
             lines.append(f"  Effects that help but do not make the fit adequate (not the missing physics): "
                          f"{', '.join(d.partial)}")

@@ -39,7 +39,7 @@ from estimator.diagnose.residuals import (
 )
 from estimator.diagnose.selection import Selection, forward_select, null_log10_p
 from estimator.diagnose.threads import blas_threads
-from estimator.diagnose.verdict import adequate, excess_sd, hotspots
+from estimator.diagnose.verdict import adequate, hotspots, misfit_text
 from estimator.spectral import SpectralFit, SpectralModel
 from radseek.dataset import Dataset, Truth
 
@@ -284,8 +284,7 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
         d.nuclide = second_nuclide(ds, final)
         progress(f"second source: {d.nuclide.note}", quiet)
     if d.unexplained:
-        progress(f"the final model is still {excess_sd(final):.1f} sd above its expected deviance: it misses something "
-                 "none of the candidates explains", quiet)
+        progress(f"the final model misses something none of the candidates explains ({misfit_text(final)})", quiet)
     return d
 
 
