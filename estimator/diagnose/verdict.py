@@ -4,8 +4,9 @@ A forward selection can only name effects it knows. After it, the final model's 
 expectation (exact Poisson moments, ``residuals.goodness_of_fit``), and each channel's spectrum over time with the
 spectral model's: more than ``ADEQUATE_SD`` standard deviations above (``SPECTRAL_Z`` for a channel), and the
 verdict is "the model still misses something none of the candidates explains". The effects the selection added
-are then helpers (``partial``), not the missing physics; with an adequate fit they are ``missing``. Either way ``hotspots`` ranks where the residual lives: segments (dwells, 1 s of transit), directions
-from the fitted source, times, and spectral channels, each as a z-score of observed against expected counts.
+are then helpers (``partial``), not the missing physics; with an adequate fit they are ``missing``. Either way
+``hotspots`` ranks where the residual lives: segments (dwells, 1 s of transit), directions from the fitted source,
+times, and spectral channels, each as a z-score of observed against expected counts.
 
 Unmapped walls are reported in the scenario's own ``walls`` form (dataset-format.md) with ``material:
 "unmapped"``, ``mu_per_m`` and 1-sigma uncertainties propagated from the fit's covariance, so that a user can paste
