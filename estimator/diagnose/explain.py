@@ -53,7 +53,8 @@ PHYSICS: dict[str, tuple[str, str]] = {
     "pose_drift": (
         "Odometry drifts: the recorded position wanders away from the true one at a roughly constant velocity, "
         "so late in the flight the count rate matches a source displaced along the drift and residuals grow "
-        "with time.",
+        "with time. A source that itself moves at -v leaves the same counts (only the relative position "
+        "matters): from counts alone the two cannot be told apart.",
         "time",
     ),
     "over_dispersion": (
