@@ -253,6 +253,8 @@ class CountFitter:
             # LR (lattice-wall unmapped: 149 against 522), so one this far below cannot become significant:
             # report the screen's LR (a lower bound of the full fit's) without fitting in full
             return self._screened_only(base, wall, starts[0] if starts else {}, top, pl.scored)
+        # runner-up placements whose shadow explains less than half of the best one's are not fitted in full
+        starts = [st for st, lr in zip(starts, pl.best_lr, strict=True) if lr >= 0.5 * pl.best_lr[0]]
         best = None
         for st in starts or [{}]:
             res = self.fit(key, init={**th, **(init or {}), **{f"{wall}.{k}": v for k, v in st.items()}}, n_starts=1,

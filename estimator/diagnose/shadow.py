@@ -45,6 +45,7 @@ class Placements:
         """Start values (``unmapped_wall.*``) of the ``n`` best placements whose centres are ``apart_m`` apart."""
         out: list[dict[str, float]] = []
         centres: list[np.ndarray] = []
+        self.best_lr: list[float] = []
         for i in np.argsort(-self.lr):
             if self.lr[i] <= 0 or len(out) >= n:
                 break
@@ -53,6 +54,7 @@ class Placements:
             if all(np.hypot(*(c - o)) > apart_m for o in centres):
                 centres.append(c)
                 out.append({**UnmappedWall.placement(w, source_xy), "mu_per_m": self.mu_t[i] / w[4]})
+                self.best_lr.append(float(self.lr[i]))
         return out
 
 
