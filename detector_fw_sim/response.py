@@ -36,15 +36,23 @@ spectrum at (possibly gain-shifted) edges, so gain drift costs one interpolation
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 import pydecay
-from pydecay.nuclide import Nuclide
 from scipy.special import erf
+
+# the photon lines of a nuclide and its short-lived progeny are shared with the flight software's nuclide test
+# (estimator.diagnose.nuclide): they live in the contracts package and are re-exported here for the emulator's users
+from radseek.photon_lines import (  # noqa: F401
+    MIN_LINE_KEV,
+    MIN_LINE_YIELD,
+    add_photon_lines,
+    chain_photon_lines,
+    gamma_lines,
+)
 
 MEC2_KEV = 510.99895  # electron rest energy
 R_E_CM = 2.8179403262e-13  # classical electron radius
@@ -57,73 +65,9 @@ PB_Z, PB_A = 82, 207.2
 FE_Z, FE_A = 26, 55.845
 GRID_STEP_KEV = 2.0
 GRID_MAX_KEV = 4000.0
-MIN_LINE_KEV = 10.0  # lines below this never reach a 40 keV threshold
-MIN_LINE_YIELD = 1e-3
 
 
 # ------------------------------------------------------------------------------------ gamma lines
-
-
-def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:
-    """Add ``weight`` x the photons per decay of ``nuclide`` (pydecay's ICRP-107 emissions, >= ``MIN_LINE_KEV``)
-    to ``lines`` (energy keV rounded to 1 eV -> photons); a nuclide pydecay has no emissions for adds none."""
-    try:
-        rows = pydecay.emissions(nuclide)
-    except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
-        rows = []
-    for r in rows:
-        if r.get("is_photon") and r["E_MeV"] * 1000.0 >= MIN_LINE_KEV:
-            e = round(r["E_MeV"] * 1000.0, 3)
-            lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
-
-
-def chain_photon_lines(head: str, follow: Callable[[Any, float], bool], max_depth: int) -> dict[float, float]:
-    """Photons per decay of ``head`` (energy keV -> photons, :func:`add_photon_lines`) with those of the
-    progeny its decay chain reaches: a radioactive daughter is walked, weighted by pydecay's branching
-    ratios, when ``follow(daughter Nuclide, weight)`` says so, down to ``max_depth`` generations."""
-    lines: dict[float, float] = {}
-
-    def walk(name: str, weight: float, depth: int) -> None:
-        add_photon_lines(lines, name, weight)
-        if depth > max_depth:
-            return
-        try:
-            nuc = Nuclide.load(name)
-        except Exception:  # pydecay's own errors: a name it cannot load has no progeny to follow
-            return
-        if nuc.is_stable:
-            return
-        for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
-            try:
-                d = Nuclide.load(daughter)
-            except Exception:
-                continue
-            w = weight * float(branch)
-            if not d.is_stable and follow(d, w):
-                walk(daughter, w, depth + 1)
-
-    walk(head, 1.0, 0)
-    return lines
-
-
-@lru_cache(maxsize=64)
-def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[float, float], ...]:
-    """(energy keV, photons per decay of ``nuclide``) from pydecay's ICRP-107 tables.
-
-    Daughters much shorter-lived than the parent (secular equilibrium, e.g. Ba-137m under Cs-137)
-    contribute with their branching ratio. Raises ``ValueError`` naming an unknown nuclide.
-    """
-    try:
-        parent = Nuclide.load(nuclide)
-    except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
-        raise ValueError(f"unknown nuclide {nuclide!r} ({exc})") from None
-    lines = chain_photon_lines(
-        parent.name, max_depth=3,
-        follow=lambda d, _w: d.half_life_s < 1e-3 * parent.half_life_s and d.half_life_s < 30 * 86400)
-    out = tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
-    if not out:
-        raise ValueError(f"nuclide {nuclide!r} emits no gamma line above {MIN_LINE_KEV} keV in pydecay's tables")
-    return out
 
 
 def main_line_keV(nuclide: str) -> float:

@@ -60,13 +60,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import pydecay
 import xraydb
-from pydecay.nuclide import Nuclide
 from scipy import optimize, stats
 from scipy.special import ndtr
 
 from radseek.dataset import Frames
+from radseek.photon_lines import gamma_lines
 
 CANDIDATES = ("Cs-137", "Co-60", "Ba-133", "Eu-152", "Am-241", "K-40")
 MEC2_KEV = 510.99895  # electron rest energy (CODATA)
@@ -88,48 +87,12 @@ N_DOWN = 10
 # --------------------------------------------------------------------------------------------- library data
 
 
-def _photon_rows(nuclide: str) -> list[tuple[float, float]]:
-    try:
-        rows = pydecay.emissions(nuclide)
-    except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
-        return []
-    return [(r["E_MeV"] * 1000.0, float(r["prob"])) for r in rows
-            if r.get("is_photon") and r["E_MeV"] * 1000.0 >= MIN_LINE_KEV]
-
-
-@lru_cache(maxsize=64)
 def photon_lines(nuclide: str) -> tuple[tuple[float, float], ...]:
-    """(energy keV, photons per decay) of ``nuclide`` from pydecay's ICRP-107 tables, with the photons of
-    daughters short-lived enough to be in equilibrium (Ba-137m under Cs-137), X-rays included (Ba-133's and
-    Eu-152's K X-rays reach channel 0). ValueError for a nuclide pydecay does not know or without photons."""
-    try:
-        parent = Nuclide.load(nuclide)
-    except Exception as exc:
-        raise ValueError(f"unknown nuclide {nuclide!r} ({exc})") from None
-    lines: dict[float, float] = {}
-
-    def walk(name: str, weight: float, depth: int) -> None:
-        for e, p in _photon_rows(name):
-            key = round(e, 3)
-            lines[key] = lines.get(key, 0.0) + weight * p
-        if depth >= 3:
-            return
-        try:
-            nuc = Nuclide.load(name)
-        except Exception:
-            return
-        if nuc.is_stable:
-            return
-        for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
-            try:
-                d = Nuclide.load(daughter)
-            except Exception:
-                continue
-            if not d.is_stable and d.half_life_s < 1e-3 * parent.half_life_s and d.half_life_s < 30 * 86400:
-                walk(daughter, weight * float(branch), depth + 1)
-
-    walk(parent.name, 1.0, 0)
-    out = tuple(sorted((e, y) for e, y in lines.items() if y >= MIN_LINE_YIELD))
+    """(energy keV, photons per decay) of ``nuclide`` with the photons of daughters short-lived enough to be in
+    equilibrium (Ba-137m under Cs-137), X-rays included (Ba-133's and Eu-152's K X-rays reach channel 0), from
+    ``radseek.photon_lines`` (pydecay's ICRP-107 tables), lines below ``MIN_LINE_KEV`` left out. ValueError for a
+    nuclide pydecay does not know or without photons."""
+    out = tuple((e, y) for e, y in gamma_lines(nuclide, MIN_LINE_YIELD) if e >= MIN_LINE_KEV)
     if not out:
         raise ValueError(f"nuclide {nuclide!r} emits no photon above {MIN_LINE_KEV} keV in pydecay's tables")
     return out
