@@ -140,7 +140,7 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
                   f"  {nu.note}"]
     if d.unexplained:
         lines += ["", "Verdict: the model still misses something none of the candidates explains "
-                      f"({misfit_text(d.final)})."]
+                      f"({misfit_text(d.final_report or d.final, d.dataset.frames)})."]
         if d.partial:
             lines.append(f"  Effects that help but do not make the fit adequate (not the missing physics): "
                          f"{', '.join(d.partial)}")

@@ -202,6 +202,8 @@ class Diagnosis:
     hotspots: list[dict[str, Any]] = field(default_factory=list)
     #: effects the forward selection named that the final model no longer needs (``_backward``)
     dropped: list[str] = field(default_factory=list)
+    #: the model the verdict judged (``final``, or with the effects still missing after --add)
+    final_report: ModelReport | None = None
     #: the second source's nuclide, when the final model has one (``estimator.diagnose.nuclide``)
     nuclide: NuclideChoice | None = None
 
@@ -276,15 +278,17 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     if named and final is not after:  # --add with more still missing: judge the model with those in too
         tc, ts = split_effects((*final.effects, *named))
         final = analyse(ds, (*tc, *ts), fitter.fit(tc, init=dict(final.fit.values)), spectral)
-    ok = adequate(final)
+    ok = adequate(final, ds.frames)
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
     d.hotspots = hotspots(final, ds.scenario.channel_edges_keV)
+    d.final_report = final
     if "second_source" in final.effects:
         d.nuclide = second_nuclide(ds, final)
         progress(f"second source: {d.nuclide.note}", quiet)
     if d.unexplained:
-        progress(f"the final model misses something none of the candidates explains ({misfit_text(final)})", quiet)
+        progress(f"the final model misses something none of the candidates explains "
+                 f"({misfit_text(final, ds.frames)})", quiet)
     return d
 
 

@@ -21,8 +21,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from estimator.diagnose.backend import WALLS
-from estimator.diagnose.residuals import aggregate, deviance_moments, group_mean, unit_deviance
+from estimator.diagnose.dispersion import fit_dispersion
+from estimator.diagnose.residuals import (
+    GoodnessOfFit,
+    aggregate,
+    deviance_moments,
+    goodness_of_fit,
+    group_mean,
+    unit_deviance,
+)
 from estimator.model import UnmappedWall
+from radseek.dataset import Frames
 
 if TYPE_CHECKING:
     from estimator.diagnose.runner import ModelReport
@@ -37,9 +46,10 @@ N_DIRECTIONS = 8
 N_TIMES = 8
 
 
-def excess_sd(rep: ModelReport) -> float:
-    """(deviance/dof - expected) / sd of the final model's per-frame goodness of fit."""
-    g = rep.gof
+def excess_sd(rep: ModelReport, frames: Frames | None = None) -> float:
+    """(deviance/dof - expected) / sd of the final model's per-frame goodness of fit (:func:`count_gof` when
+    ``frames`` are given)."""
+    g = rep.gof if frames is None else count_gof(rep, frames)
     return (g.deviance_per_dof - g.expected_per_dof) / max(g.sd_per_dof, 1e-12)
 
 
@@ -57,19 +67,37 @@ def spectral_channel_z(rep: ModelReport) -> np.ndarray:
     return (dev.sum(0) - mean.sum(0)) / np.sqrt(np.maximum(var.sum(0), 1e-12))
 
 
-def adequate(rep: ModelReport) -> bool:
-    """The final model fits the total counts within :data:`ADEQUATE_SD` sd and no channel's spectrum over time
+def count_gof(rep: ModelReport, frames: Frames) -> GoodnessOfFit:
+    """The final model's per-frame goodness of fit with the frames' extra-Poisson variance allowed for: over-
+    dispersed counts are not a missing effect (a noisy mount, an unsteady bias), so the expected deviance takes the
+    relative variance r^2 measured on pairs of consecutive frames (``dispersion.fit_dispersion``: smooth misfits
+    of the mean cancel from a pair, so this does not hide them), as a model with ``over_dispersion`` would."""
+    if "over_dispersion" in rep.effects:
+        return rep.gof
+    n = rep.counts.astype(float)
+    mu = np.asarray(rep.fit.expected, dtype=float)
+    r2 = max(float(fit_dispersion(frames, mu).rel_sd), 0.0) ** 2
+    if r2 <= 0:
+        return rep.gof
+    penalty = max(float(getattr(rep.fit, "deviance", 0.0)) - float(unit_deviance(n, mu).sum()), 0.0) \
+        if hasattr(rep.fit, "deviance") else 0.0
+    return goodness_of_fit(n, mu, len(rep.fit.free_names), penalty=penalty, rel_var=r2)
+
+
+def adequate(rep: ModelReport, frames: Frames | None = None) -> bool:
+    """The final model fits the total counts within :data:`ADEQUATE_SD` sd (with the frames' extra-Poisson
+    variance, :func:`count_gof`, when ``frames`` are given) and no channel's spectrum over time
     misfits beyond :data:`SPECTRAL_Z` (null flights: at most 2.5 on 18 flights of measured and analytic crystals,
     Co-60 and Cs-137, the shared datasets among them; a background varying by 60 % in time: 14.4)."""
     z = spectral_channel_z(rep)
-    return excess_sd(rep) <= ADEQUATE_SD and (len(z) == 0 or float(z.max()) <= SPECTRAL_Z)
+    return excess_sd(rep, frames) <= ADEQUATE_SD and (len(z) == 0 or float(z.max()) <= SPECTRAL_Z)
 
 
-def misfit_text(rep: ModelReport) -> str:
+def misfit_text(rep: ModelReport, frames: Frames | None = None) -> str:
     """Why the final model is not adequate, for people."""
-    g = rep.gof
+    g = rep.gof if frames is None else count_gof(rep, frames)
     parts = [f"counts: deviance/dof {g.deviance_per_dof:.3f}, expected {g.expected_per_dof:.3f} +- "
-             f"{g.sd_per_dof:.3f}, {excess_sd(rep):+.1f} sd"]
+             f"{g.sd_per_dof:.3f}, {excess_sd(rep, frames):+.1f} sd"]
     z = spectral_channel_z(rep)
     if len(z):
         parts.append(f"spectrum over time: worst channel {int(np.argmax(z))} at z {float(np.max(z)):.1f} "
