@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,17 @@ NON_COUNT_EFFECTS = SPECTRAL_EFFECTS + VARIANCE_EFFECTS
 VOCABULARY: tuple[str, ...] = (*EFFECTS, *OPEN_WORLD_EFFECTS, *VARIANCE_EFFECTS)
 #: the unmapped walls, first and second
 WALLS = OPEN_WORLD_EFFECTS
+
+
+@lru_cache(maxsize=1)
+def _code_hash() -> str:
+    """A hash of the estimator's source: fits saved by another version of the model or the selection are not
+    reused (``CountFitter.fingerprint``)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 def count_key(effects: Iterable[str]) -> tuple[str, ...]:
@@ -170,7 +182,7 @@ class CountFitter:
 
     def fingerprint(self) -> str:
         """What the fits depend on: the frames, the scenario, the fit settings and the cache format."""
-        h = hashlib.sha256(f"{CACHE_FORMAT}|{self.n_starts}|{self.seed}|{self.scenario!r}".encode())
+        h = hashlib.sha256(f"{CACHE_FORMAT}|{self.n_starts}|{self.seed}|{self.scenario!r}|{_code_hash()}".encode())
         for name in self.frames.__dataclass_fields__:
             h.update(np.ascontiguousarray(getattr(self.frames, name)).tobytes())
         return h.hexdigest()
