@@ -65,6 +65,14 @@ def deviance_moments(mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return m, v
 
 
+def pose_penalty(fit: object, n: np.ndarray, mu: np.ndarray) -> float:
+    """The pose offsets' Gaussian penalty inside a fit's deviance (``estimator.mle.FitResult.deviance``), kept in
+    the goodness of fit so that E[deviance] ~ N - k still holds; 0 for a fit without one."""
+    if not hasattr(fit, "deviance"):
+        return 0.0
+    return max(float(fit.deviance) - float(unit_deviance(n, mu).sum()), 0.0)
+
+
 @dataclass(frozen=True)
 class GoodnessOfFit:
     deviance: float

@@ -33,9 +33,9 @@ from estimator.diagnose.residuals import (
     aggregate,
     goodness_of_fit,
     pearson,
+    pose_penalty,
     segments,
     trend,
-    unit_deviance,
 )
 from estimator.diagnose.selection import Selection, forward_select, null_log10_p
 from estimator.diagnose.threads import blas_threads
@@ -91,12 +91,9 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     n = f.total_counts.astype(float)
     mu = np.asarray(fit.expected, dtype=float)
     k = len(fit.free_names)
-    # the fit's deviance includes the pose offsets' penalty; keep it so that E[deviance] ~ N - k still holds
-    penalty = float(getattr(fit, "deviance", 0.0)) - float(unit_deviance(n, mu).sum()) if hasattr(fit, "deviance") \
-        else 0.0
     disp = fit_dispersion(f, mu) if "over_dispersion" in effects else None
     rel_var = disp.rel_sd**2 if disp is not None else 0.0
-    gof = goodness_of_fit(n, mu, k, penalty=max(penalty, 0.0), rel_var=rel_var)
+    gof = goodness_of_fit(n, mu, k, penalty=pose_penalty(fit, n, mu), rel_var=rel_var)
     lab = segments(f, transit_s=1.0)
     sn, smu = aggregate(lab, n, mu)
     gof_seg = goodness_of_fit(sn, smu, k)  # per segment: what a smooth mean misfit leaves (no variance term)

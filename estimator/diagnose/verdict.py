@@ -28,6 +28,7 @@ from estimator.diagnose.residuals import (
     deviance_moments,
     goodness_of_fit,
     group_mean,
+    pose_penalty,
     unit_deviance,
 )
 from estimator.model import UnmappedWall
@@ -46,10 +47,10 @@ N_DIRECTIONS = 8
 N_TIMES = 8
 
 
-def excess_sd(rep: ModelReport, frames: Frames | None = None) -> float:
-    """(deviance/dof - expected) / sd of the final model's per-frame goodness of fit (:func:`count_gof` when
-    ``frames`` are given)."""
-    g = rep.gof if frames is None else count_gof(rep, frames)
+def excess_sd(rep: ModelReport, frames: Frames | None = None, gof: GoodnessOfFit | None = None) -> float:
+    """(deviance/dof - expected) / sd of the final model's per-frame goodness of fit (``gof`` if given, else
+    :func:`count_gof` when ``frames`` are given)."""
+    g = gof or (rep.gof if frames is None else count_gof(rep, frames))
     return (g.deviance_per_dof - g.expected_per_dof) / max(g.sd_per_dof, 1e-12)
 
 
@@ -79,9 +80,7 @@ def count_gof(rep: ModelReport, frames: Frames) -> GoodnessOfFit:
     r2 = max(float(fit_dispersion(frames, mu).rel_sd), 0.0) ** 2
     if r2 <= 0:
         return rep.gof
-    penalty = max(float(getattr(rep.fit, "deviance", 0.0)) - float(unit_deviance(n, mu).sum()), 0.0) \
-        if hasattr(rep.fit, "deviance") else 0.0
-    return goodness_of_fit(n, mu, len(rep.fit.free_names), penalty=penalty, rel_var=r2)
+    return goodness_of_fit(n, mu, len(rep.fit.free_names), penalty=pose_penalty(rep.fit, n, mu), rel_var=r2)
 
 
 def adequate(rep: ModelReport, frames: Frames | None = None) -> bool:
@@ -97,7 +96,7 @@ def misfit_text(rep: ModelReport, frames: Frames | None = None) -> str:
     """Why the final model is not adequate, for people."""
     g = rep.gof if frames is None else count_gof(rep, frames)
     parts = [f"counts: deviance/dof {g.deviance_per_dof:.3f}, expected {g.expected_per_dof:.3f} +- "
-             f"{g.sd_per_dof:.3f}, {excess_sd(rep, frames):+.1f} sd"]
+             f"{g.sd_per_dof:.3f}, {excess_sd(rep, gof=g):+.1f} sd"]
     z = spectral_channel_z(rep)
     if len(z):
         parts.append(f"spectrum over time: worst channel {int(np.argmax(z))} at z {float(np.max(z)):.1f} "
