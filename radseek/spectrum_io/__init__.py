@@ -1,0 +1,108 @@
+"""Gamma spectrum files: read N42 (ANSI N42.42-2011), RadiaCode XML, Ortec .spe / .chn and CSV; write N42.
+
+Every reader returns :class:`Spectrum` objects (counts per channel, live and real time, energy calibration); every
+error is a :class:`SpectrumFileError` naming the file and the element, section or byte offset that is wrong.
+
+Which library: ``becquerel`` 0.7 (PyPI) was checked on Python 3.11 here. It reads Ortec .spe, Canberra .cnf, .spc
+and IEC 1455, but not N42, RadiaCode XML, .chn or CSV; it pulls numba, pandas, lmfit and black, prints a line per
+file read and rejects an .spe without ``$DATE_MEA``. So the readers here are small and validated, and
+``tests/test_spectrum_files.py`` checks the .spe reader against becquerel and the N42 writer against SpecUtils
+(``sandiaspecutils``, the library InterSpec is built on) when those are installed.
+
+Energy calibration convention (the one of N42 and SpecUtils): the lower edge of channel i is
+E(i) = c0 + c1 i + c2 i^2 keV, so channel i spans [E(i), E(i + 1)). All-zero coefficients (an uncalibrated
+MCA) mean none (channel numbers); a calibration whose edges do not rise over the channels is an error. Files
+with explicit boundaries (N42 ``EnergyBoundaryValues``, a CSV with an energy column) keep them.
+
+Formats:
+
+- **N42.42-2011**: ``RadMeasurement`` / ``Spectrum`` / ``ChannelData`` (``compressionCode`` or ``Compression``
+  None or CountedZeroes), ``LiveTimeDuration`` / ``RealTimeDuration`` as xs:duration (``PT300S``; a bare
+  number of seconds is taken too), the calibration referenced by ``energyCalibrationReference``
+  (``CoefficientValues``, with deviation pairs applied as SpecUtils does, or ``EnergyBoundaryValues``);
+  ``MeasurementClassCode`` tells foreground from background. Prefixes InterSpec leaves undeclared are bound.
+- **N42.42-2006** (``N42InstrumentData``): ``Spectrum`` / ``LiveTime`` / ``RealTime`` / ``Calibration``
+  (``Polynomial`` or ``FullRangeFraction``, inline or by ``CalibrationIDs``), ``SourceType`` for the kind.
+- **RadiaCode XML** (the app's export, ``ResultDataFile`` / ``EnergySpectrum``): ``Spectrum/DataPoint``,
+  ``MeasurementTime`` (s; the real time when a non-zero ``LiveTime`` is given, as AtomSpectra and BecqMoni
+  write), ``EnergyCalibration/Coefficients`` (as many as ``PolynomialOrder`` + 1); the optional
+  ``BackgroundEnergySpectrum`` is read as a second spectrum.
+- **Ortec .spe** (ASCII, ORTEC software file structure manual): ``$MEAS_TIM:`` live real, ``$DATA:`` first last,
+  ``$MCA_CAL:`` or ``$ENER_FIT:``, ``$DATE_MEA:``, ``$SPEC_ID:``.
+- **Ortec .chn** (binary, little endian): 32-byte header (int16 -1, MCA, segment, 2-char seconds, int32 real
+  and live time in 20 ms ticks, 8-char date DDMMMYY*, 4-char time HHMM, int16 first channel, int16 channel
+  count), int32 counts, then an optional trailer (int16 -101 or -102, int16, float32 energy zero, slope and,
+  for -102, quadratic).
+- **CSV**: one row per channel, ``counts`` or ``channel,counts`` or ``energy_keV,counts`` (lower channel
+  edge); ``# live_time_s: 300``, ``# real_time_s: ...`` and ``# calibration: c0 c1 c2`` comment lines.
+"""
+
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .chn import read_chn, write_chn
+from .core import Spectrum, SpectrumFileError, format_duration, parse_duration, polynomial_edges
+from .csvfile import read_commented_csv, read_csv, write_csv
+from .n42 import N42_NS, n42_document, read_n42, write_n42
+from .radiacode_xml import read_radiacode_xml
+from .spe import read_spe, write_spe
+
+__all__ = [
+    "N42_NS", "READERS", "SUFFIXES", "Spectrum", "SpectrumFileError", "detect_format", "format_duration",
+    "n42_document", "parse_duration", "polynomial_edges", "read_chn", "read_commented_csv", "read_csv", "read_n42",
+    "read_radiacode_xml", "read_spe", "read_spectra", "read_spectrum", "write_chn", "write_csv", "write_n42",
+    "write_spe",
+]
+
+SUFFIXES = {".n42": "n42", ".xml": "xml", ".spe": "spe", ".chn": "chn", ".csv": "csv", ".txt": "csv"}
+
+def _head(data: bytes) -> bytes:
+    """The file's first 4 kB as ASCII-compatible bytes, without a byte-order mark or leading white space."""
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 XML
+        return data[:8192].decode("utf-16", errors="replace").encode("utf-8", errors="replace").lstrip()
+    return data[:4096].removeprefix(b"\xef\xbb\xbf").lstrip()
+
+
+def detect_format(path: str | Path, data: bytes) -> str:
+    head = _head(data)
+    if data[:2] == b"\xff\xff":
+        return "chn"
+    if head.startswith(b"<"):
+        if b"RadInstrumentData" in head or b"N42InstrumentData" in head:
+            return "n42"
+        if b"ResultDataFile" in head:
+            return "xml"
+    if head.startswith(b"$"):
+        return "spe"
+    fmt = SUFFIXES.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise SpectrumFileError(f"{path}: unknown spectrum format (N42, RadiaCode XML, .spe, .chn or CSV)")
+    return fmt
+
+
+READERS = {"n42": read_n42, "xml": read_radiacode_xml, "spe": read_spe, "chn": read_chn, "csv": read_csv}
+
+
+def read_spectra(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
+    """Every spectrum in a file, the format from its content (then its suffix)."""
+    p = Path(path)
+    if data is None:
+        try:
+            data = p.read_bytes()
+        except FileNotFoundError:
+            raise SpectrumFileError(f"{p}: file not found") from None
+    fmt = detect_format(p, data)
+    if fmt == "xml" and (b"RadInstrumentData" in _head(data) or b"N42InstrumentData" in _head(data)):
+        fmt = "n42"
+    return READERS[fmt](p, data)
+
+
+def read_spectrum(path: str | Path, kind: str = "foreground") -> Spectrum:
+    """The first spectrum of ``kind`` in a file (the first of any kind when none is marked)."""
+    spectra = read_spectra(path)
+    for sp in spectra:
+        if sp.kind == kind:
+            return sp
+    return spectra[0]
