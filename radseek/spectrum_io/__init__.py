@@ -1,4 +1,5 @@
-"""Gamma spectrum files: read N42 (ANSI N42.42-2011), RadiaCode XML, Ortec .spe / .chn and CSV; write N42.
+"""Gamma spectrum files, one module per format: read N42 (ANSI N42.42-2011 and 2006), RadiaCode XML, JSON and
+spectrograms (.rcspg), radiacode-tools logs (.ndjson), Ortec .spe / .chn and CSV; write N42.
 
 Every reader returns :class:`Spectrum` objects (counts per channel, live and real time, energy calibration); every
 error is a :class:`SpectrumFileError` naming the file and the element, section or byte offset that is wrong.
@@ -33,30 +34,52 @@ Formats:
   and live time in 20 ms ticks, 8-char date DDMMMYY*, 4-char time HHMM, int16 first channel, int16 channel
   count), int32 counts, then an optional trailer (int16 -101 or -102, int16, float32 energy zero, slope and,
   for -102, quadratic).
-- **CSV**: one row per channel, ``counts`` or ``channel,counts`` or ``energy_keV,counts`` (lower channel
-  edge); ``# live_time_s: 300``, ``# real_time_s: ...`` and ``# calibration: c0 c1 c2`` comment lines.
-"""
+- **CSV** (:func:`.csvfile.read_csv`): channel / energy / counts columns in any order, the channel column
+  honoured, live time from a header line or ``--live-time``.
+- **RadiaCode spectrogram** (:mod:`.rcspg`), **radiacode-tools log** (:mod:`.ndjson`, streamed, frames from
+  cumulative spectra, GNSS fixes), **RadiaCode JSON** (:mod:`.radiacode_json`).
 
+Bad input: counts non-finite, negative or above :data:`MAX_COUNTS_PER_CHANNEL`, live or real times <= 0 or above
+:data:`MAX_TIME_S`, a live time above the real time, more than :data:`MAX_CHANNELS` channels, and files above
+:data:`MAX_FILE_BYTES` are refused with a :class:`SpectrumFileError` naming the file and the field.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from .chn import read_chn, write_chn
-from .core import Spectrum, SpectrumFileError, format_duration, parse_duration, polynomial_edges
+from .core import (
+    MAX_CHANNELS,
+    MAX_COUNTS_PER_CHANNEL,
+    MAX_FILE_BYTES,
+    MAX_TIME_S,
+    Spectrum,
+    SpectrumFileError,
+    format_duration,
+    open_stream,
+    parse_duration,
+    polynomial_edges,
+    read_limited,
+)
 from .csvfile import read_commented_csv, read_csv, write_csv
 from .n42 import N42_NS, n42_document, read_n42, write_n42
+from .ndjson import read_ndjson
+from .radiacode_json import read_radiacode_json
 from .radiacode_xml import read_radiacode_xml
+from .rcspg import read_rcspg
 from .spe import read_spe, write_spe
 
 __all__ = [
-    "N42_NS", "READERS", "SUFFIXES", "Spectrum", "SpectrumFileError", "detect_format", "format_duration",
-    "n42_document", "parse_duration", "polynomial_edges", "read_chn", "read_commented_csv", "read_csv", "read_n42",
-    "read_radiacode_xml", "read_spe", "read_spectra", "read_spectrum", "write_chn", "write_csv", "write_n42",
-    "write_spe",
+    "MAX_CHANNELS", "MAX_COUNTS_PER_CHANNEL", "MAX_FILE_BYTES", "MAX_TIME_S", "N42_NS", "READERS", "STREAMED",
+    "SUFFIXES", "Spectrum", "SpectrumFileError", "detect_format", "format_duration", "format_of", "n42_document",
+    "parse_duration", "polynomial_edges", "read_chn", "read_commented_csv", "read_csv", "read_n42", "read_ndjson",
+    "read_radiacode_json", "read_radiacode_xml", "read_rcspg", "read_spe", "read_spectra", "read_spectrum",
+    "write_chn", "write_csv", "write_n42", "write_spe",
 ]
 
-SUFFIXES = {".n42": "n42", ".xml": "xml", ".spe": "spe", ".chn": "chn", ".csv": "csv", ".txt": "csv"}
+SUFFIXES = {".n42": "n42", ".xml": "xml", ".spe": "spe", ".chn": "chn", ".csv": "csv", ".txt": "csv",
+            ".tsv": "csv", ".rcspg": "rcspg", ".json": "json", ".ndjson": "ndjson", ".jsonl": "ndjson"}
 
 def _head(data: bytes) -> bytes:
     """The file's first 4 kB as ASCII-compatible bytes, without a byte-order mark or leading white space."""
@@ -66,7 +89,9 @@ def _head(data: bytes) -> bytes:
 
 
 def detect_format(path: str | Path, data: bytes) -> str:
+    """The format of a file from its first bytes ``data`` (then its suffix): a key of :data:`READERS`."""
     head = _head(data)
+    suffix = Path(path).suffix.lower()
     if data[:2] == b"\xff\xff":
         return "chn"
     if head.startswith(b"<"):
@@ -76,32 +101,58 @@ def detect_format(path: str | Path, data: bytes) -> str:
             return "xml"
     if head.startswith(b"$"):
         return "spe"
-    fmt = SUFFIXES.get(Path(path).suffix.lower())
+    if head.startswith(b"Spectrogram:"):
+        return "rcspg"
+    if head.startswith(b"{"):
+        if suffix in (".ndjson", ".jsonl"):
+            return "ndjson"
+        if suffix == ".json":
+            return "json"
+        first, _, rest = head.partition(b"\n")
+        return "ndjson" if rest.lstrip().startswith(b"{") else "json"
+    fmt = SUFFIXES.get(suffix)
     if fmt is None:
-        raise SpectrumFileError(f"{path}: unknown spectrum format (N42, RadiaCode XML, .spe, .chn or CSV)")
+        raise SpectrumFileError(f"{path}: unknown spectrum format (N42, RadiaCode XML / JSON / .rcspg, "
+                                "radiacode-tools .ndjson, .spe, .chn or CSV)")
     return fmt
 
 
-READERS = {"n42": read_n42, "xml": read_radiacode_xml, "spe": read_spe, "chn": read_chn, "csv": read_csv}
+READERS = {"n42": read_n42, "xml": read_radiacode_xml, "spe": read_spe, "chn": read_chn, "csv": read_csv,
+           "rcspg": read_rcspg, "json": read_radiacode_json, "ndjson": read_ndjson}
+#: formats read line by line from the file (never held whole in memory)
+STREAMED = {"rcspg", "ndjson"}
 
 
-def read_spectra(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
-    """Every spectrum in a file, the format from its content (then its suffix)."""
+def read_spectra(path: str | Path, data: bytes | None = None, *, live_time_s: float | None = None,
+                 max_bytes: int | None = None) -> list[Spectrum]:
+    """Every spectrum in a file, the format from its content (then its suffix). ``live_time_s`` is the live time
+    of a CSV that has none; ``max_bytes`` raises the size limit (:data:`MAX_FILE_BYTES`)."""
     p = Path(path)
-    if data is None:
-        try:
-            data = p.read_bytes()
-        except FileNotFoundError:
-            raise SpectrumFileError(f"{p}: file not found") from None
-    fmt = detect_format(p, data)
-    if fmt == "xml" and (b"RadInstrumentData" in _head(data) or b"N42InstrumentData" in _head(data)):
-        fmt = "n42"
+    fmt = format_of(p, data, max_bytes)
+    if data is None and fmt not in STREAMED:
+        data = read_limited(p, max_bytes)
+    if fmt == "csv":
+        return read_csv(p, data, live_time_s=live_time_s)
+    if fmt in STREAMED:
+        return READERS[fmt](p, data, max_bytes=max_bytes)
     return READERS[fmt](p, data)
 
 
-def read_spectrum(path: str | Path, kind: str = "foreground") -> Spectrum:
+def format_of(path: str | Path, data: bytes | None = None, max_bytes: int | None = None) -> str:
+    """The format of a file (its first 8 kB read, the size limit checked, when ``data`` is not given)."""
+    p = Path(path)
+    if data is None:
+        with open_stream(p, None, max_bytes) as f:
+            data = f.read(8192)
+    fmt = detect_format(p, data)
+    if fmt == "xml" and (b"RadInstrumentData" in _head(data) or b"N42InstrumentData" in _head(data)):
+        fmt = "n42"
+    return fmt
+
+
+def read_spectrum(path: str | Path, kind: str = "foreground", **kwargs) -> Spectrum:
     """The first spectrum of ``kind`` in a file (the first of any kind when none is marked)."""
-    spectra = read_spectra(path)
+    spectra = read_spectra(path, **kwargs)
     for sp in spectra:
         if sp.kind == kind:
             return sp

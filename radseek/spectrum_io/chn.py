@@ -8,14 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .core import Spectrum, _check_counts, _err, _poly_cal
+from .core import Spectrum, _check_counts, _err, _poly_cal, read_limited
 
 _CHN_HEADER = struct.Struct("<hhh2sii8s4shh")
 
 
 def read_chn(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """An Ortec binary .chn file."""
-    data = Path(path).read_bytes() if data is None else data
+    data = read_limited(path) if data is None else data
     if len(data) < _CHN_HEADER.size:
         raise _err(path, "header", f"{len(data)} bytes, the .chn header alone is {_CHN_HEADER.size}")
     tag, _mca, _seg, secs, real_t, live_t, date, tim, first, n = _CHN_HEADER.unpack_from(data)

@@ -3,13 +3,29 @@ energy-calibration helpers (conventions in :mod:`radseek.spectrum_io`)."""
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
+
+#: counts above this in one channel are not a measurement (a RadiaCode's 18-day accumulated history holds ~1e9
+#: in all channels together); 1e300 or a corrupted number is refused naming the channel
+MAX_COUNTS_PER_CHANNEL = 1e12
+#: live or real times above this (3.2 years) are refused: a corrupted duration, not a measurement
+MAX_TIME_S = 1e8
+#: a live time may exceed the real time by this fraction plus LIVE_OVER_REAL_S (rounding in the writers)
+LIVE_OVER_REAL_FRACTION = 0.01
+LIVE_OVER_REAL_S = 1.0
+#: more channels than this is a corrupted channel index or count, not an MCA
+MAX_CHANNELS = 65536
+#: files larger than this are refused before being read (``max_bytes`` raises it): the XML readers hold the
+#: whole tree in memory, several times the file
+MAX_FILE_BYTES = 64 * 1024 * 1024
 
 
 class SpectrumFileError(ValueError):
@@ -34,20 +50,23 @@ class Spectrum:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        who = self.source or "<spectrum>"
         c = np.asarray(self.counts, dtype=float)
         if c.ndim != 1 or len(c) == 0:
-            raise SpectrumFileError(f"{self.source or '<spectrum>'}: counts must be a non-empty 1-D array")
-        if not np.all(np.isfinite(c)) or np.any(c < 0):
-            raise SpectrumFileError(f"{self.source or '<spectrum>'}: counts must be finite and >= 0")
-        if not (math.isfinite(self.live_time_s) and self.live_time_s > 0):
-            raise SpectrumFileError(f"{self.source or '<spectrum>'}: live time must be > 0, got {self.live_time_s}")
+            raise SpectrumFileError(f"{who}: counts must be a non-empty 1-D array")
+        if len(c) > MAX_CHANNELS:
+            raise SpectrumFileError(f"{who}: counts: {len(c)} channels, more than {MAX_CHANNELS}")
+        check_counts_array(who, "counts", c)
+        check_times(who, "live time", self.live_time_s, self.real_time_s)
         object.__setattr__(self, "counts", c)
         if self.boundaries_keV is not None:
             b = np.asarray(self.boundaries_keV, dtype=float)
-            if b.shape != (len(c) + 1,) or np.any(np.diff(b) <= 0):
-                raise SpectrumFileError(f"{self.source or '<spectrum>'}: {len(c) + 1} ascending channel boundaries "
+            if b.shape != (len(c) + 1,) or not np.all(np.isfinite(b)) or np.any(np.diff(b) <= 0):
+                raise SpectrumFileError(f"{who}: {len(c) + 1} finite ascending channel boundaries "
                                         f"needed, got {b.shape[0]}")
             object.__setattr__(self, "boundaries_keV", b)
+        if not all(math.isfinite(v) for v in self.calibration):
+            raise SpectrumFileError(f"{who}: energy calibration {self.calibration} is not finite")
 
     @property
     def n_channels(self) -> int:
@@ -117,13 +136,79 @@ def format_duration(seconds: float) -> str:
     return f"PT{seconds:.10g}S"
 
 
-def _check_counts(path: str | Path, where: str, values: list[float]) -> np.ndarray:
+def _check_counts(path: str | Path, where: str, values) -> np.ndarray:
     a = np.asarray(values, dtype=float)
     if len(a) == 0:
         raise _err(path, where, "no channel data")
-    if np.any(a < 0) or not np.all(np.isfinite(a)):
-        raise _err(path, where, "counts must be finite and >= 0")
+    check_counts_array(str(path), where, a)
     return a
+
+
+def check_counts_array(who: str, where: str, a: np.ndarray) -> None:
+    """Counts finite, >= 0 and <= MAX_COUNTS_PER_CHANNEL; the error names the first bad channel."""
+    bad = ~np.isfinite(a) | (a < 0) | (a > MAX_COUNTS_PER_CHANNEL)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SpectrumFileError(f"{who}: {where}: channel {i} has {a[i]!r} counts (must be finite, >= 0 and "
+                                f"<= {MAX_COUNTS_PER_CHANNEL:g})")
+
+
+def check_times(who: str, where: str, live: float, real: float | None) -> None:
+    """Live time in (0, MAX_TIME_S], real time likewise when given, live <= real (plus a rounding margin)."""
+    if not (isinstance(live, (int, float)) and math.isfinite(live) and 0 < live <= MAX_TIME_S):
+        raise SpectrumFileError(f"{who}: {where} must be > 0 and <= {MAX_TIME_S:g} s, got {live!r}")
+    if real is not None:
+        if not (isinstance(real, (int, float)) and math.isfinite(real) and 0 < real <= MAX_TIME_S):
+            raise SpectrumFileError(f"{who}: real time must be > 0 and <= {MAX_TIME_S:g} s, got {real!r}")
+        if live > real * (1 + LIVE_OVER_REAL_FRACTION) + LIVE_OVER_REAL_S:
+            raise SpectrumFileError(f"{who}: {where} {live:g} s exceeds the real time {real:g} s")
+
+
+def read_limited(path: str | Path, max_bytes: int | None = None) -> bytes:
+    """The file's bytes, refused (SpectrumFileError) when missing or larger than ``max_bytes`` (default
+    MAX_FILE_BYTES) before anything is read."""
+    p = Path(path)
+    limit = MAX_FILE_BYTES if max_bytes is None else int(max_bytes)
+    try:
+        size = p.stat().st_size
+        if size > limit:
+            raise SpectrumFileError(f"{p}: {size / 1e6:.1f} MB, over the {limit / 1e6:.0f} MB limit for spectrum "
+                                    "files (split the file, or raise the limit with --max-mb)")
+        return p.read_bytes()
+    except FileNotFoundError:
+        raise SpectrumFileError(f"{p}: file not found") from None
+    except IsADirectoryError:
+        raise SpectrumFileError(f"{p}: is a directory, not a spectrum file") from None
+    except PermissionError:
+        raise SpectrumFileError(f"{p}: permission denied") from None
+
+
+def open_stream(path: str | Path, data: bytes | None = None, max_bytes: int | None = None) -> BinaryIO:
+    """A binary stream of the file (checked against the size limit as :func:`read_limited`), or of ``data``."""
+    if data is not None:
+        return io.BytesIO(data)
+    p = Path(path)
+    limit = MAX_FILE_BYTES if max_bytes is None else int(max_bytes)
+    try:
+        size = p.stat().st_size
+        if size > limit:
+            raise SpectrumFileError(f"{p}: {size / 1e6:.1f} MB, over the {limit / 1e6:.0f} MB limit for spectrum "
+                                    "files (split the file, or raise the limit with --max-mb)")
+        return open(p, "rb")
+    except FileNotFoundError:
+        raise SpectrumFileError(f"{p}: file not found") from None
+    except IsADirectoryError:
+        raise SpectrumFileError(f"{p}: is a directory, not a spectrum file") from None
+    except PermissionError:
+        raise SpectrumFileError(f"{p}: permission denied") from None
+
+
+def make_spectrum(path: str | Path, where: str, counts, live: float, real: float | None = None, **kw) -> Spectrum:
+    """A :class:`Spectrum`, its validation errors re-raised naming ``path`` and ``where``."""
+    try:
+        return Spectrum(counts, live, real, source=str(path), **kw)
+    except SpectrumFileError as exc:
+        raise _err(path, where, str(exc).split(": ", 1)[-1]) from None
 
 
 _PREFIX_USE = re.compile(rb"</?([A-Za-z_][\w.-]*):[A-Za-z_]|\s([A-Za-z_][\w.-]*):[A-Za-z_][\w.-]*\s*=")

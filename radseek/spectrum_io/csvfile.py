@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from pathlib import Path
 
 import numpy as np
 
-from .core import Spectrum, SpectrumFileError, _check_counts, _err, _float, _floats, _poly_cal
+from .core import MAX_CHANNELS, Spectrum, _check_counts, _err, _float, _floats, _poly_cal, make_spectrum, read_limited
 
 
 def read_commented_csv(text: str) -> tuple[dict[str, str], list[list[str]]]:
@@ -28,45 +29,171 @@ def read_commented_csv(text: str) -> tuple[dict[str, str], list[list[str]]]:
     return meta, rows
 
 
-def read_csv(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
-    """A CSV spectrum (see the module docstring)."""
-    data = Path(path).read_bytes() if data is None else data
-    meta, rows = read_commented_csv(data.decode("utf-8-sig", errors="replace"))
+_META_SPLIT = re.compile(r"\s*[:=,;\t]\s*")
+LIVE_KEYS = {"livetime", "live", "lt"}
+REAL_KEYS = {"realtime", "real", "rt", "measurementtime", "measuretime", "duration", "accumulationtime",
+             "acquisitiontime", "elapsedtime"}
+CAL_KEYS = {"calibration", "energycalibration", "calibrationcoefficients", "coefficients"}
+CHANNEL_COLS = {"channel", "ch", "chan", "channelnumber", "channelno", "bin", "index"}
+COUNT_COLS = {"counts", "count", "cnt", "countsperchannel", "value", "n", "data", "events", "pulses"}
+
+
+def _norm(key: str) -> str:
+    """A header or meta key reduced to letters, a trailing unit word dropped: 'Live Time (s)' -> 'livetime'."""
+    k = re.sub(r"[^a-z]", "", key.lower())
+    return re.sub(r"(seconds|secs|sec|s)$", "", k) if k not in ("counts", "pulses", "events") else k
+
+
+def _column_kind(name: str) -> str | None:
+    k = re.sub(r"[^a-z]", "", name.lower())
+    if k in CHANNEL_COLS:
+        return "channel"
+    if k.startswith("energy") or k in ("kev", "e"):
+        return "energy"
+    if k in COUNT_COLS or k.startswith("counts"):
+        return "counts"
+    return None
+
+
+def _delimiter(line: str) -> str:
+    for d in ("\t", ";", ","):
+        if d in line:
+            return d
+    return ","
+
+
+def read_csv(path: str | Path, data: bytes | None = None, live_time_s: float | None = None) -> list[Spectrum]:
+    """A CSV spectrum: one row per channel, columns ``channel``, ``energy`` (keV, lower channel edge) and
+    ``counts`` in any order (named by a header row; without one: ``counts``, ``channel,counts`` (integral first
+    column) or ``energy,counts``, or ``channel,energy,counts``); delimiter ``,``, ``;`` or tab. The channel
+    column is honoured: rows are placed by channel number (sorted, gaps kept as zero counts; duplicate or absurd
+    channel numbers refused). Live time from ``live_time_s`` (``--live-time``), else a ``# live_time_s: 300`` /
+    ``# LiveTime, 300`` / ``MeasurementTime,532`` style line (``#`` optional before the data; keys matched
+    without case, spaces or units: live time, else real time or measurement time taken as the live time), else an
+    error saying so. ``# calibration: c0 c1 c2`` gives the energy calibration; without it an energy column does
+    (with a channel column: a polynomial of degree <= 2 fitted through it; without: its values are the edges)."""
+    data = read_limited(path) if data is None else data
+    text = data.decode("utf-8-sig", errors="replace")
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    rows: list[tuple[int, list[str]]] = []
+    delim = None
+    for ln_no, ln in enumerate(text.splitlines(), 1):
+        s = ln.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            parts = _META_SPLIT.split(s.lstrip("#").strip(), maxsplit=1)
+            if len(parts) == 2 and parts[0]:
+                meta[_norm(parts[0])] = parts[1].strip()
+            continue
+        delim = delim or _delimiter(s)
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(s), delimiter=delim))]
+        if not rows and cells and not _is_number(cells[0]):
+            k = _norm(cells[0])
+            if len(cells) >= 2 and _is_number(cells[1]) and (k in LIVE_KEYS | REAL_KEYS | CAL_KEYS):
+                meta[k] = " ".join(cells[1:])
+                delim = None  # the data rows may use another delimiter than a 'key,value' line
+                continue
+            if header is None and all(not _is_number(c) for c in cells):
+                header = cells
+                continue
+        rows.append((ln_no, cells))
     if not rows:
         raise _err(path, "rows", "no data rows")
-    header = None
-    if any(not _is_number(c) for c in rows[0]):
-        header = [c.strip().lower() for c in rows[0]]
-        rows = rows[1:]
-    width = len(rows[0]) if rows else 0
-    if width not in (1, 2):
-        raise _err(path, "row 1", f"needs 1 (counts) or 2 (channel|energy_keV, counts) columns, got {width}")
-    vals = []
-    for i, r in enumerate(rows):
+    width = len(rows[0][1])
+    for ln_no, r in rows:
         if len(r) != width:
-            raise _err(path, f"row {i + 1 + (header is not None)}", f"has {len(r)} columns, expected {width}")
-        vals.append([_float(path, f"row {i + 1 + (header is not None)}", c) for c in r])
-    arr = np.asarray(vals, dtype=float).reshape(len(vals), width)
-    counts = _check_counts(path, "counts column", list(arr[:, -1]))
-    if "live_time_s" not in meta:
-        raise _err(path, "# live_time_s:", "comment line missing (live time in seconds)")
-    live = _float(path, "# live_time_s:", meta["live_time_s"])
-    real = _float(path, "# real_time_s:", meta["real_time_s"]) if "real_time_s" in meta else None
-    cal: tuple[float, ...] = (0.0, 1.0)
+            raise _err(path, f"line {ln_no}", f"has {len(r)} columns, expected {width}")
+    arr = np.array([[_float(path, f"line {ln_no} column {j + 1}", c) for j, c in enumerate(r)] for ln_no, r in rows],
+                   dtype=float).reshape(len(rows), width)
+    lines = [ln_no for ln_no, _ in rows]
+    cols: dict[str, int] = {}
+    if header is not None:
+        if len(header) != width:
+            raise _err(path, "header", f"names {len(header)} columns, the rows have {width}")
+        for j, name in enumerate(header):
+            kind = _column_kind(name)
+            if kind is not None and kind not in cols:
+                cols[kind] = j
+        if "counts" not in cols:
+            free = [j for j in range(width) if j not in cols.values()]
+            if len(free) != 1:
+                raise _err(path, "header", f"no counts column among {header} (name one 'counts')")
+            cols["counts"] = free[0]
+    elif width == 1:
+        cols = {"counts": 0}
+    elif width == 2:
+        first = arr[:, 0]
+        cols = {"channel" if np.all(first == np.round(first)) else "energy": 0, "counts": 1}
+    elif width == 3:
+        cols = {"channel": 0, "energy": 1, "counts": 2}
+    else:
+        raise _err(path, f"line {lines[0]}", f"{width} columns without a header row (name them: channel, energy, "
+                   "counts)")
+    counts_in = arr[:, cols["counts"]]
+    _check_counts(path, "counts column", counts_in)  # names the first bad value's position
     bounds = None
+    cal: tuple[float, ...] = (0.0, 1.0)
+    if "channel" in cols:
+        ch = arr[:, cols["channel"]]
+        for k, c in enumerate(ch):
+            if c != round(c) or not 0 <= c < MAX_CHANNELS:
+                raise _err(path, f"line {lines[k]} channel", f"{c:g} is not a channel number 0..{MAX_CHANNELS - 1}")
+        chi = ch.astype(int)
+        seen: dict[int, int] = {}
+        for k, c in enumerate(chi):
+            if c in seen:
+                raise _err(path, f"line {lines[k]} channel", f"{c} already given on line {seen[c]}")
+            seen[int(c)] = lines[k]
+        counts = np.zeros(int(chi.max()) + 1)
+        counts[chi] = counts_in
+        if "energy" in cols and "calibration" not in meta:
+            e = arr[:, cols["energy"]]
+            deg = min(2, len(e) - 1)
+            if deg < 1:
+                raise _err(path, "energy column", "one row cannot calibrate (add '# calibration: c0 c1 c2')")
+            coef = np.polynomial.polynomial.polyfit(chi.astype(float), e, deg)
+            resid = np.abs(np.polynomial.polynomial.polyval(chi, coef) - e).max()
+            if not resid <= max(0.5, 1e-3 * float(np.ptp(e))):
+                raise _err(path, "energy column", f"not a polynomial of degree <= 2 in the channel (off by "
+                           f"{resid:.3g} keV): add '# calibration: c0 c1 c2'")
+            cal = _poly_cal(path, "energy column (fitted calibration)", tuple(float(c) for c in coef), len(counts))
+    elif "energy" in cols:
+        e = arr[:, cols["energy"]]
+        order = np.argsort(e, kind="stable")
+        e, counts = e[order], counts_in[order]
+        dup = np.flatnonzero(np.diff(e) == 0)
+        if len(e) < 2 or len(dup):
+            where = f"line {lines[order[dup[0] + 1]]}" if len(dup) else "energy column"
+            raise _err(path, where, "energies must be distinct (two or more rows)")
+        bounds = np.r_[e, 2 * e[-1] - e[-2]]
+    else:
+        counts = counts_in
     if "calibration" in meta:
         cal = _poly_cal(path, "# calibration:", _floats(path, "# calibration:", meta["calibration"].replace(",", " ")),
                         len(counts))
-    elif width == 2 and header is not None and header[0].startswith("energy"):
-        lo = arr[:, 0]
-        if len(lo) < 2 or np.any(np.diff(lo) <= 0):
-            raise _err(path, f"column {header[0]!r}", "energies must be strictly ascending")
-        bounds = np.r_[lo, 2 * lo[-1] - lo[-2]]
-    try:
-        return [Spectrum(counts, live, real, cal, bounds, meta.get("start_time"), meta.get("title", ""), "",
-                         meta.get("kind", "foreground"), str(path))]
-    except SpectrumFileError as exc:
-        raise _err(path, "spectrum", str(exc).split(": ", 1)[-1]) from None
+        bounds = None
+    live, real = _times(path, meta, live_time_s)
+    return [make_spectrum(path, "spectrum", counts, live, real, calibration=cal, boundaries_keV=bounds,
+                          start_time=meta.get("starttime"), title=meta.get("title", ""),
+                          kind=meta.get("kind", "foreground"))]
+
+
+def _times(path, meta: dict[str, str], live_time_s: float | None) -> tuple[float, float | None]:
+    real = None
+    for k in REAL_KEYS:
+        if k in meta:
+            real = _float(path, f"{k} (real time)", meta[k].split()[0] if meta[k].split() else "")
+            break
+    if live_time_s is not None:
+        return float(live_time_s), real
+    for k in LIVE_KEYS:
+        if k in meta:
+            return _float(path, f"{k} (live time)", meta[k].split()[0] if meta[k].split() else ""), real
+    if real is not None:
+        return real, None  # no dead time recorded: the measurement time is the live time
+    raise _err(path, "live time", "not in the file: add a '# live_time_s: 300' line, or give --live-time SECONDS")
 
 
 def _is_number(s: str) -> bool:

@@ -22,6 +22,7 @@ from .core import (
     format_duration,
     parse_duration,
     polynomial_edges,
+    read_limited,
 )
 
 N42_NS = "http://physics.nist.gov/N42/2011/N42"
@@ -63,7 +64,7 @@ def read_n42(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """Every spectrum of an N42.42-2011 file (or an N42.42-2006 one, :func:`read_n42_2006`), in file order
     (``kind`` from ``MeasurementClassCode``, ``meta["detector"]`` the ``radDetectorInformationReference``: a
     multi-detector instrument gives one spectrum per detector and measurement)."""
-    data = Path(path).read_bytes() if data is None else data
+    data = read_limited(path) if data is None else data
     root = _parse_xml(path, data)
     if _local(root.tag) == "N42InstrumentData":
         return _read_n42_2006(path, root)

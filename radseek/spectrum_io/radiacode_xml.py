@@ -4,19 +4,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .core import Spectrum, _check_counts, _err, _float, _local, _parse_xml, _poly_cal
+from .core import Spectrum, SpectrumFileError, _check_counts, _err, _float, _local, _parse_xml, _poly_cal, read_limited
 
 
 def read_radiacode_xml(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """The spectrum (and the embedded background, if any) of a RadiaCode app XML export."""
-    data = Path(path).read_bytes() if data is None else data
+    data = read_limited(path) if data is None else data
     root = _parse_xml(path, data)
     if _local(root.tag) != "ResultDataFile":
         raise _err(path, f"<{_local(root.tag)}>", "root element must be ResultDataFile (RadiaCode XML)")
     out = []
     for rd_i, rd in enumerate(root.iter("ResultData")):
-        start = rd.find("StartTime")
-        for tag, kind in (("EnergySpectrum", "foreground"), ("BackgroundEnergySpectrum", "background")):
+        # one StartTime per layer, in layer order (radiacode-tools RcSpectrum writes and reads them so)
+        starts = [(e.text or "").strip() or None for e in rd.findall("StartTime")]
+        layers = (("EnergySpectrum", "foreground"), ("BackgroundEnergySpectrum", "background"))
+        for layer, (tag, kind) in enumerate(layers):
             es = rd.find(tag)
             if es is None:
                 continue
@@ -54,10 +56,12 @@ def read_radiacode_xml(path: str | Path, data: bytes | None = None) -> list[Spec
             cal = _poly_cal(path, where + "/EnergyCalibration", cal, len(counts))
             name = es.find("SpectrumName")
             serial = es.find("SerialNumber")
-            out.append(Spectrum(counts, live, real, cal, None,
-                                (start.text or "").strip() if start is not None and kind == "foreground" else None,
-                                (name.text or "").strip() if name is not None else "",
-                                (serial.text or "").strip() if serial is not None else "", kind, str(path)))
+            try:
+                out.append(Spectrum(counts, live, real, cal, None, starts[layer] if layer < len(starts) else None,
+                                    (name.text or "").strip() if name is not None else "",
+                                    (serial.text or "").strip() if serial is not None else "", kind, str(path)))
+            except SpectrumFileError as exc:
+                raise _err(path, where, str(exc).split(": ", 1)[-1]) from None
     if not out:
         raise _err(path, "ResultDataFile", "no ResultData/EnergySpectrum")
     return out

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .core import Spectrum, SpectrumFileError, _check_counts, _err, _float, _floats, _poly_cal
+from .core import Spectrum, SpectrumFileError, _check_counts, _err, _float, _floats, _poly_cal, read_limited
 
 
 def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """An Ortec ASCII .spe file."""
-    data = Path(path).read_bytes() if data is None else data
+    data = read_limited(path) if data is None else data
     data = data[3:] if data.startswith(b"\xef\xbb\xbf") else data  # a UTF-8 byte-order mark
     try:
         lines = [ln.strip() for ln in data.decode("latin-1").splitlines()]
