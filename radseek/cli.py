@@ -27,7 +27,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("estimator.replay_cli", "re-run the estimator on a recorded flight"),
     "plan": ("launch.plan_cli", "plan the next dwell points for a scene and print/plot them"),
     "calibrate": ("spectra.calibrate_cli", "fit the detector response to a measured spectrum; name what it misses"),
-    "spectra": ("spectra.flight_cli", "export dwell spectra as N42; import a flight from spectrogram + pose CSVs"),
+    "spectra": ("spectra.flight_cli", "show spectrum files; export dwell spectra as N42; import flights (CSV, NDJSON)"),
     "campaign": ("launch.campaign_cli", "fly many seeded searches as Ray tasks (local or a cluster) into Parquet"),
 }
 

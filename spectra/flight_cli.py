@@ -14,6 +14,13 @@
         channels are assigned whole to the 32 channels of the scene's comparator edges by their centre energy
         (counts stay integers); the pose is interpolated at the sample's mid-time; samples outside the pose
         track are dropped (counted in the message).
+
+    radseek spectra import-flight LOG.ndjson --out DATASET_DIR [--home LAT,LON,ALT] [--serial SN]
+        a radiacode-tools (rcmultispg) log with GNSS fixes: cumulative spectra differenced into frames, GNSS to the
+        local ENU frame, position variance from the fixes' quality (:func:`import_ndjson_flight`).
+
+    radseek spectra show FILE [--json] [--live-time S]
+        what the readers make of any spectrum file (:mod:`spectra.show`).
 """
 
 from __future__ import annotations
@@ -76,6 +83,133 @@ def _read_table(path: Path) -> tuple[dict[str, str], list[str], np.ndarray]:
     return meta, header, arr
 
 
+def board_channel_map(cal, n_native: int, edges_keV: np.ndarray) -> np.ndarray:
+    """The board channel (0..31) of each native channel by its centre energy; -1 below the first edge (the board's
+    threshold); the last channel is open above (overflow)."""
+    i = np.arange(n_native + 1, dtype=float)
+    bounds = sum(c * i**k for k, c in enumerate(cal))
+    centre = 0.5 * (bounds[1:] + bounds[:-1])
+    edges = np.asarray(edges_keV, dtype=float)
+    ch = np.searchsorted(edges, centre, side="right") - 1
+    return np.where(centre >= edges[-1], len(edges) - 2, ch)
+
+
+def to_board(counts_native: np.ndarray, ch: np.ndarray, n_board: int) -> np.ndarray:
+    """Native counts (..., n_native) summed into the board channels of ``ch`` (counts stay integers)."""
+    c = np.atleast_2d(counts_native)
+    out = np.zeros((c.shape[0], n_board), dtype=np.int64)
+    for k in range(n_board):
+        out[:, k] = np.rint(c[:, ch == k].sum(axis=1)).astype(np.int64)
+    return out
+
+
+WGS84_A = 6378137.0
+WGS84_F = 1 / 298.257223563
+
+
+def geodetic_to_enu(lat, lon, alt, home: tuple[float, float, float]) -> np.ndarray:
+    """(n, 3) east, north, up (m) of WGS84 points relative to ``home`` (lat, lon deg, alt m): geodetic to ECEF,
+    then rotated into the home's local tangent plane."""
+    e2 = WGS84_F * (2 - WGS84_F)
+
+    def ecef(la, lo, h):
+        la, lo = np.radians(la), np.radians(lo)
+        n = WGS84_A / np.sqrt(1 - e2 * np.sin(la) ** 2)
+        return np.stack([(n + h) * np.cos(la) * np.cos(lo), (n + h) * np.cos(la) * np.sin(lo),
+                         (n * (1 - e2) + h) * np.sin(la)], axis=-1)
+
+    p = ecef(np.asarray(lat, float), np.asarray(lon, float), np.asarray(alt, float))
+    p0 = ecef(np.float64(home[0]), np.float64(home[1]), np.float64(home[2]))
+    la0, lo0 = np.radians(home[0]), np.radians(home[1])
+    r = np.array([[-np.sin(lo0), np.cos(lo0), 0.0],
+                  [-np.sin(la0) * np.cos(lo0), -np.sin(la0) * np.sin(lo0), np.cos(la0)],
+                  [np.cos(la0) * np.cos(lo0), np.cos(la0) * np.sin(lo0), np.sin(la0)]])
+    return (p - p0) @ r.T
+
+
+#: a frame whose mid-time is farther than this from every GNSS fix gets no position and is dropped
+MAX_FIX_GAP_S = 10.0
+
+
+def import_ndjson_flight(log_path: str | Path, out: str | Path, edges_keV: np.ndarray, nuclide: str = "Cs-137",
+                         background_cps: float | None = None, source_z: float | None = None,
+                         home: tuple[float, float, float] | None = None, serial: str | None = None,
+                         max_bytes: int | None = None) -> tuple[Path, dict]:
+    """A radiacode-tools NDJSON log (:mod:`radseek.spectrum_io.ndjson`) as a dataset: one frame per pair of
+    consecutive cumulative spectra (their difference, its own duration), rebinned to the board's channels; the
+    position is the GNSS track in the local ENU frame (home = the first fix, or ``home``) interpolated at the
+    frame's mid-time, its variance from the fixes' stated quality; yaw from the GNSS course (the detector axis
+    assumed along the direction of travel; 0 without a course). ``background_cps`` defaults to the median frame
+    rate, ``source_z`` to 1 m below the median detector height (a hand-carried detector). Returns the dataset
+    path and a summary (frames kept, dropped and why)."""
+    from radseek.spectrum_io.ndjson import scan
+
+    edges = np.asarray(edges_keV, dtype=float)
+    maps: dict[tuple, np.ndarray] = {}
+    rows: list[tuple[float, float, np.ndarray]] = []
+
+    def on_frame(fr) -> None:
+        key = (fr.calibration, len(fr.counts))
+        if key not in maps:
+            maps[key] = board_channel_map(fr.calibration, len(fr.counts), edges)
+        rows.append((fr.start_s, fr.end_s, to_board(fr.counts, maps[key], len(edges) - 1)[0]))
+
+    log = scan(log_path, serial=serial, on_frame=on_frame, max_bytes=max_bytes)
+    p = Path(log_path)
+    if not rows:
+        raise SpectrumFileError(f"{p}: no frame: {log.spectrum_records} spectrum records, {log.resets} device resets, "
+                                f"{log.timing_breaks} timing breaks")
+    fixes = log.gnss
+    if not fixes:
+        raise SpectrumFileError(f"{p}: no GNSS fix in the log ({log.gnss_without_fix} records without a fix): give a "
+                                "pose track CSV instead")
+    ft = np.array([f.t for f in fixes])
+    keep_fix = np.r_[True, np.diff(ft) > 0]  # duplicate fix times: the first is kept
+    fixes = [f for f, k in zip(fixes, keep_fix, strict=True) if k]
+    ft = ft[keep_fix]
+    alts = np.array([np.nan if f.alt is None else f.alt for f in fixes])
+    if np.all(np.isnan(alts)):
+        alts[:] = 0.0
+    else:
+        good = ~np.isnan(alts)
+        alts = np.interp(ft, ft[good], alts[good])
+    home = home if home is not None else (fixes[0].lat, fixes[0].lon, float(alts[0]))
+    enu = geodetic_to_enu([f.lat for f in fixes], [f.lon for f in fixes], alts, home)
+    start = np.array([r[0] for r in rows])
+    end = np.array([r[1] for r in rows])
+    mid = 0.5 * (start + end)
+    near = np.abs(ft[np.clip(np.searchsorted(ft, mid), 0, len(ft) - 1)] - mid)
+    near = np.minimum(near, np.abs(ft[np.clip(np.searchsorted(ft, mid) - 1, 0, len(ft) - 1)] - mid))
+    keep = (mid >= ft[0] - MAX_FIX_GAP_S) & (mid <= ft[-1] + MAX_FIX_GAP_S) & (near <= MAX_FIX_GAP_S)
+    if not keep.any():
+        raise SpectrumFileError(f"{p}: no frame lies within {MAX_FIX_GAP_S:g} s of a GNSS fix (frames "
+                                f"{start[0]:.0f}..{end[-1]:.0f}, fixes {ft[0]:.0f}..{ft[-1]:.0f} unix s)")
+    m = mid[keep]
+    x, y, z = (np.interp(m, ft, enu[:, k]) for k in range(3))
+    var_h = np.interp(m, ft, [f.sigma_h**2 for f in fixes])
+    var_v = np.interp(m, ft, [f.sigma_v**2 for f in fixes])
+    idx = np.clip(np.searchsorted(ft, m), 0, len(ft) - 1)
+    yaw = np.array([0.0 if fixes[i].track_deg is None else np.radians(90.0 - fixes[i].track_deg) for i in idx])
+    yaw = np.angle(np.exp(1j * yaw))
+    counts = np.stack([r[2] for r, k in zip(rows, keep, strict=True) if k])
+    dur = (end - start)[keep]
+    t0 = start[keep][0]
+    frames = Frames(t=end[keep] - t0, duration=dur, x=x, y=y, z=z, yaw=yaw, var_x=var_h, var_y=var_h.copy(),
+                    var_z=var_v, dwell=np.full(len(m), -1), counts=counts)
+    rate = counts.sum(axis=1) / dur
+    bg = float(np.median(rate)) if background_cps is None else float(background_cps)
+    sz = float(np.median(z) - 1.0) if source_z is None else float(source_z)
+    lo = np.array([x.min(), y.min(), min(z.min(), sz)]) - 5.0
+    hi = np.array([x.max(), y.max(), z.max()]) + 5.0
+    scenario = Scenario(channel_edges_keV=edges, background_cps=bg, source_z=sz, bounds_min=lo, bounds_max=hi,
+                        nuclide=nuclide)
+    summary = {"frames": int(keep.sum()), "dropped_no_fix": int((~keep).sum()), "device_resets": log.resets,
+               "timing_breaks": log.timing_breaks, "recalibrations": log.recalibrations,
+               "out_of_order_skipped": log.out_of_order, "gnss_fixes": len(fixes), "home": list(home),
+               "background_cps": bg, "source_z": sz, "serial": log.serial, "notes": log.notes}
+    return write_dataset(out, frames, scenario), summary
+
+
 def import_flight(spectrogram: str | Path, poses: str | Path, out: str | Path, edges_keV: np.ndarray,
                   nuclide: str = "Cs-137", background_cps: float = 0.0, source_z: float | None = None
                   ) -> tuple[Path, int]:
@@ -100,15 +234,8 @@ def import_flight(spectrogram: str | Path, poses: str | Path, out: str | Path, e
         dur = np.r_[gaps, gaps[-1] if len(gaps) else 1.0]
     if np.any(dur <= 0):
         raise SpectrumFileError(f"{sp_path}: sample durations must be > 0")
-    i = np.arange(counts_native.shape[1] + 1, dtype=float)
-    bounds = sum(c * i**k for k, c in enumerate(cal))
-    centre = 0.5 * (bounds[1:] + bounds[:-1])
     edges = np.asarray(edges_keV, dtype=float)
-    ch = np.searchsorted(edges, centre, side="right") - 1  # channel of each native channel; < 0: below threshold
-    ch = np.where(centre >= edges[-1], len(edges) - 2, ch)  # the overflow channel is open above
-    counts = np.zeros((len(t), len(edges) - 1), dtype=np.int64)
-    for k in range(len(edges) - 1):
-        counts[:, k] = counts_native[:, ch == k].sum(axis=1).astype(np.int64)
+    counts = to_board(counts_native, board_channel_map(cal, counts_native.shape[1], edges), len(edges) - 1)
     pmeta, phead, parr = _read_table(pose_path)
     for c in ("time_s", "x", "y", "z", "yaw"):
         if c not in phead:
@@ -143,6 +270,26 @@ def import_flight(spectrogram: str | Path, poses: str | Path, out: str | Path, e
     return write_dataset(out, frames, scenario), int((~keep).sum())
 
 
+def _home(text: str) -> tuple[float, float, float]:
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--home expects lat,lon,alt, got {text!r}") from None
+    if len(v) != 3 or not (-90 <= v[0] <= 90 and -180 <= v[1] <= 180 and all(np.isfinite(v))):
+        raise argparse.ArgumentTypeError(f"--home expects lat,lon,alt (degrees, degrees, metres), got {text!r}")
+    return v[0], v[1], v[2]
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="radseek spectra", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -151,25 +298,63 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("dataset")
     e.add_argument("--out", required=True)
     e.add_argument("--transit", action="store_true", help="add the transit frames as one more measurement")
-    im = sub.add_parser("import-flight", help="spectrogram CSV + pose track CSV -> dataset directory")
-    im.add_argument("spectrogram")
-    im.add_argument("poses")
+    sh = sub.add_parser("show", help="print what the readers make of a spectrum file (any format read)")
+    sh.add_argument("file")
+    sh.add_argument("--json", action="store_true", help="strict JSON (null for a missing or non-finite value)")
+    sh.add_argument("--live-time", type=_positive, help="live time (s) of a CSV that states none")
+    sh.add_argument("--max-mb", type=_positive, help="raise the file size limit (default 64 MB)")
+    im = sub.add_parser("import-flight", help="spectrogram CSV + pose track CSV, or a radiacode-tools NDJSON log "
+                                              "with GNSS fixes -> dataset directory")
+    im.add_argument("spectrogram", help="spectrogram CSV, or an .ndjson log (spectra + GNSS fixes)")
+    im.add_argument("poses", nargs="?", help="pose track CSV (not with an .ndjson log)")
     im.add_argument("--out", required=True)
     im.add_argument("--scene", help="scene whose comparator edges define the 32 channels (default scene)")
     im.add_argument("--nuclide", default="Cs-137")
-    im.add_argument("--background-cps", type=float, default=0.0)
+    im.add_argument("--background-cps", type=float, default=None,
+                    help="operator's background estimate (default: 0 for CSV, the median frame rate for NDJSON)")
     im.add_argument("--source-z", type=float, default=None)
+    im.add_argument("--home", type=_home, help="NDJSON: local frame origin lat,lon,alt (default: the first fix)")
+    im.add_argument("--serial", help="NDJSON: the device to import (default: the first one in the log)")
+    im.add_argument("--max-mb", type=_positive, help="raise the file size limit (default 64 MB)")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "export-n42":
             p = export_n42(a.dataset, a.out, a.transit)
             print(f"wrote {p}")
+        elif a.cmd == "show":
+            from spectra.show import describe, dumps, human
+
+            d = describe(a.file, a.live_time, int(a.max_mb * 1e6) if a.max_mb else None)
+            print(dumps(d) if a.json else human(d))
         else:
             from detector_fw_sim.scene import load_scene
+            from radseek.spectrum_io import format_of
 
             edges = load_scene(a.scene).channel_edges_keV
-            p, dropped = import_flight(a.spectrogram, a.poses, a.out, edges, a.nuclide, a.background_cps, a.source_z)
-            print(f"wrote {p}" + (f" ({dropped} samples outside the pose track dropped)" if dropped else ""))
+            max_bytes = int(a.max_mb * 1e6) if a.max_mb else None
+            if format_of(a.spectrogram, None, max_bytes) == "ndjson":
+                if a.poses:
+                    raise SpectrumFileError(f"{a.poses}: an NDJSON log brings its own GNSS track; give no pose file")
+                if Path(a.out).exists() and any(Path(a.out).iterdir()):
+                    raise SpectrumFileError(f"{a.out}: exists and is not empty; choose a new --out")
+                p, summary = import_ndjson_flight(a.spectrogram, a.out, edges, a.nuclide, a.background_cps,
+                                                  a.source_z, a.home, a.serial, max_bytes)
+                bg = " (the median frame rate)" if a.background_cps is None else ""
+                print(f"wrote {p}: {summary['frames']} frames from {summary['serial'] or 'the device'}, "
+                      f"{summary['gnss_fixes']} GNSS fixes, home {summary['home'][0]:.6f},{summary['home'][1]:.6f},"
+                      f"{summary['home'][2]:.1f}; background {summary['background_cps']:.3g} cps{bg}")
+                skipped = {k: summary[k] for k in ("dropped_no_fix", "device_resets", "timing_breaks",
+                                                   "recalibrations", "out_of_order_skipped") if summary[k]}
+                if skipped:
+                    print("  no frame across: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in skipped.items()))
+                for n in summary["notes"]:
+                    print(f"  note: {n}")
+            else:
+                if not a.poses:
+                    raise SpectrumFileError(f"{a.spectrogram}: a spectrogram CSV needs a pose track CSV")
+                p, dropped = import_flight(a.spectrogram, a.poses, a.out, edges, a.nuclide,
+                                           a.background_cps or 0.0, a.source_z)
+                print(f"wrote {p}" + (f" ({dropped} samples outside the pose track dropped)" if dropped else ""))
     except (SpectrumFileError, ValueError, FileNotFoundError) as exc:
         print(f"radseek spectra: {exc}", file=sys.stderr)
         return 2

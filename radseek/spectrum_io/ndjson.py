@@ -83,6 +83,7 @@ class Frame:
     start_s: float
     end_s: float
     counts: np.ndarray
+    calibration: tuple[float, ...] = ()
 
     @property
     def live_s(self) -> float:
@@ -274,7 +275,7 @@ def scan(path: str | Path, serial: str | None = None, on_frame: Callable[[Frame]
             elif abs(ddur - gap) > TIMING_TOLERANCE_S + TIMING_TOLERANCE_FRACTION * gap:
                 log.timing_breaks += 1
             else:
-                frame = Frame(i, pt, t, diff)
+                frame = Frame(i, pt, t, diff, cal)
                 log.foreground += diff
                 log.frames += 1
                 log.frame_live_s += gap
