@@ -139,7 +139,7 @@ def read_csv(path: str | Path, data: bytes | None = None, live_time_s: float | N
         ch = arr[:, cols["channel"]]
         for k, c in enumerate(ch):
             if c != round(c) or not 0 <= c < MAX_CHANNELS:
-                raise _err(path, f"line {lines[k]} channel", f"{c:g} is not a channel number 0..{MAX_CHANNELS - 1}")
+                raise _err(path, f"line {lines[k]} channel", f"{c:.15g} is not a channel number 0..{MAX_CHANNELS - 1}")
         chi = ch.astype(int)
         seen: dict[int, int] = {}
         for k, c in enumerate(chi):
