@@ -289,3 +289,75 @@ def test_fuzz_scene_files(case):
             assert isinstance(load_scene(file), Scene)
         except SceneError as exc:
             _names_file(exc, file)
+
+
+# ------------------------------------------------------------------ spectrum files (issue 32): the new readers
+
+_REAL_SPECTRA = Path(__file__).resolve().parent / "data" / "real-spectra"
+_SPECTRUM_SEEDS = {
+    ".rcspg": b"".join((_REAL_SPECTRA / "K40.rcspg").read_bytes().splitlines(keepends=True)[:8]),
+    ".ndjson": b"".join((_REAL_SPECTRA / "walk_rc103_gnss.ndjson").read_bytes().splitlines(keepends=True)[:40]),
+    ".json": (_REAL_SPECTRA / "xray_rc103.ndjson").read_bytes().splitlines()[0],
+    ".csv": b"# MeasurementTime,532\nchannel,energy_keV,counts\n0,10,1\n1,12,2\n3,16,5\n2,14,3\n",
+    ".xml": (_REAL_SPECTRA / "data_th232_plus_background.xml").read_bytes(),
+}
+FUZZ_SPECTRA = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+                        database=None)
+
+
+@st.composite
+def damaged_bytes(draw, data: bytes) -> bytes:
+    """``data`` truncated, with bytes flipped, a piece deleted or junk spliced in (one to three times)."""
+    for _ in range(draw(st.integers(1, 3))):
+        kind = draw(st.sampled_from(["truncate", "flip", "delete", "insert"]))
+        i = draw(st.integers(0, max(len(data) - 1, 0)))
+        if kind == "truncate":
+            data = data[:i]
+        elif kind == "flip" and data:
+            data = data[:i] + bytes([data[i] ^ draw(st.integers(1, 255))]) + data[i + 1:]
+        elif kind == "delete":
+            data = data[:i] + data[i + draw(st.integers(1, 40)):]
+        else:
+            data = data[:i] + draw(st.sampled_from([b"NaN", b"1e300", b"-1", b"\t", b"\n", b"}", b"\"", b"9" * 25,
+                                                    b"Infinity", b"\xff\xfe", b",", b"0"])) + data[i:]
+    return data
+
+
+@FUZZ_SPECTRA
+@given(st.sampled_from(sorted(_SPECTRUM_SEEDS)).flatmap(lambda s: st.tuples(st.just(s),
+                                                                             damaged_bytes(_SPECTRUM_SEEDS[s]))))
+def test_fuzz_spectrum_readers(case):
+    from radseek.spectrum_io import SpectrumFileError, read_spectra
+
+    suffix, data = case
+    with tempfile.TemporaryDirectory() as d:
+        file = Path(d) / f"fuzz{suffix}"
+        file.write_bytes(data)
+        try:
+            spectra = read_spectra(file)
+        except SpectrumFileError as exc:
+            _names_file(exc, file)
+            return
+    for sp in spectra:
+        assert np.all(np.isfinite(sp.counts)) and np.all(sp.counts >= 0) and np.all(sp.counts <= 1e12)
+        assert 0 < sp.live_time_s <= 1e8 and all(math.isfinite(c) for c in sp.calibration)
+
+
+@FUZZ_SPECTRA
+@given(st.sampled_from([".ndjson", ".rcspg"]).flatmap(lambda s: st.tuples(st.just(s),
+                                                                           damaged_bytes(_SPECTRUM_SEEDS[s]))))
+def test_fuzz_spectrum_show_json_is_strict(case):
+    """What ``radseek spectra show --json`` prints of a damaged file parses as strict JSON (no NaN)."""
+    from radseek.spectrum_io import SpectrumFileError
+    from spectra.show import describe, dumps
+
+    suffix, data = case
+    with tempfile.TemporaryDirectory() as d:
+        file = Path(d) / f"fuzz{suffix}"
+        file.write_bytes(data)
+        try:
+            text = dumps(describe(file))
+        except SpectrumFileError as exc:
+            _names_file(exc, file)
+            return
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in strict JSON"))
