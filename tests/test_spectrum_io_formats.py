@@ -64,14 +64,15 @@ def test_rcspg_through_read_spectra():
     assert abs(centre[sel][np.argmax(smooth[sel])] - 1461) < 0.03 * 1461
 
 
-def test_rcspg_streams_in_less_than_twice_the_file():
+@pytest.mark.parametrize("path", [K40, WALK])
+def test_streamed_formats_peak_below_twice_the_file(path):
     tracemalloc.start()
     try:
-        sio.read_spectra(K40)
+        sio.read_spectra(path)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert peak < 2 * K40.stat().st_size, peak
+    assert peak < 2 * path.stat().st_size, peak
 
 
 # ------------------------------------------------------------------------------------------------ NDJSON
@@ -272,6 +273,16 @@ def test_show_json_is_strict_and_complete():
     assert d["gnss_fixes"]["first"]["time"] == "2025-03-28T07:14:50.000Z"
     r = _run("spectra", "show", K40)
     assert r.returncode == 0 and "rows: 690" in r.stdout and "accumulated" in r.stdout, r.stdout + r.stderr
+
+
+def test_show_csv_live_time_from_the_command_line(tmp_path):
+    p = _csv(tmp_path, "channel,counts\n1,5\n0,4\n")
+    r = _run("spectra", "show", p, "--json")
+    assert r.returncode == 2 and "--live-time" in r.stderr
+    r = _run("spectra", "show", p, "--json", "--live-time", "30")
+    assert r.returncode == 0, r.stderr
+    (s,) = json.loads(r.stdout)["spectra"]
+    assert (s["live_time_s"], s["total_counts"], s["channels"], s["real_time_s"]) == (30, 9, 2, None)
 
 
 def test_show_refuses_bad_file_without_traceback(tmp_path):
