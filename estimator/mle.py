@@ -266,14 +266,26 @@ class PoseGroups:
         return solve
 
     def group_sum(self, values: np.ndarray) -> np.ndarray:
-        """Sum (N, ...) per-frame values into (G, ...) by group (one matrix product)."""
-        return (self._summer @ values.reshape(len(self.index), -1)).reshape((self.n_groups,) + values.shape[1:])
+        """Sum (N, ...) per-frame values into (G, ...) by group: runs of consecutive frames summed in place
+        (``np.add.reduceat``), O(N) where a dense (G, N) product was O(G N) (a 3,000-frame survey has ~1,000
+        groups)."""
+        order, starts, present = self._runs
+        v = values.reshape(len(self.index), -1)
+        if order is not None:
+            v = v[order]
+        out = np.zeros((self.n_groups, v.shape[1]))
+        if len(starts):
+            out[present] = np.add.reduceat(v, starts, axis=0)
+        return out.reshape((self.n_groups,) + values.shape[1:])
 
     @cached_property
-    def _summer(self) -> np.ndarray:
-        m = np.zeros((self.n_groups, len(self.index)))
-        m[self.index, np.arange(len(self.index))] = 1.0
-        return m
+    def _runs(self) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """(frame order or None when the groups are already contiguous, first row of each group, the groups)."""
+        idx = np.asarray(self.index)
+        order = None if np.all(np.diff(idx) >= 0) else np.argsort(idx, kind="stable")
+        srt = idx if order is None else idx[order]
+        present = np.unique(srt)
+        return order, np.searchsorted(srt, present), present
 
 
 def offset_jacobian(model: MeasurementModel, theta: dict[str, float], frames: Frames, mu0: np.ndarray,
