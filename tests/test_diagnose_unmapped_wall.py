@@ -150,3 +150,14 @@ def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
         dists.append(float(np.hypot(*(c - (a + t * (b - a))))))
     assert min(dists) < 0.5
     assert d.after.source_error_m < d.current.source_error_m
+
+
+def test_vectorised_placeable_agrees_with_the_effects_placement():
+    """The screen's vectorised filter keeps exactly the slabs ``UnmappedWall.placement`` accepts."""
+    from estimator.diagnose.shadow import placeable
+
+    walls = candidate_walls(np.array([1.0, 0.5]), np.array([8.0, 7.0]), spacing=0.7)
+    src = np.array([4.3, 3.9])
+    want = np.array([UnmappedWall.placement(w, src) is not None for w in walls])
+    assert 0 < want.sum() < len(walls)
+    assert np.array_equal(placeable(walls, src), want)

@@ -152,6 +152,10 @@ def _worker_call(name: str) -> Any:
         return _WORKER[name]()
 
 
+def _shadow_label(label: str) -> str:
+    return label if label.endswith("(shadow start)") else f"{label} (shadow start)"
+
+
 @dataclass
 class CountFitter:
     """Fits count models by effect set (cached), with pose uncertainty, reporting progress on stderr."""
@@ -270,7 +274,7 @@ class CountFitter:
         best = None
         for st in starts or [{}]:
             res = self.fit(key, init={**th, **(init or {}), **{f"{wall}.{k}": v for k, v in st.items()}}, n_starts=1,
-                           label=f"{label or describe(key)} (shadow start)", cache=cache)
+                           label=_shadow_label(label or describe(key)), cache=cache)
             if best is None or res.nll < best.nll:
                 best = res
         best.wall_looks = pl.scored

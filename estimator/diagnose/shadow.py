@@ -32,6 +32,8 @@ SPACING_M = 0.4
 #: mu x thickness values the screen profiles over (dimensionless optical depths)
 OPTICAL_DEPTHS = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.5)
 CHUNK = 1500
+#: wall centres screened at most (a wide survey's grid is coarser: its far placements differ little in shadow)
+MAX_CENTRES = 1200
 
 
 @dataclass
@@ -69,6 +71,18 @@ def candidate_walls(lo: np.ndarray, hi: np.ndarray, spacing: float = SPACING_M, 
     ux, uy = np.cos(ang) * ln / 2, np.sin(ang) * ln / 2
     return np.column_stack([cx - ux, cy - uy, cx + ux, cy + uy, np.full_like(cx, thickness),
                             np.full_like(cx, height)])
+
+
+def placeable(walls: np.ndarray, source_xy: np.ndarray) -> np.ndarray:
+    """(P,) bool: the slabs the effect can take (``UnmappedWall.placement`` is not None), vectorised: the centre at
+    least ``MIN_DISTANCE_M`` from the source and the slab within ``MAX_TILT_DEG`` of square to the line source ->
+    centre."""
+    c = (walls[:, 0:2] + walls[:, 2:4]) / 2
+    d = walls[:, 2:4] - walls[:, 0:2]
+    rel = c - np.asarray(source_xy, float)[:2]
+    phi = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
+    tilt = (np.degrees(np.arctan2(d[:, 1], d[:, 0])) - phi) % 180.0 - 90.0
+    return (np.hypot(rel[:, 0], rel[:, 1]) >= UnmappedWall.MIN_DISTANCE_M) & (np.abs(tilt) <= UnmappedWall.MAX_TILT_DEG)
 
 
 def thin_slab_lengths(pos: np.ndarray, src: np.ndarray, walls: np.ndarray) -> np.ndarray:
@@ -140,9 +154,10 @@ def screen(frames: Frames, expected: np.ndarray, background: np.ndarray, source_
     pos = frames.positions[:, :2]
     box_lo = np.maximum(np.minimum(pos.min(0), source_xyz[:2]) - 0.5, lo[:2] - UnmappedWall.MARGIN_M)
     box_hi = np.minimum(np.maximum(pos.max(0), source_xyz[:2]) + 0.5, hi[:2] + UnmappedWall.MARGIN_M)
-    walls = candidate_walls(box_lo, box_hi)
-    # only placements the model can take (not through the source, not along the line of sight to it)
-    walls = walls[[UnmappedWall.placement(w, source_xyz[:2]) is not None for w in walls]]
+    # a room gets centres SPACING_M apart; a wide survey (100 m) no more than MAX_CENTRES of them
+    spacing = max(SPACING_M, float(np.sqrt(np.prod(np.maximum(box_hi - box_lo, 0.0)) / MAX_CENTRES)))
+    walls = candidate_walls(box_lo, box_hi, spacing=spacing)
+    walls = walls[placeable(walls, source_xyz[:2])]
     if exclude is not None and len(exclude):
         centres = (walls[:, 0:2] + walls[:, 2:4]) / 2
         near = np.zeros(len(walls), dtype=bool)
