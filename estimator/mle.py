@@ -882,6 +882,44 @@ def crlb(model: MeasurementModel, theta: dict[str, Any], frames: Frames, names: 
     return np.linalg.pinv(fisher_information(model, theta, frames, names))
 
 
+@dataclass(frozen=True)
+class FitCheck:
+    """Goodness of fit of a given estimate (any localizer's) under the common count model, pose offsets profiled
+    as the MLE does, and the Cramér-Rao bound at the flown poses."""
+
+    deviance: float
+    dof: int
+    deviance_expected: float
+    deviance_sd: float
+    crlb: np.ndarray  # (k, k) over ``names``
+    names: list[str]
+
+    @property
+    def deviance_per_dof(self) -> float:
+        return self.deviance / max(self.dof, 1)
+
+    @property
+    def p_value(self) -> float:
+        return float(stats.norm.sf((self.deviance - self.deviance_expected) / max(self.deviance_sd, 1e-9)))
+
+
+def check_estimate(model: MeasurementModel, theta: dict[str, float], frames: Frames) -> FitCheck:
+    """The deviance of ``theta`` (exact per-frame moments; pose offsets profiled, their Gaussian penalty kept, as
+    in :func:`fit`) and the CRLB at ``theta`` (paper 004 eq. 5.3-5.7): what a localizer that reports neither is
+    held to. ``dof`` counts the model's free parameters as fitted."""
+    theta = {**model.defaults(), **theta}
+    n = model.observed_counts(frames)
+    groups = PoseGroups.from_frames(frames, declared_pose_error(model))
+    if groups.active.any():
+        _, mu, penalty = converged_profile(model, theta, frames, groups)
+    else:
+        mu, penalty = model.expected_counts(theta, frames), 0.0
+    mean, var = deviance_moments(mu)
+    names = model.free_names
+    return FitCheck(float(poisson_deviance(n, mu).sum() + penalty), len(frames) - len(names),
+                    float(mean.sum()), float(np.sqrt(var.sum())), crlb(model, theta, frames, names), list(names))
+
+
 def summary(result: FitResult) -> dict[str, Any]:
     """Plain-dict view for JSON reports."""
     return {
