@@ -31,6 +31,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from detector_fw_sim import response
+from radseek.photon_lines import source_lines
 
 FWHM_PER_SIGMA = 2 * math.sqrt(2 * math.log(2))
 
@@ -64,11 +65,15 @@ class Effect:
 DECLARED: dict[str, Effect] = {
     "energy_calibration": Effect(
         "CsI(Tl) non-proportional light yield; device calibration (Knoll 4th ed. sec. 8.II)",
-        Param("gain", 1.0, 0.85, 1.15, "file energy per deposited energy"),
-        # held: with the offset (or a quadratic term) free, a Cs-137 spectrum alone cannot tell a calibration
-        # error from continuum shape, and the fitted offset spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
-        held=(Param("offset_keV", 0.0, -40.0, 40.0, "file energy of a zero deposit", "keV"),
-              Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "m = offset + gain e (1 + q e / 1 MeV)", "1/MeV"))),
+        Param("gain", 1.0, 0.85, 1.15, "file energy per deposited energy")),
+    # only with photopeaks spread over the energy range (fit.identifiable): with the offset (or a quadratic term)
+    # free, a Cs-137 spectrum alone cannot tell a calibration error from continuum shape, and the offset fitted on
+    # it spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
+    "energy_nonlinearity": Effect(
+        "CsI(Tl) non-proportional light yield over the photopeaks of several lines (Knoll sec. 8.II; Moses, Payne "
+        "et al., IEEE TNS 55 (2008) 1049)",
+        Param("offset_keV", 0.0, -40.0, 40.0, "file energy of a zero deposit", "keV"),
+        Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "m = offset + gain e (1 + q e / 1 MeV)", "1/MeV")),
     "resolution_law": Effect(
         "photo-electron statistics plus a constant light-collection term (Knoll sec. 10.III)",
         Param("fwhm_at_662", 0.07, 0.02, 0.3, "FWHM / E at 662 keV"),
@@ -138,7 +143,7 @@ def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: flo
     """Per line: energy, yield, exact peaks and continuum; the scatter node vectors per scatter type."""
     eff = response.ResponseEffects(k_escape=k_escape, escape_scale=escape_scale)
     crystal = response.Crystal(crystal_mm, crystal_mm, eff)
-    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    lines = [ly for n in nuclides for ly in source_lines(n)]
     energies = np.array([e for e, _ in lines])
     yields = np.array([y for _, y in lines])
     peaks_e, peaks_w, peak_line, conts = [], [], [], []
@@ -162,7 +167,7 @@ def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: flo
 @lru_cache(maxsize=256)
 def _side_nodes(nuclides: tuple[str, ...], theta_min_deg: float) -> np.ndarray:
     """Side-scatter node vectors (lines, nodes) for scattering through theta_min_deg..110 deg."""
-    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    lines = [ly for n in nuclides for ly in source_lines(n)]
     hi = response.SIDE_SCATTER_DEG[1]
     return np.stack([response.node_weights(*response.scattered_energies(float(e), theta_min_deg, hi))
                      for e, _ in lines])

@@ -53,3 +53,59 @@ def test_chain_walk_reaches_the_long_lived_members_only_for_chain_heads():
     assert source_lines("Cs-137") == gamma_lines("Cs-137")  # any other nuclide: unchanged
     with pytest.raises(ValueError, match="Xx-999"):
         source_lines("Xx-999")
+
+
+def test_out_never_replaces_a_file_without_force(tmp_path, capsys):
+    """--out refuses an existing file before any work (the rule of ``radseek run`` / ``simulate-dataset``, through
+    ``radseek.outdir.check_output_file``), in both forms; with --force the file is replaced by a valid one."""
+    from radseek.cli import main
+
+    out = tmp_path / "det.json"
+    out.write_text("an earlier calibration\n")
+    cs, bg = str(DATA / "Cs137_b.xml"), str(DATA / "bg.xml")
+    for argv in (["calibrate", cs, "--nuclide", "Cs-137", "--out", str(out)],
+                 ["calibrate", f"{cs}=Cs-137", f"{DATA / 'Eu152_b.xml'}=Eu-152", "--out", str(out)]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert str(out) in err and "--force" in err
+        assert out.read_text() == "an earlier calibration\n"
+    rc = main(["calibrate", f"{cs}=Cs-137", "--background", bg, "--effects", "energy_calibration", "--out", str(out),
+               "--force", "--json"])
+    assert rc == 0
+    r = json.loads(capsys.readouterr().out)
+    det = read_detector_file(out)
+    assert det.calibrated_on["spectra"][0]["nuclides"] == ["Cs-137"]
+    assert det.fit["per_spectrum"]["Cs137_b.xml"] == r["spectra"][0]["total_variation_32"]
+    assert not list(tmp_path.glob(".tmp-*"))  # the atomic write left no temporary behind
+
+
+def test_no_nan_is_ever_written(tmp_path):
+    det = DetectorFile(name="x", parameters={"fwhm_at_662": 0.1, "gain": float("nan")},
+                       fit={"total_variation_32": 0.03})
+    with pytest.raises(DetectorFileError, match="parameters.gain"):
+        det.write(tmp_path / "d.json")
+    assert not (tmp_path / "d.json").exists()
+    det.parameters["gain"] = 1.0
+    det.fit["per_spectrum"] = {"a.xml": float("inf")}
+    with pytest.raises(DetectorFileError, match=r"fit.per_spectrum.a.xml"):
+        det.write(tmp_path / "d.json")
+    with pytest.raises(ValueError, match=r"spectra\[1\].total_variation_32"):
+        C.refuse_non_finite({"spectra": [{"total_variation_32": 0.1}, {"total_variation_32": math.nan}]})
+    C.refuse_non_finite({"spectra": [{"total_variation_32": 0.1}], "x": np.float64(2.0), "n": None})
+
+
+def test_joint_form_arguments_are_checked(capsys):
+    from radseek.cli import main
+
+    cs = str(DATA / "Cs137_b.xml")
+    for argv, msg in ((["calibrate", f"{cs}=Cs-137", "--nuclide", "Cs-137"], "not both"),
+                      (["calibrate", cs, cs], "joint form"),
+                      (["calibrate", cs, "--nuclide", "Cs-137", "--drift"], "joint form")):
+        with pytest.raises(SystemExit):
+            main(argv)
+        assert msg in capsys.readouterr().err
+    assert main(["calibrate", f"{cs}=Xx-999"]) == 2
+    assert "Xx-999" in capsys.readouterr().err
+    assert C.parse_pair("a=b.xml=Th-232,K-40") == ("a=b.xml", ["Th-232", "K-40"])
+    with pytest.raises(ValueError, match="FILE=NUCLIDE"):
+        C.parse_pair("Cs137.xml=")
