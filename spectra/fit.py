@@ -132,7 +132,9 @@ def _limits(name: str) -> tuple[float, float]:
 
 
 def _with_drift_start(problem: Problem | Joint, params: dict[str, float]) -> dict[str, float]:
-    params = dict(params)
+    """``params`` completed: a parameter it lacks (a detector file from before the parameter existed) at its
+    baseline, drift parameters at no drift."""
+    params = {**M.baseline_params(), **params}
     if isinstance(problem, Joint):
         for name in problem.drift_params():
             params.setdefault(name, DRIFT_START[name.rsplit("_", 1)[0]])
@@ -230,7 +232,7 @@ def fit(problem: Problem | Joint, params: dict[str, float], effects: tuple[str, 
     On a ``Joint`` problem the likelihood is summed over its spectra (each its own amplitude) and its drift
     parameters are free as well; the result's ``parts`` hold each spectrum's own result."""
     params = _with_drift_start(problem, params)
-    free = tuple(p for e in effects for p in M.EFFECTS[e] if p not in M.DISCRETE)
+    free = tuple(dict.fromkeys(p for e in effects for p in M.EFFECTS[e] if p not in M.DISCRETE))
     if isinstance(problem, Joint):
         free = free + problem.drift_params()
     parts = problem.parts if isinstance(problem, Joint) else (problem,)
@@ -383,7 +385,7 @@ LOW_ENERGY_EFFECTS = ("absorber", "k_xray_escape")
 #: effects that need photopeaks spread over the energy range: at least ``SPREAD_MIN_GROUPS`` lines of at least
 #: ``SPREAD_MIN_YIELD`` per decay, each more than ``SPREAD_MIN_GAP_KEV`` above the previous one, spanning a factor
 #: ``SPREAD_MIN_RATIO`` in energy (Eu-152, Ba-133, Th-232 or Cs-137 with Co-60; not Cs-137 or Co-60 alone)
-SPREAD_EFFECTS = ("energy_nonlinearity",)
+SPREAD_EFFECTS = ("energy_nonlinearity", "resolution_curvature")
 SPREAD_MIN_YIELD, SPREAD_MIN_GAP_KEV, SPREAD_MIN_GROUPS, SPREAD_MIN_RATIO = 0.02, 100.0, 3, 3.0
 
 
@@ -456,11 +458,10 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
     energies is CsI(Tl)'s non-proportional light yield, which one Cs-137 photopeak cannot show; a width factor
     away from 1 says the resolution law does not hold at that energy. Errors are HESSE's.
     """
-    from detector_fw_sim.response import fwhm_keV
     from radseek.photon_lines import source_lines
 
     def fw(e: float) -> float:  # model FWHM in file energy
-        return float(params["gain"] * fwhm_keV(e, params["fwhm_at_662"], params["fwhm_exponent"]))
+        return float(params["gain"] * M.fwhm(params, e))
 
     lines = sorted((e, y) for n in problem.nuclides for e, y in source_lines(n)
                    if y >= min_yield and e * params["gain"] >= problem.fit_min_keV)
@@ -474,8 +475,8 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
     centre = 0.5 * (b[1:] + b[:-1])
     out = []
     for g in groups:
-        lo = params["gain"] * g[0][0] - fw(g[0][0])
-        hi = params["gain"] * g[-1][0] + fw(g[-1][0])
+        lo = float(M.file_energy(params, g[0][0])) - fw(g[0][0])
+        hi = float(M.file_energy(params, g[-1][0])) + fw(g[-1][0])
         sel = (centre >= lo) & (centre < hi) & problem.mask
         if sel.sum() < 4:
             continue
@@ -484,7 +485,7 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
         out.append({"line_keV": round(main_e, 2), "lines_keV": [round(e, 2) for e, _ in g],
                     "window_keV": [round(lo, 1), round(hi, 1)],
                     "shift_keV": round(shift, 2), "shift_error_keV": float(f"{shift_err:.2g}"),
-                    "shift_relative": round(shift / (params["gain"] * main_e), 4),
+                    "shift_relative": round(shift / float(M.file_energy(params, main_e)), 4),
                     "fwhm_ratio": round(width, 3), "fwhm_ratio_error": float(f"{width_err:.2g}")})
     return out
 
