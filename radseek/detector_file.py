@@ -64,8 +64,17 @@ class DetectorFile:
         return out
 
     def write(self, path: str | Path) -> Path:
+        """Write the file atomically; a NaN or infinity anywhere is refused (``DetectorFileError`` naming the field):
+        strict JSON, and a reader would reject it anyway."""
+        from radseek.outdir import atomic_write_text
+
+        data = self.to_json()
+        bad = first_non_finite(data)
+        if bad is not None:
+            raise DetectorFileError(f"{path}: not written: field '{bad[0]}' is {bad[1]!r} (a detector file holds "
+                                    "finite numbers only)")
         p = Path(path)
-        p.write_text(json.dumps(self.to_json(), indent=1) + "\n")
+        atomic_write_text(p, json.dumps(data, indent=1, allow_nan=False) + "\n")
         return p
 
     def template(self, nuclide: str) -> tuple[np.ndarray, np.ndarray]:
@@ -82,6 +91,23 @@ class DetectorFile:
         frac = np.diff(c)
         frac[-1] = cdf[-1] - c[-2]
         return frac / max(frac.sum(), 1e-300)
+
+
+def first_non_finite(obj: Any, where: str = "") -> tuple[str, float] | None:
+    """(field path, value) of the first NaN or infinity in a JSON-like structure, or None."""
+    if isinstance(obj, float | np.floating):
+        return None if math.isfinite(float(obj)) else (where or "<value>", float(obj))
+    if isinstance(obj, dict):
+        keys = ((f"{where}.{k}" if where else str(k), v) for k, v in obj.items())
+    elif isinstance(obj, list | tuple | np.ndarray):
+        keys = ((f"{where}[{i}]", v) for i, v in enumerate(obj))
+    else:
+        return None
+    for key, v in keys:
+        hit = first_non_finite(v, key)
+        if hit is not None:
+            return hit
+    return None
 
 
 def _num(origin: str, where: str, v: Any) -> float:

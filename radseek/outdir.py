@@ -5,6 +5,8 @@
   ``force`` the command's own previous ``outputs`` are removed first — summaries and reports before
   data — so an aborted run can never leave an old summary beside new partial frames. Other files in
   the folder are left alone: ``--force`` never deletes what radseek did not write.
+- ``check_output_file(path, force=...)``: the same rule for a command that writes one file: an existing file is
+  refused unless ``force``.
 - ``atomic_write_text`` / ``atomic_write_bytes`` / ``atomic_write_json`` / ``atomic_path``: write to
   a temporary file in the same folder, flush it to disk, then ``os.replace`` it over the target, so a
   reader (or a crash) sees the old file or the new one, never half of one.
@@ -46,6 +48,22 @@ def prepare_output(path: str | Path, *, force: bool, outputs: Iterable[str], fla
             for stale in path.glob(f"{TMP_PREFIX}*"):  # half-written temporaries of an aborted run
                 _remove(stale)
     path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def check_output_file(path: str | Path, *, force: bool, flag: str = "--force") -> Path:
+    """A single file a command writes (``radseek calibrate --out DET.json``): refused when it exists, unless
+    ``force`` (``OutputDirError`` naming the file and ``flag``), and when its folder does not exist or the path is a
+    folder. Call it before the work, write with ``atomic_write_*`` after: a refused run costs nothing and a forced
+    one replaces the old file only once the new one is complete."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputDirError(f"output file {path} is a folder; give a file name")
+    if not path.parent.is_dir():
+        raise OutputDirError(f"output file {path}: folder {path.parent} does not exist")
+    if (path.exists() or path.is_symlink()) and not force:
+        raise OutputDirError(f"output file {path} exists: it may hold an earlier result; choose another --out or "
+                             f"pass {flag} to replace it")
     return path
 
 

@@ -78,3 +78,34 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
     return out
 
 
+
+
+#: heads of the natural decay series. As a calibration source (``radseek calibrate X=Th-232``) the name means the head
+#: with its whole chain in secular equilibrium, as in thorium lantern mantles and welding rods, radium dials, ore and
+#: old uranium glaze: every member decays at the head's rate times its branching. (K-40 has no radioactive progeny:
+#: ``gamma_lines("K-40")`` is already its whole emission.)
+NATURAL_CHAINS = ("Th-232", "U-238", "U-235", "Ra-226")
+#: a branch carrying less than this share of the head's decays is not walked further (U-238's At-218, Rn-218 ...)
+CHAIN_MIN_BRANCH = 1e-6
+
+
+@lru_cache(maxsize=16)
+def equilibrium_lines(head: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[float, float], ...]:
+    """(energy keV, photons per decay of ``head``) of ``head`` and its whole decay chain in secular equilibrium.
+
+    The chain is walked to its stable end with pydecay's branching ratios (every member, however long-lived, decays
+    at the head's rate times the product of the branchings above it); energies and intensities are pydecay's
+    ICRP-107 (ENSDF-based) emissions. Th-232 gives Tl-208's 2614.5 keV line at 0.3594 x its own 0.99 intensity.
+    """
+    try:
+        Nuclide.load(head)
+    except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
+        raise ValueError(f"unknown nuclide {head!r} ({exc})") from None
+    lines = chain_photon_lines(head, max_depth=40, follow=lambda _d, w: w >= CHAIN_MIN_BRANCH)
+    return tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
+
+
+def source_lines(name: str) -> tuple[tuple[float, float], ...]:
+    """Photon lines of a calibration source: a natural chain head (``NATURAL_CHAINS``) in secular equilibrium,
+    any other nuclide with its short-lived progeny (``gamma_lines``)."""
+    return equilibrium_lines(name) if name in NATURAL_CHAINS else gamma_lines(name)

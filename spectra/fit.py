@@ -44,6 +44,8 @@ class Problem:
     nuclides: tuple[str, ...]
     background: Spectrum | None = None
     fit_min_keV: float = FIT_MIN_KEV
+    #: where the spectrum came from (reports only)
+    name: str = ""
 
     def __post_init__(self) -> None:
         b = self.spectrum.edges_keV()
@@ -66,6 +68,77 @@ class Problem:
 
     def net(self) -> np.ndarray:
         return self.n - self.bg
+
+    @property
+    def rate_cps(self) -> float:
+        return float(self.n.sum()) / max(self.spectrum.live_time_s, 1e-300)
+
+
+#: per-spectrum drift of the energy law in a joint fit (sessions days apart): m_k = offset_k + gain_k m(e)
+DRIFT_LIMITS = {"gain_drift": (0.9, 1.1), "offset_drift_keV": (-30.0, 30.0)}
+DRIFT_START = {"gain_drift": 1.0, "offset_drift_keV": 0.0}
+
+
+@dataclass
+class Joint:
+    """Several spectra of one unit, one response (``radseek calibrate A.xml=Cs-137 B.xml=Eu-152``).
+
+    The negative log-likelihood is the sum over the spectra; each spectrum has its own amplitude (profiled),
+    its own background and nuclides, and shares every response parameter. Two parameters are per spectrum by
+    their physics: the pile-up share scales with the spectrum's rate (pileup_k = pileup_0 r_k / r_0, one
+    resolving time), and with ``drift`` every spectrum after the first has its own gain and offset on top of the
+    shared energy law (``gain_drift_k``, ``offset_drift_keV_k``: m_k = offset_k + gain_k m(e)), for sessions days
+    apart whose device calibration moved. The first spectrum is the reference of the law.
+    """
+
+    parts: tuple[Problem, ...]
+    drift: bool = False
+
+    def __post_init__(self) -> None:
+        self.parts = tuple(self.parts)
+        if not self.parts:
+            raise ValueError("a joint calibration needs at least one spectrum")
+
+    @property
+    def nuclides(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(n for pr in self.parts for n in pr.nuclides))
+
+    @property
+    def fit_min_keV(self) -> float:
+        return min(pr.fit_min_keV for pr in self.parts)
+
+    def drift_params(self) -> tuple[str, ...]:
+        if not self.drift:
+            return ()
+        return tuple(f"{name}_{k}" for k in range(1, len(self.parts)) for name in DRIFT_LIMITS)
+
+    def part_params(self, params: dict[str, float], k: int) -> dict[str, float]:
+        """The response parameters that spectrum ``k`` sees (its pile-up share, its drifted energy law)."""
+        q = dict(params)
+        if k > 0:
+            q["pileup"] = min(params["pileup"] * self.parts[k].rate_cps / max(self.parts[0].rate_cps, 1e-300),
+                              M.PARAMS["pileup"].hi)
+        if self.drift and k > 0:
+            g = params.get(f"gain_drift_{k}", 1.0)
+            q["gain"] = params["gain"] * g
+            q["offset_keV"] = params["offset_keV"] * g + params.get(f"offset_drift_keV_{k}", 0.0)
+        return q
+
+
+def _limits(name: str) -> tuple[float, float]:
+    if name in M.PARAMS:
+        return M.PARAMS[name].lo, M.PARAMS[name].hi
+    return DRIFT_LIMITS[name.rsplit("_", 1)[0]]
+
+
+def _with_drift_start(problem: Problem | Joint, params: dict[str, float]) -> dict[str, float]:
+    """``params`` completed: a parameter it lacks (a detector file from before the parameter existed) at its
+    baseline, drift parameters at no drift."""
+    params = {**M.baseline_params(), **params}
+    if isinstance(problem, Joint):
+        for name in problem.drift_params():
+            params.setdefault(name, DRIFT_START[name.rsplit("_", 1)[0]])
+    return params
 
 
 def _nll(mu: np.ndarray, n: np.ndarray) -> float:
@@ -144,32 +217,46 @@ class FitResult:
     expected: np.ndarray  # (n,) total expected counts (source + background)
     shape: np.ndarray  # (n,) source part, counts
     steps: list[dict] = field(default_factory=list)
+    #: a joint fit: one result per spectrum (its own parameters as it sees them, amplitude, deviance, dof)
+    parts: list[FitResult] = field(default_factory=list)
 
     @property
     def deviance_per_dof(self) -> float:
         return self.deviance / max(self.dof, 1)
 
 
-def fit(problem: Problem, params: dict[str, float], effects: tuple[str, ...], maxfev: int = 4000,
+def fit(problem: Problem | Joint, params: dict[str, float], effects: tuple[str, ...], maxfev: int = 4000,
         hesse: bool = True) -> FitResult:
-    """Fit the continuous parameters of ``effects`` (the amplitude always), the rest held at ``params``."""
-    params = dict(params)
-    free = tuple(p for e in effects for p in M.EFFECTS[e] if p not in M.DISCRETE)
-    n, bg, mask = problem.n, problem.bg, problem.mask
+    """Fit the continuous parameters of ``effects`` (the amplitude always), the rest held at ``params``.
+
+    On a ``Joint`` problem the likelihood is summed over its spectra (each its own amplitude) and its drift
+    parameters are free as well; the result's ``parts`` hold each spectrum's own result."""
+    params = _with_drift_start(problem, params)
+    free = tuple(dict.fromkeys(p for e in effects for p in M.EFFECTS[e] if p not in M.DISCRETE))
+    if isinstance(problem, Joint):
+        free = free + problem.drift_params()
+    parts = problem.parts if isinstance(problem, Joint) else (problem,)
+
+    def sub(q: dict[str, float], k: int) -> dict[str, float]:
+        return problem.part_params(q, k) if isinstance(problem, Joint) else q
 
     def nll_of(x: np.ndarray) -> float:
         q = dict(params)
         q.update(zip(free, x, strict=True))
-        shape = problem.shape(q)
-        a = best_amplitude(shape[mask], n[mask], bg[mask])
-        return _nll(a * shape[mask] + bg[mask], n[mask])
+        total = 0.0
+        for k, pr in enumerate(parts):
+            m = pr.mask
+            shape = pr.shape(sub(q, k))
+            a = best_amplitude(shape[m], pr.n[m], pr.bg[m])
+            total += _nll(a * shape[m] + pr.bg[m], pr.n[m])
+        return total
 
     errors: dict[str, float] = {}
     if free:
         x0 = [params[p] for p in free]
         m = Minuit(nll_of, x0, name=free)
         m.errordef = Minuit.LIKELIHOOD
-        m.limits = [(M.PARAMS[p].lo, M.PARAMS[p].hi) for p in free]
+        m.limits = [_limits(p) for p in free]
         m.strategy = 1
         m.migrad(ncall=maxfev)
         if hesse and m.valid:
@@ -179,12 +266,34 @@ def fit(problem: Problem, params: dict[str, float], effects: tuple[str, ...], ma
                 pass
         params.update(zip(free, (float(v) for v in m.values), strict=True))
         errors = {p: float(e) for p, e in zip(free, m.errors, strict=True)}
-    shape = problem.shape(params)
-    a = best_amplitude(shape[mask], n[mask], bg[mask])
-    mu = a * shape + bg
-    dev = deviance(mu[mask], n[mask])
-    dof = int(mask.sum()) - len(free) - 1
-    return FitResult(params, errors, free, tuple(effects), a, dev, dof, mu, a * shape)
+    results = []
+    for k, pr in enumerate(parts):
+        q = sub(params, k)
+        mask = pr.mask
+        shape = pr.shape(q)
+        a = best_amplitude(shape[mask], pr.n[mask], pr.bg[mask])
+        mu = a * shape + pr.bg
+        dev = deviance(mu[mask], pr.n[mask])
+        results.append(FitResult(q, errors, free, tuple(effects), a, dev, int(mask.sum()) - 1, mu, a * shape))
+    if not isinstance(problem, Joint):
+        r = results[0]
+        r.dof -= len(free)
+        return r
+    dof = sum(r.dof for r in results) - len(free)
+    first = results[0]
+    return FitResult(params, errors, free, tuple(effects), first.amplitude, sum(r.deviance for r in results), dof,
+                     first.expected, first.shape, parts=results)
+
+
+def distances(problem: Problem | Joint, res: FitResult) -> dict:
+    """``shape_distances`` of a result; for a joint fit the worst spectrum's, and each spectrum's in
+    ``per_spectrum``."""
+    if not isinstance(problem, Joint):
+        return shape_distances(problem, res.shape)
+    per = [shape_distances(pr, r.shape) for pr, r in zip(problem.parts, res.parts, strict=True)]
+    return {"total_variation_32": max(d["total_variation_32"] for d in per),
+            "total_variation_native": max(d["total_variation_native"] for d in per),
+            "per_spectrum": [round(d["total_variation_32"], 4) for d in per]}
 
 
 def _discrete_grid(effect: str, params: dict[str, float]) -> list[dict[str, float]]:
@@ -198,7 +307,7 @@ def _discrete_grid(effect: str, params: dict[str, float]) -> list[dict[str, floa
     return [{}]
 
 
-def forward_select(problem: Problem, start: dict[str, float] | None = None,
+def forward_select(problem: Problem | Joint, start: dict[str, float] | None = None,
                    candidates: tuple[str, ...] | None = None, min_gain: float = 0.01,
                    log=None) -> FitResult:
     """Forward selection over response effects (module docstring). ``steps`` records each round."""
@@ -207,9 +316,9 @@ def forward_select(problem: Problem, start: dict[str, float] | None = None,
     chosen: list[str] = []
     cur = fit(problem, params, (), hesse=False)
     steps = [{"added": None, "deviance": cur.deviance, "deviance_per_dof": cur.deviance_per_dof,
-              **shape_distances(problem, cur.shape)}]
+              **distances(problem, cur)}]
     if log:
-        log(f"baseline: deviance/dof {cur.deviance_per_dof:.2f}, TV32 {steps[0]['total_variation_32']:.4f}")
+        log(f"baseline: deviance/dof {cur.deviance_per_dof:.2f}, TV32 {_tv_text(steps[0])}")
     while True:
         trials = []
         for eff in candidates:
@@ -237,17 +346,23 @@ def forward_select(problem: Problem, start: dict[str, float] | None = None,
         cur = fit(problem, trial.params, tuple(chosen), hesse=False)
         if eff in ("crystal_size",):  # refine the discrete pair around the chosen grid point
             cur = _refine_crystal(problem, cur, tuple(chosen))
-        d = shape_distances(problem, cur.shape)
+        d = distances(problem, cur)
         steps.append({"added": eff, "deviance": cur.deviance, "deviance_per_dof": cur.deviance_per_dof,
                       "deviance_drop": gain, **d})
         if log:
-            log(f"+ {eff}: deviance/dof {cur.deviance_per_dof:.2f}, TV32 {d['total_variation_32']:.4f}")
+            log(f"+ {eff}: deviance/dof {cur.deviance_per_dof:.2f}, TV32 {_tv_text(d)}")
     final = fit(problem, cur.params, tuple(chosen), hesse=True)
     final.steps = steps
     return final
 
 
-def _refine_crystal(problem: Problem, cur: FitResult, effects: tuple[str, ...]) -> FitResult:
+def _tv_text(d: dict) -> str:
+    if "per_spectrum" in d:
+        return " / ".join(f"{v:.4f}" for v in d["per_spectrum"])
+    return f"{d['total_variation_32']:.4f}"
+
+
+def _refine_crystal(problem: Problem | Joint, cur: FitResult, effects: tuple[str, ...]) -> FitResult:
     best = cur
     for _ in range(2):
         c, s = best.params["crystal_mm"], best.params["escape_scale"]
@@ -267,15 +382,39 @@ def _refine_crystal(problem: Problem, cur: FitResult, effects: tuple[str, ...]) 
 LOW_ENERGY_EFFECTS = ("absorber", "k_xray_escape")
 
 
-def identifiable(effect: str, problem: Problem) -> bool:
+#: effects that need photopeaks spread over the energy range: at least ``SPREAD_MIN_GROUPS`` lines of at least
+#: ``SPREAD_MIN_YIELD`` per decay, each more than ``SPREAD_MIN_GAP_KEV`` above the previous one, spanning a factor
+#: ``SPREAD_MIN_RATIO`` in energy (Eu-152, Ba-133, Th-232 or Cs-137 with Co-60; not Cs-137 or Co-60 alone)
+SPREAD_EFFECTS = ("energy_nonlinearity", "resolution_curvature")
+SPREAD_MIN_YIELD, SPREAD_MIN_GAP_KEV, SPREAD_MIN_GROUPS, SPREAD_MIN_RATIO = 0.02, 100.0, 3, 3.0
+
+
+def line_groups(problem: Problem | Joint, min_yield: float = SPREAD_MIN_YIELD,
+                min_gap_keV: float = SPREAD_MIN_GAP_KEV) -> list[float]:
+    """Energies of the problem's lines of at least ``min_yield`` in the fit range, each more than ``min_gap_keV``
+    above the previous one kept."""
+    from radseek.photon_lines import source_lines
+
+    kept: list[float] = []
+    for e in sorted(e for n in problem.nuclides for e, y in source_lines(n)
+                    if y >= min_yield and problem.fit_min_keV <= e <= 3000.0):
+        if not kept or e - kept[-1] > min_gap_keV:
+            kept.append(e)
+    return kept
+
+
+def identifiable(effect: str, problem: Problem | Joint) -> bool:
+    if effect in SPREAD_EFFECTS:
+        g = line_groups(problem)
+        return len(g) >= SPREAD_MIN_GROUPS and g[-1] >= SPREAD_MIN_RATIO * g[0]
     if effect not in LOW_ENERGY_EFFECTS:
         return True
-    from detector_fw_sim.response import gamma_lines
+    from radseek.photon_lines import source_lines
 
-    return any(problem.fit_min_keV <= e <= 150.0 and y >= 0.01 for n in problem.nuclides for e, y in gamma_lines(n))
+    return any(problem.fit_min_keV <= e <= 150.0 and y >= 0.01 for n in problem.nuclides for e, y in source_lines(n))
 
 
-def evaluate(problem: Problem, params: dict[str, float]) -> FitResult:
+def evaluate(problem: Problem | Joint, params: dict[str, float]) -> FitResult:
     """A saved response on another spectrum: only the amplitude is fitted."""
     return fit(problem, params, (), hesse=False)
 
@@ -319,12 +458,12 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
     energies is CsI(Tl)'s non-proportional light yield, which one Cs-137 photopeak cannot show; a width factor
     away from 1 says the resolution law does not hold at that energy. Errors are HESSE's.
     """
-    from detector_fw_sim.response import fwhm_keV, gamma_lines
+    from radseek.photon_lines import source_lines
 
     def fw(e: float) -> float:  # model FWHM in file energy
-        return float(params["gain"] * fwhm_keV(e, params["fwhm_at_662"], params["fwhm_exponent"]))
+        return float(params["gain"] * M.fwhm(params, e))
 
-    lines = sorted((e, y) for n in problem.nuclides for e, y in gamma_lines(n)
+    lines = sorted((e, y) for n in problem.nuclides for e, y in source_lines(n)
                    if y >= min_yield and e * params["gain"] >= problem.fit_min_keV)
     groups: list[list[tuple[float, float]]] = []
     for e, y in lines:
@@ -336,8 +475,8 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
     centre = 0.5 * (b[1:] + b[:-1])
     out = []
     for g in groups:
-        lo = params["gain"] * g[0][0] - fw(g[0][0])
-        hi = params["gain"] * g[-1][0] + fw(g[-1][0])
+        lo = float(M.file_energy(params, g[0][0])) - fw(g[0][0])
+        hi = float(M.file_energy(params, g[-1][0])) + fw(g[-1][0])
         sel = (centre >= lo) & (centre < hi) & problem.mask
         if sel.sum() < 4:
             continue
@@ -346,7 +485,7 @@ def line_checks(problem: Problem, params: dict[str, float], min_yield: float = L
         out.append({"line_keV": round(main_e, 2), "lines_keV": [round(e, 2) for e, _ in g],
                     "window_keV": [round(lo, 1), round(hi, 1)],
                     "shift_keV": round(shift, 2), "shift_error_keV": float(f"{shift_err:.2g}"),
-                    "shift_relative": round(shift / (params["gain"] * main_e), 4),
+                    "shift_relative": round(shift / float(M.file_energy(params, main_e)), 4),
                     "fwhm_ratio": round(width, 3), "fwhm_ratio_error": float(f"{width_err:.2g}")})
     return out
 

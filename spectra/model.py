@@ -31,6 +31,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from detector_fw_sim import response
+from radseek.photon_lines import source_lines
 
 FWHM_PER_SIGMA = 2 * math.sqrt(2 * math.log(2))
 
@@ -64,11 +65,23 @@ class Effect:
 DECLARED: dict[str, Effect] = {
     "energy_calibration": Effect(
         "CsI(Tl) non-proportional light yield; device calibration (Knoll 4th ed. sec. 8.II)",
+        Param("gain", 1.0, 0.85, 1.15, "file energy per deposited energy")),
+    # only with photopeaks spread over the energy range (fit.identifiable): with the offset (or a quadratic term)
+    # free, a Cs-137 spectrum alone cannot tell a calibration error from continuum shape, and the offset fitted on
+    # it spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
+    "energy_nonlinearity": Effect(
+        "CsI(Tl) non-proportional light yield over the photopeaks of several lines (Knoll sec. 8.II; Moses, Payne "
+        "et al., IEEE TNS 55 (2008) 1049): smooth in ln E, rising toward low energies, on top of the device's own "
+        "polynomial calibration",
         Param("gain", 1.0, 0.85, 1.15, "file energy per deposited energy"),
-        # held: with the offset (or a quadratic term) free, a Cs-137 spectrum alone cannot tell a calibration
-        # error from continuum shape, and the fitted offset spoiled Ba-133 (81 keV) and Am-241 (59.5 keV)
-        held=(Param("offset_keV", 0.0, -40.0, 40.0, "file energy of a zero deposit", "keV"),
-              Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "m = offset + gain e (1 + q e / 1 MeV)", "1/MeV"))),
+        Param("offset_keV", 0.0, -40.0, 40.0, "file energy of a zero deposit", "keV"),
+        Param("quadratic_per_MeV", 0.0, -0.2, 0.2, "m = offset + gain e (1 + q e / 1 MeV + c ln^2(e / 662 keV))",
+              "1/MeV"),
+        Param("light_yield_curvature", 0.0, -0.05, 0.05, "c in the law above: light per keV against ln E")),
+    "resolution_curvature": Effect(
+        "the resolution's departure from one power law over 60-1400 keV (CsI(Tl)'s intrinsic, non-proportionality "
+        "term; Moszynski et al., NIM A 484 (2002) 259)",
+        Param("fwhm_curvature", 0.0, -0.3, 0.3, "d in FWHM/E = r (662/E)^b exp(-d ln^2(E / 662 keV))")),
     "resolution_law": Effect(
         "photo-electron statistics plus a constant light-collection term (Knoll sec. 10.III)",
         Param("fwhm_at_662", 0.07, 0.02, 0.3, "FWHM / E at 662 keV"),
@@ -138,7 +151,7 @@ def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: flo
     """Per line: energy, yield, exact peaks and continuum; the scatter node vectors per scatter type."""
     eff = response.ResponseEffects(k_escape=k_escape, escape_scale=escape_scale)
     crystal = response.Crystal(crystal_mm, crystal_mm, eff)
-    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    lines = [ly for n in nuclides for ly in source_lines(n)]
     energies = np.array([e for e, _ in lines])
     yields = np.array([y for _, y in lines])
     peaks_e, peaks_w, peak_line, conts = [], [], [], []
@@ -162,7 +175,7 @@ def _line_tables(nuclides: tuple[str, ...], crystal_mm: float, escape_scale: flo
 @lru_cache(maxsize=256)
 def _side_nodes(nuclides: tuple[str, ...], theta_min_deg: float) -> np.ndarray:
     """Side-scatter node vectors (lines, nodes) for scattering through theta_min_deg..110 deg."""
-    lines = [ly for n in nuclides for ly in response.gamma_lines(n)]
+    lines = [ly for n in nuclides for ly in source_lines(n)]
     hi = response.SIDE_SCATTER_DEG[1]
     return np.stack([response.node_weights(*response.scattered_energies(float(e), theta_min_deg, hi))
                      for e, _ in lines])
@@ -209,13 +222,29 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     return e[keep], w[keep], var[keep]
 
 
+def file_energy(params: dict[str, float], e: np.ndarray | float) -> np.ndarray:
+    """The file energy m of a deposit e: m = offset + gain e (1 + q e / 1 MeV + c ln^2(e / 662 keV))."""
+    e = np.asarray(e, dtype=float)
+    ln = np.log(np.maximum(e, 1.0) / response.SHARE_REFERENCE_KEV)
+    return params["offset_keV"] + params["gain"] * e * (1 + params["quadratic_per_MeV"] * e / 1000.0
+                                                        + params.get("light_yield_curvature", 0.0) * ln**2)
+
+
+def fwhm(params: dict[str, float], e: np.ndarray | float) -> np.ndarray:
+    """FWHM (keV of deposited energy) at e: r (662/e)^b e, times exp(-d ln^2(e / 662 keV)) (resolution_curvature)."""
+    w = response.fwhm_keV(e, params["fwhm_at_662"], params["fwhm_exponent"])
+    d = params.get("fwhm_curvature", 0.0)
+    if d:
+        w = w * np.exp(-d * np.log(np.maximum(np.asarray(e, dtype=float), 1.0) / response.SHARE_REFERENCE_KEV) ** 2)
+    return w
+
+
 def native_shape(params: dict[str, float], nuclides: tuple[str, ...], boundaries_keV: np.ndarray) -> np.ndarray:
     """Expected counts per emitted photon in the native channels with boundaries ``boundaries_keV`` (file energy)."""
     e, w, var = deposited(params, nuclides)
-    gain, off = params["gain"], params["offset_keV"]
-    m = off + gain * e * (1 + params["quadratic_per_MeV"] * e / 1000.0)
-    s = np.sqrt((gain * response.fwhm_keV(e, params["fwhm_at_662"], params["fwhm_exponent"]) / FWHM_PER_SIGMA) ** 2
-                + gain**2 * var)
+    gain = params["gain"]
+    m = file_energy(params, e)
+    s = np.sqrt((gain * fwhm(params, e) / FWHM_PER_SIGMA) ** 2 + gain**2 * var)
     b = np.asarray(boundaries_keV, dtype=float)
     lo, hi = m - 8 * s, m + 8 * s
     cdf = np.zeros(len(b))

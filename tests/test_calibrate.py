@@ -140,6 +140,20 @@ def test_cli_calibrate_writes_detector_file_and_json(detector_file, capsys):
     assert 0 <= bs["total_variation_32"] <= 1
 
 
+def test_single_form_gives_the_figures_it_gave_before_the_joint_form(detector_file):
+    """``radseek calibrate SPECTRUM --nuclide N`` is unchanged by the joint form (issue 32): the effects that need
+    several lines (``energy_nonlinearity``) are not candidates on one Cs-137 photopeak, and the figures are those
+    measured at 371a248, before the joint form existed."""
+    det = read_detector_file(detector_file)
+    assert det.fit["total_variation_32"] == 0.0875
+    assert det.fit["total_variation_native"] == 0.0992
+    assert det.fit["deviance_per_dof"] == 5.8324
+    assert det.parameters["gain"] == pytest.approx(0.992422, abs=2e-6)
+    assert det.parameters["fwhm_at_662"] == pytest.approx(0.126626, abs=2e-6)
+    assert det.parameters["offset_keV"] == 0.0 and det.parameters["quadratic_per_MeV"] == 0.0
+    assert det.calibrated_on["spectrum"] == "Cs137_b.xml"
+
+
 @pytest.mark.parametrize("name,nuclide", [("Co60_a.xml", "Co-60"), ("Eu152_b.xml", "Eu-152")])
 def test_a_cs137_response_moves_other_nuclides_toward_the_measurement(detector_file, name, nuclide):
     """The same device's Co-60 and Eu-152 (no refit): the response calibrated on Cs-137 alone is closer to them
