@@ -332,7 +332,7 @@ def _print_human(r: dict) -> None:
     for w in r["still_missing"]:
         if "from_keV" in w:
             print(f"    {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: deviance {w['deviance']:.0f} over {w['channels']} "
-                  f"channels, measured {100 * w['relative']:+.1f} % vs model")
+                  f"channels, {_versus(w)}")
         else:
             print(f"    {w['effect']}: {w['why']}")
     if r["lines"]:
@@ -379,8 +379,7 @@ def _print_joint(r: dict) -> None:
                   f"{sp['total_variation_32']:>7.4f} {sp['total_variation_native']:>7.4f} "
                   f"{sp['deviance_per_dof']:>8.2f} {sp['baseline']['total_variation_32']:>13.4f}")
             for w in sp["still_missing"]:
-                print(f"      {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: measured {100 * w['relative']:+.1f} % "
-                      f"vs model (deviance {w['deviance']:.0f})")
+                print(f"      {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: {_versus(w)} (deviance {w['deviance']:.0f})")
             for ln in sp["lines"]:
                 print(f"      {ln['line_keV']:>8.1f} keV: shift {ln['shift_keV']:+.2f} +- "
                       f"{ln['shift_error_keV']:.2g} keV, FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
@@ -396,6 +395,14 @@ def refuse_non_finite(result: dict) -> None:
     if bad is not None:
         raise ValueError(f"result field '{bad[0]}' is {bad[1]!r}: refusing to print non-finite numbers "
                          "(check the spectrum's counts and live time)")
+
+
+def _versus(w: dict) -> str:
+    """A still-missing window, measured against the model, for people."""
+    if w.get("relative") is None:
+        return (f"measured {w['measured_minus_model'] + w.get('model_counts', 0.0):.0f} counts where the model "
+                f"expects {w.get('model_counts', 0.0):.2g} (an emission or a background the model lacks)")
+    return f"measured {100 * w['relative']:+.1f} % vs model"
 
 
 def main(argv: list[str] | None = None) -> int:

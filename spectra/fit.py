@@ -30,6 +30,8 @@ from radseek.spectrum_files import Spectrum
 from spectra import model as M
 
 TV_MIN_KEV = 60.0
+#: a still-missing window's measured / model ratio is given only where the model expects this many counts
+MIN_MODEL_COUNTS = 1.0
 #: the fit starts above the X-rays near CsI's K edges (33-36 keV), where CsI(Tl)'s non-proportional light
 #: yield puts the 32 keV Ba X-ray of Cs-137 at 27 keV on the RadiaCode's calibration: fitting it pulled the
 #: energy offset by -4.6 keV and moved Ba-133's 81 keV peak off (checked: Ba-133 TV32 0.120 with it, 0.050 without)
@@ -436,10 +438,13 @@ def residual_regions(problem: Problem, res: FitResult, n_regions: int = 3) -> li
         if sel.sum() == 0:
             continue
         excess = float((n[sel] - mu[sel]).sum())
+        model = float(mu[sel].sum())
         windows.append({"from_keV": round(float(lo), 1), "to_keV": round(float(hi), 1),
                         "deviance": round(float(d[sel].sum()), 1), "channels": int(sel.sum()),
-                        "measured_minus_model": round(excess, 1),
-                        "relative": round(excess / max(float(mu[sel].sum()), 1e-9), 4)})
+                        "measured_minus_model": round(excess, 1), "model_counts": round(model, 2),
+                        # a ratio to a model that expects (almost) nothing there is no number: None, and the
+                        # counts say it (an emission or a background the model lacks)
+                        "relative": round(excess / model, 4) if model >= MIN_MODEL_COUNTS else None})
     windows.sort(key=lambda w: -w["deviance"])
     return windows[:n_regions]
 

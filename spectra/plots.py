@@ -25,7 +25,7 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     m = problem.mask & (centre > 0)
     fig, ax = plt.subplots(3, 1, figsize=(10, 11), gridspec_kw={"height_ratios": [3, 1.3, 2]})
     ax[0].step(centre[m], np.clip(net[m] / width[m] / lt, 1e-5, None), where="mid", color="k", lw=0.7,
-               label="measured minus background")
+               label="measured minus background" if problem.background is not None else "measured")
     ax[0].plot(centre[m], np.clip(res.shape[m] / width[m] / lt, 1e-5, None), color="C3", lw=1.2,
                label=f"calibrated response (deviance/dof {res.deviance_per_dof:.2f})")
     ax[0].plot(centre[m], np.clip(base.shape[m] / width[m] / lt, 1e-5, None), color="C0", lw=0.9, ls="--",
