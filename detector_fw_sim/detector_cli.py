@@ -2,9 +2,11 @@
 
 Publishes ``radseek/<vehicle>/detector/raw`` (binary board frames, docs/frame-format.md),
 ``detector/histogram`` (decoded JSON) at 10 Hz sim time and ``detector/status`` at 1 Hz; reads the true
-pose from ``sim/truth_pose`` (or ``--pose``). ``--clock own`` (default) runs its own sim clock at
-``--speedup`` (1 = real time) and publishes ``sim/clock``; ``--clock zenoh`` follows the vehicle's
-(use it whenever a vehicle runs: there must be one clock owner).
+pose from ``sim/truth_pose`` (or ``--pose``). There is one clock owner: ``--clock zenoh`` follows the vehicle's
+``sim/clock``; ``--clock own`` runs its own sim clock at ``--speedup`` (1 = real time) and publishes it;
+``--clock auto`` (default) is ``own`` with a fixed ``--pose`` (no vehicle) and ``zenoh`` otherwise, so that
+``radseek router``, ``radseek detector`` and ``radseek vehicle`` started by hand, in any order, share the
+vehicle's clock (two clocks made the detector's poses stale forever, silently).
 
 With no true pose for ``--stale-after`` sim seconds, frames keep coming at 10 Hz but carry zero counts
 and the STALE_POSE flag: the emulator never invents data. A restarted process continues the frame
@@ -78,8 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scene", metavar="FILE", help="scene TOML/JSON (default: the embedded default scene)")
     p.add_argument("--seed", type=int, default=0, help="seed of the count draws and injected faults (default 0)")
-    p.add_argument("--clock", choices=("own", "zenoh"), default="own",
-                   help="own: run and publish sim/clock; zenoh: follow the vehicle's sim/clock (default own)")
+    p.add_argument("--clock", choices=("auto", "own", "zenoh"), default="auto",
+                   help="own: run and publish sim/clock; zenoh: follow the vehicle's sim/clock; auto (default): "
+                        "own with --pose, else zenoh")
     p.add_argument("--speedup", type=_positive, default=1.0, help="--clock own: sim s per wall s (default 1)")
     p.add_argument("--pose", type=_pose, metavar="X,Y,Z,YAW", help="fixed true pose (m, rad) instead of sim/truth_pose")
     p.add_argument("--stale-after", type=_positive, default=0.5, metavar="S",
@@ -97,6 +100,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="send no frames during this sim interval (repeatable)")
     add_arguments(p)
     return p
+
+
+#: wall s between checks for frames without a fresh pose
+STALE_WATCH_S = 10.0
+
+
+def _warn_when_stale(proc: DetectorProcess, stop: threading.Event, args: argparse.Namespace) -> None:
+    """Say so, every :data:`STALE_WATCH_S` wall seconds, while most frames go out STALE_POSE (zero counts): no
+    true pose is arriving on this process's clock, and nothing downstream can record a measurement."""
+    frames, stale = proc.counters.frames, proc.counters.stale_frames
+    while not stop.wait(STALE_WATCH_S):
+        df, ds = proc.counters.frames - frames, proc.counters.stale_frames - stale
+        frames, stale = proc.counters.frames, proc.counters.stale_frames
+        if df > 0 and ds > 0.5 * df:
+            fix = ("start `radseek vehicle` on the same router" if args.clock == "zenoh" else
+                   "a vehicle runs its own clock: restart this detector with --clock zenoh (or without --clock)")
+            print(f"radseek detector: WARNING: {ds} of the last {df} frames had no true pose within "
+                  f"{args.stale_after:g} sim s (sent STALE_POSE with zero counts, t = {proc.clock.now():.1f} s): "
+                  f"{fix}", file=sys.stderr, flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     stop = threading.Event()
     clock_thread = None
+    if args.clock == "auto":
+        args.clock = "own" if args.pose is not None else "zenoh"
     if args.clock == "own":
         clock = FreeRunningClock(args.speedup)
         pub = ClockPublisher(session, args.vehicle_name, args.speedup)
@@ -144,8 +168,13 @@ def main(argv: list[str] | None = None) -> int:
     else:
         clock = ZenohClock(session, args.vehicle_name)
         print(f"radseek detector: waiting for {topics.key(topics.SIM_CLOCK, args.vehicle_name)}", flush=True)
+        waited = 0
         while not clock.wait_started(1.0):
-            pass
+            waited += 1
+            if waited % 10 == 0:
+                print(f"radseek detector: still waiting for the vehicle's clock after {waited} s: start "
+                      f"`radseek vehicle` (same router), or give --pose X,Y,Z,YAW to run alone on its own clock",
+                      flush=True)
     proc = DetectorProcess(session, clock, emulator, config)
     proc.stop_event = stop
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -155,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"radseek detector: publishing {topics.key('detector/*', args.vehicle_name)} at 10 Hz sim time "
           f"(clock {args.clock}, speedup {clock.speedup:g}, from t={clock.now():.2f} s)", flush=True)
     wall0 = time.monotonic()
+    threading.Thread(target=_warn_when_stale, args=(proc, stop, args), name="stale-watch", daemon=True).start()
     try:
         c = proc.run()
     finally:

@@ -95,7 +95,7 @@ def test_cli_rejects_bad_options_with_a_clear_message(capsys):
         assert msg in capsys.readouterr().err
     args = p.parse_args(["--pose", "1,2,1.5,0.3", "--dropout", "30:2", "--dropout", "40:1"])
     assert args.pose == (1.0, 2.0, 1.5, 0.3) and args.dropout == [(30.0, 2.0), (40.0, 1.0)]
-    assert args.clock == "own" and args.speedup == 1.0  # real time by default
+    assert args.clock == "auto" and args.speedup == 1.0  # own clock with --pose, real time by default
 
 
 def test_fault_injection_is_always_caught_by_the_driver():
