@@ -42,8 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"scene TOML/JSON file or bundled name ({', '.join(bundled_scenes())}); default: default")
     p.add_argument("--path", default="lattice",
                    help=f"flight path: {', '.join(BUILTIN_PATHS)} or a CSV with x,y,z,yaw,dwell_s (default lattice)")
-    p.add_argument("--out", default="simulated-dataset",
-                   help="output dataset directory, must be empty unless --force (default ./simulated-dataset)")
+    p.add_argument("--out", default="runs/simulated-dataset",
+                   help="output dataset directory, must be empty unless --force (default runs/simulated-dataset)")
     p.add_argument("--force", action="store_true",
                    help="use a non-empty --out: remove its previous dataset files first (other files are kept)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)")

@@ -54,7 +54,7 @@ def _build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="radseek compare", description=__doc__.split("\n")[0])
     p.add_argument("a", help="first dataset (e.g. the real flight)")
     p.add_argument("b", help="second dataset of the same flight (e.g. the simulated one)")
-    p.add_argument("--out", default="compare.png", help="PNG to write (default compare.png)")
+    p.add_argument("--out", default="runs/compare.png", help="PNG to write (default runs/compare.png)")
     p.add_argument("--runs", type=int, default=1, help="particle-filter seeds per dataset (default 1)")
     p.add_argument("--n-particles", type=int, default=100_000)
     p.add_argument("--dead-time", type=float, default=0.0, help="detector dead time a (s) in the likelihood")
@@ -104,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     fig.suptitle(f"particle-filter runs: {da.name} vs {db.name} ({args.n_particles} particles, {args.runs} run(s))")
     fig.tight_layout()
     out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 

@@ -223,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     from radseek.zenoh_session import add_arguments
 
     p = argparse.ArgumentParser(prog="radseek record", description=main.__doc__)
-    p.add_argument("--out", type=Path, default=Path("flight.mcap"), help="MCAP file to write (default flight.mcap)")
+    p.add_argument("--out", type=Path, default=Path("runs/flight.mcap"),
+                   help="MCAP file to write (default runs/flight.mcap)")
     p.add_argument("--mavlink-port", type=int, default=None,
                    help="also record MAVLink arriving on this UDP port (e.g. the vehicle's --gcs-port)")
     p.add_argument("--duration", type=float, help="wall seconds to record (default: until Ctrl-C / SIGTERM)")
@@ -233,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--duration must be > 0")
     if args.out.exists() and args.out.is_dir():
         p.error(f"--out {args.out} is a directory")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     return serve_on_session(
         "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=args.mavlink_port),
         OSError, lambda exc: f"UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another with "

@@ -1,0 +1,32 @@
+"""Bare commands write under runs/ (git-ignored), never beside the user's own files in the current folder."""
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from detector_fw_sim.simulate_cli import build_parser as simulate_parser
+from estimator.compare_cli import _build_parser as compare_parser
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _default_out(p: argparse.ArgumentParser) -> str:
+    return str(next(a.default for a in p._actions if "--out" in a.option_strings))
+
+
+def test_every_default_output_is_under_runs():
+    assert _default_out(simulate_parser()).startswith("runs/")
+    assert _default_out(compare_parser()).startswith("runs/")
+    assert "runs/diagnose-" in (REPO / "estimator" / "diagnose_cli.py").read_text()
+    assert 'Path("runs/flight.mcap")' in (REPO / "radseek" / "mcap_log.py").read_text()
+    assert "runs/" in (REPO / ".gitignore").read_text().split()
+
+
+def test_bare_simulate_dataset_writes_only_under_runs(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "radseek.cli", "simulate-dataset"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]
+    assert (tmp_path / "runs" / "simulated-dataset" / "frames.csv").is_file()
