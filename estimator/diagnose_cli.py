@@ -142,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
             a = d.after
             plots.append(str(P.plot_features(a, out / f"residuals_vs_features_{tag}.png")))
             plots.append(str(P.plot_map(a, out / f"residual_map_{tag}.png", ds.scenario)))
-            plots.append(str(P.plot_before_after(cur, a, out / f"before_after_{tag}.png")))
+            plots.append(str(P.plot_before_after(cur, a, out / ("before_after.png" if d.added else
+                                                                  "before_after_with_missing.png"))))
             if "gain_drift" in a.effects and d.spectral is not None:
                 plots.append(str(P.plot_spectral(d.spectral, out / f"spectral_residuals_{tag}.png", null=False)))
     if args.json:

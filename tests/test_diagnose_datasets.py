@@ -52,7 +52,7 @@ def test_cli_add_shows_before_and_after(shared_datasets, tmp_path):
     assert "deviance/dof" in out and "->" in out and "air_attenuation.mu_per_m" in out
     assert "Air itself attenuates" in out  # the physics sentence
     assert "6. Is anything still missing?" in out and "is adequate" in out
-    assert (tmp_path / "before_after_after.png").exists()
+    assert (tmp_path / "before_after.png").exists()
 
 
 def test_bad_input_exits_2(tmp_path, capsys):
