@@ -338,7 +338,7 @@ def open_world_fields(j: dict[str, Any], truth_effects: dict[str, Any], primary:
         "hotspots": len(j.get("residual_hotspots", []) or []),
         "walls_named": len(named),
         "walls_est": [{"start": w.get("start"), "end": w.get("end"), "mu_per_m": w.get("mu_per_m"),
-                       "thickness": w.get("thickness")} for w in named],
+                       "thickness": w.get("thickness"), "errors": w.get("errors")} for w in named],
         "wall_centre_err_m": wall_errors(true_walls, named),
         "nuclide_named": named_nuclide(j),
         "nuclide_true": (ss.get("nuclide", primary) if ss else None),

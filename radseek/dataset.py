@@ -824,6 +824,11 @@ def read_dataset(path: str | Path, progress: Callable[[int, int], None] | None =
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: not a dataset directory (expected frames.csv and scenario.json inside)")
+    if not (path / "frames.csv").exists() and not (path / "scenario.json").exists():
+        inner = sorted(p.name for p in path.iterdir() if p.is_dir() and (p / "frames.csv").exists())
+        if inner:
+            raise DatasetError(f"{path}: holds one dataset per folder ({', '.join(inner)}), as a team run's "
+                               f"dataset/ does: give one of them, e.g. {path / inner[0]}")
     scenario = read_scenario(path / "scenario.json")
     truth = read_truth(path / "truth.json")
     frames = read_frames(path / "frames.csv", progress=progress, truncated_last_row=truncated_last_row)

@@ -99,3 +99,12 @@ def test_air_coefficient_round_trips_and_is_absent_by_default(shared_datasets, t
     write_dataset(tmp_path / "air", ds.frames, dataclasses.replace(ds.scenario, air_mu_per_m=0.0093), ds.truth)
     back = read_dataset(tmp_path / "air")
     assert back.scenario.air_mu_per_m == 0.0093 and "air_mu_per_m" not in back.scenario.extra
+
+
+def test_a_team_runs_dataset_folder_names_its_vehicles(tmp_path, shared_datasets):
+    """``OUT/dataset`` of a team run holds uav0/, uav1/: the error names them instead of a missing scenario.json."""
+    for v in ("uav0", "uav1"):
+        shutil.copytree(shared_datasets / "lattice-clean", tmp_path / v)
+    with pytest.raises(DatasetError, match=r"uav0, uav1.*give one of them, e.g. .*uav0"):
+        read_dataset(tmp_path)
+    assert len(read_dataset(tmp_path / "uav1").frames) > 0
