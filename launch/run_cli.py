@@ -203,8 +203,9 @@ def stop_recorder(stack: Stack, out: Path) -> bool:
 class Progress:
     """Live one-line display from ``mission/state`` and ``estimate``."""
 
-    def __init__(self, session, vehicle: str, stream=sys.stderr):
+    def __init__(self, session, vehicle: str, stream=sys.stderr, label: str = ""):
         self.stream = stream
+        self.label = label  # a team's lines start with the vehicle's name
         self.state: topics.MissionState | None = None
         self.estimate: topics.Estimate | None = None
         self.lock = threading.Lock()
@@ -231,7 +232,8 @@ class Progress:
             st, est = self.state, self.estimate
         if st is None:
             return
-        line = f"[t={st.t:6.1f}s] {st.phase:<8s} dwell {st.dwell_index:>2d}  battery {100 * st.battery:3.0f}%"
+        line = (f"{self.label}: " if self.label else "") + \
+            f"[t={st.t:6.1f}s] {st.phase:<8s} dwell {st.dwell_index:>2d}  battery {100 * st.battery:3.0f}%"
         if est is not None and est.sources:
             s = est.sources[0]
             cov = est.covariance_block(0)

@@ -36,6 +36,7 @@ from launch.run_cli import (
     EXIT_FOUND,
     EXIT_SEARCH_FAILED,
     EXIT_STACK,
+    Progress,
     Stack,
     StackRun,
     _radseek,
@@ -153,6 +154,7 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
                     "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg,
                     *(("--lockstep-timeout", str(KILLED_LOCKSTEP_TIMEOUT_S)) if kill and kill[0] == name else ())))
             clocks = {name: ZenohClock(session, name) for name in names}
+            shows = [] if args.quiet else [Progress(session, name, label=name) for name in names]
             while any(m.poll() is None for m in missions.values()):
                 if kill is not None and clocks[kill[0]].now() >= kill[1]:
                     proc = missions[kill[0]]
@@ -175,6 +177,8 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
                 time.sleep(0.2 if kill is None else 0.01)  # a pending kill watches the clock closely
             if recorder is not None:
                 stop_recorder(stack, out)
+            for show in shows:
+                show.close()
     if run.exit_code is not None:
         return run.exit_code
     wall = time.monotonic() - t0

@@ -96,7 +96,7 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
     from mcap.reader import make_reader
 
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--vehicles", "2", "--out", str(out), "--quiet",
+    cmd = [sys.executable, "-m", "radseek.cli", "run", "--vehicles", "2", "--out", str(out),
            "--speedup", "50", "--seed", "0", "--zenoh-port", str(free_port()),
            "--mavlink-port", str(free_udp_block(2)), "--gcs-port", str(free_udp_block(2)),
            "--vehicle-local-ports", f"{free_udp_block(2)},{free_udp_block(2)}",
@@ -108,6 +108,8 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 120)
     assert run.returncode in (0, 3), run.stderr[-3000:]  # 3: a reasoned stop (e.g. the dwell budget), not a crash
     assert "fault injected: mission uav1 killed" in run.stderr
+    # progress per vehicle while the team flies (a team run was silent for its whole flight)
+    assert "uav0: [t=" in run.stderr and "uav1: [t=" in run.stderr
 
     summary = json.loads((out / "summary.json").read_text())
     assert {"error_m", "sigma_m", "mission_time_s", "per_vehicle"} <= set(summary)
