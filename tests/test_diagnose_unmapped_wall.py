@@ -150,6 +150,12 @@ def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
         dists.append(float(np.hypot(*(c - (a + t * (b - a))))))
     assert min(dists) < 0.5
     assert d.after.source_error_m < d.current.source_error_m
+    # the distance the shadow allows along the wall's bearing holds the true centre's distance from the source
+    w = j["unmapped_walls"][int(np.argmin(dists))]
+    src = np.array([d.final.fit.values["x"], d.final.fit.values["y"]])
+    lo, hi = w["distance_range_95_m"]
+    assert lo <= w["distance_from_source_m"] <= hi
+    assert lo <= float(np.hypot(*((a + b) / 2 - src))) <= hi
 
 
 def test_vectorised_placeable_agrees_with_the_effects_placement():

@@ -121,7 +121,7 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
                 lines.append(f"  Physics of {e}: {physics(e)}")
             if d.after_selection is not None:
                 lines += ["", "6. Is anything still missing?"] + _selection_text(d.after_selection)
-    walls = unmapped_walls(d.final.fit)
+    walls = unmapped_walls(d.final.fit, d.dataset.frames)
     if walls:
         lines += ["", "Unmapped walls (paste into scenario.json's \"walls\"; mu x thickness is what the shadow "
                       "measures):"]
@@ -130,6 +130,10 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
             lines.append(f"  {json.dumps({k: w[k] for k in ('start', 'end', 'thickness', 'height', 'material')})}"
                          f"  mu_per_m {_fmt(w['mu_per_m'], e.get('mu_per_m'))}, centre +- "
                          f"{e.get('centre_x', float('nan')):.2g} / {e.get('centre_y', float('nan')):.2g} m")
+            lo, hi = w["distance_range_95_m"]
+            lines.append(f"    its centre is {w['distance_from_source_m']:.2f} m from the source at bearing "
+                         f"{w['bearing_deg']:.0f} deg; the shadow allows {lo:.2f}-{hi:.2f} m along that bearing (95 %, "
+                         "length scaling with distance): the counts fix the sector, not the distance")
     if d.dropped:
         lines += ["", f"Named by the forward selection but not needed once the others are in (dropped): "
                       f"{', '.join(d.dropped)}"]
@@ -190,7 +194,7 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     out["partial"] = list(d.partial)
     out["unexplained"] = bool(d.unexplained)
     out["residual_hotspots"] = list(d.hotspots)
-    out["unmapped_walls"] = unmapped_walls(d.final.fit)
+    out["unmapped_walls"] = unmapped_walls(d.final.fit, d.dataset.frames)
     out["dropped"] = list(d.dropped)
     out["physics"] = {e: physics(e) for e in (*d.missing, *d.partial)}
     out["trends"] = [{"feature": t.feature, "chi2": t.chi2, "dof": t.dof, "p_value": t.p_value,

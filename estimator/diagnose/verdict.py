@@ -175,8 +175,37 @@ def _wall_errors(fit: Any, wall: str) -> dict[str, float]:
     return dict(zip(("start_x", "start_y", "end_x", "end_y", "centre_x", "centre_y"), map(float, sd), strict=True))
 
 
-def unmapped_walls(fit: Any) -> list[dict[str, Any]]:
-    """The fit's unmapped walls in the scenario's ``walls`` form, with mu_per_m and uncertainties."""
+#: the distance range along the wall's bearing keeps the distances whose -log L is within this of the fit's
+#: (1.92: 95 % for one parameter)
+DISTANCE_DELTA_NLL = 1.92
+
+
+def distance_range(fit: Any, frames: Frames, wall: str, n: int = 40) -> tuple[float, float]:
+    """The distances from the source, along the wall's fitted bearing, at which the same slab seen under the same
+    angle (its length scaled with the distance) explains the counts within :data:`DISTANCE_DELTA_NLL` of the fit:
+    a point source's shadow fixes the sector a wall blocks, not where along it the wall stands (paper 004
+    eq. 5.19: only the lines of sight through it see it). A profile over that one degenerate direction, the
+    other parameters held; the extremes of the accepted distances."""
+    v = dict(fit.values)
+    r0, length0 = float(v[f"{wall}.r"]), float(v[f"{wall}.length"])
+    src = np.array([v["x"], v["y"]])
+    far = float(np.hypot(*(frames.positions[:, :2] - src).T).max())
+    rs = np.unique(np.r_[np.geomspace(UnmappedWall.MIN_DISTANCE_M, max(far, r0 * 1.01), n), r0])
+    obs = fit.model.observed_counts(frames)
+
+    def nll(r: float) -> float:
+        ln = float(np.clip(length0 * r / r0, UnmappedWall.MIN_LENGTH_M, UnmappedWall.MAX_LENGTH_M))
+        mu = np.maximum(fit.model.expected_counts({**v, f"{wall}.r": r, f"{wall}.length": ln}, frames), 1e-300)
+        return float((mu - obs * np.log(mu)).sum())
+
+    values = np.array([nll(float(r)) for r in rs])
+    ok = rs[values - values[rs == r0][0] <= DISTANCE_DELTA_NLL]
+    return float(ok.min()), float(ok.max())
+
+
+def unmapped_walls(fit: Any, frames: Frames | None = None) -> list[dict[str, Any]]:
+    """The fit's unmapped walls in the scenario's ``walls`` form, with mu_per_m and uncertainties; with ``frames``,
+    also the range of distances along the wall's bearing that the shadow allows (:func:`distance_range`)."""
     out = []
     for wall in WALLS:
         if f"{wall}.r" not in fit.values:
@@ -185,10 +214,16 @@ def unmapped_walls(fit: Any) -> list[dict[str, Any]]:
         mu = float(fit.values[f"{wall}.mu_per_m"])
         err = _wall_errors(fit, wall)
         mu_err = float(fit.errors.get(f"{wall}.mu_per_m", float("nan")))
+        extra: dict[str, Any] = {}
+        if frames is not None:
+            lo, hi = distance_range(fit, frames, wall)
+            extra = {"distance_from_source_m": round(float(fit.values[f"{wall}.r"]), 3),
+                     "distance_range_95_m": [round(lo, 3), round(hi, 3)],
+                     "bearing_deg": round(float(fit.values[f"{wall}.phi_deg"]) % 360.0, 1)}
         out.append({"start": [round(float(w[0]), 3), round(float(w[1]), 3)],
                     "end": [round(float(w[2]), 3), round(float(w[3]), 3)],
                     "thickness": float(w[4]), "height": float(w[5]), "material": "unmapped",
-                    "mu_per_m": mu, "mu_x_thickness": mu * float(w[4]),
+                    "mu_per_m": mu, "mu_x_thickness": mu * float(w[4]), **extra,
                     "errors": {**err, "mu_per_m": mu_err},
                     "note": "a point source's shadow fixes the sector the wall blocks; its distance along those "
                             "lines of sight is known only as the errors say (thickness and height are fixed "
