@@ -4,8 +4,8 @@ physical effect is missing, add it and watch the error fall.
     radseek diagnose DATASET [--model EFFECT ...] [--add EFFECT ...] [--json] [--out DIR] [--alpha 0.01] [--jobs N]
 
 Progress goes to stderr; the report (text, or JSON with --json) to stdout; PNG plots to --out
-(default runs/diagnose-<dataset name>/), with the run's fits (fits.pkl): run again with --add and nothing already
-fitted is fitted again. Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
+(default runs/diagnose-<dataset name>-<6 hex of its path>/), with the run's fits (fits.pkl): run again with --add
+and nothing already fitted is fitted again. Exit status 0 when the analysis ran (whatever it found), 2 on bad input.
 """
 
 from __future__ import annotations
@@ -47,6 +47,15 @@ def _effect(name: str) -> str:
     return name
 
 
+def default_out(dataset: Path) -> Path:
+    """runs/diagnose-<name>-<6 hex of the dataset's absolute path>: two flights whose folders share a name (two
+    runs' ``dataset/``) never write over each other's plots and fits; the same flight finds its fits again."""
+    import hashlib
+
+    tag = hashlib.sha1(str(Path(dataset).resolve()).encode()).hexdigest()[:6]
+    return Path("runs") / f"diagnose-{Path(dataset).name}-{tag}"
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="radseek diagnose",
@@ -59,7 +68,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", type=_effect,
                    help="refit with this effect added and show before/after (repeatable)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON report")
-    p.add_argument("--out", type=Path, default=None, help="folder for the PNG plots (default runs/diagnose-<name>/)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="folder for the PNG plots (default runs/diagnose-<name>-<path hash>/)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level for naming an effect (0.01)")
     p.add_argument("--starts", type=int, default=8, help="multi-start count of the model fit (8)")
@@ -116,10 +126,14 @@ def main(argv: list[str] | None = None) -> int:
     from estimator.diagnose.runner import diagnose
 
     added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
-    out = args.out or Path("runs") / f"diagnose-{ds.name}"
+    out = args.out or default_out(ds.path)
     saved = None
     if not args.no_plots or args.out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"radseek diagnose: output folder {out} cannot be created: {exc.strerror or exc}", file=sys.stderr)
+            return 2
         saved = out / SAVED_FITS
     try:
         d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts,

@@ -34,6 +34,14 @@ def prepare_output(path: str | Path, *, force: bool, outputs: Iterable[str], fla
     """Create ``path`` or check it is empty; with ``force`` remove the previous ``outputs`` in it (in
     the order given: list summaries first). Returns the folder."""
     path = Path(path)
+    try:
+        return _prepare(path, force, outputs, flag)
+    except OSError as exc:  # a parent that is a file, no permission, a read-only or full disk
+        raise OutputDirError(f"output folder {path} cannot be created or cleared: "
+                             f"{exc.strerror or exc}{f' ({exc.filename})' if exc.filename else ''}") from None
+
+
+def _prepare(path: Path, force: bool, outputs: Iterable[str], flag: str) -> Path:
     if path.exists() and not path.is_dir():
         raise OutputDirError(f"output folder {path} exists and is not a folder")
     if path.is_dir():

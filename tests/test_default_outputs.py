@@ -19,7 +19,11 @@ def _default_out(p: argparse.ArgumentParser) -> str:
 def test_every_default_output_is_under_runs():
     assert _default_out(simulate_parser()).startswith("runs/")
     assert _default_out(compare_parser()).startswith("runs/")
-    assert "runs/diagnose-" in (REPO / "estimator" / "diagnose_cli.py").read_text()
+    from estimator.diagnose_cli import default_out
+
+    a, b = default_out(Path("/x/run1/dataset")), default_out(Path("/x/run2/dataset"))
+    assert a.parts[0] == "runs" and a.name.startswith("diagnose-dataset-") and a != b
+    assert default_out(Path("/x/run1/dataset")) == a
     assert 'Path("runs/flight.mcap")' in (REPO / "radseek" / "mcap_log.py").read_text()
     assert "runs/" in (REPO / ".gitignore").read_text().split()
 

@@ -248,3 +248,13 @@ def test_failed_search_exits_non_zero(tmp_path):
     if (out / "summary.json").exists():  # the report is written when the flight allows a fit
         assert json.loads((out / "summary.json").read_text())["stop_reason"] == mission["reason"]
     assert _no_temporaries(out)
+
+
+def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path):
+    """A parent that is a file (or a path the system refuses): OutputDirError naming the folder and the reason."""
+    from radseek.outdir import OutputDirError, prepare_output
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    with pytest.raises(OutputDirError, match=r"a-file/sub cannot be created or cleared: Not a directory"):
+        prepare_output(blocker / "sub", force=False, outputs=())
