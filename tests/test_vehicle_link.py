@@ -47,6 +47,9 @@ def test_telemetry_streams_and_autopilot_identity(flying_setup):
     av = gcs.recv("AUTOPILOT_VERSION")
     assert av.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
     assert gcs.command(M.MAV_CMD_REQUEST_MESSAGE, 9999) == M.MAV_RESULT_UNSUPPORTED
+    # SET_MESSAGE_INTERVAL out of range (not -1, 0 or 1 ms..60 s) is denied, not taken
+    for bad in (-1e30, -2.0, 10.0, 1e12):
+        assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, bad) == M.MAV_RESULT_DENIED
     # SET_MESSAGE_INTERVAL: -1 switches a stream off
     assert gcs.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, -1) == M.MAV_RESULT_ACCEPTED
     # everything after the ACK was sent after the change: over 1 s of sim time (the stamps of

@@ -28,6 +28,9 @@ from vehicle_sim.geofence import Geofence
 from vehicle_sim.navigator import Mode, Navigator, Orbit, mode_from_px4
 
 log = logging.getLogger(__name__)
+#: SET_MESSAGE_INTERVAL's accepted intervals (us): at most 1 kHz, at least one message a minute
+MIN_INTERVAL_US = 1_000.0
+MAX_INTERVAL_US = 60_000_000.0
 FORCE_MAGIC = 21196
 
 
@@ -183,6 +186,12 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
         return ok, []
     if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
         p1, p2 = _required(cmd, 1), _required(cmd, 2)
+        # MAVLink: -1 disables, 0 restores the default, > 0 is the interval in us; anything else (-1e30, a
+        # microsecond, a day) is no interval a stream can keep
+        if not (p2 in (-1.0, 0.0) or MIN_INTERVAL_US <= p2 <= MAX_INTERVAL_US):
+            log.info("SET_MESSAGE_INTERVAL %g us for message %d denied (-1, 0 or %g..%g us)", p2, int(p1),
+                     MIN_INTERVAL_US, MAX_INTERVAL_US)
+            return M.MAV_RESULT_DENIED, []
         return (ok if svc.set_message_interval(int(p1), p2) else M.MAV_RESULT_UNSUPPORTED), []
     if c == M.MAV_CMD_REQUEST_MESSAGE:
         msg = svc.message_by_id(int(_required(cmd, 1)))
