@@ -24,7 +24,17 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from detector_fw_sim import response
 from detector_fw_sim.ladder import REFERENCE_EDGES_KEV, ComparatorLadder
-from radseek.dataset import EFFECTS, MAX_COORD_M, MAX_EXTENT_M, Scenario, Truth, TruthSource, Wall
+from radseek.dataset import (
+    EFFECTS,
+    MAX_COORD_M,
+    MAX_EXTENT_M,
+    MAX_SOURCES,
+    MAX_WALLS,
+    Scenario,
+    Truth,
+    TruthSource,
+    Wall,
+)
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
@@ -289,12 +299,16 @@ assert set(EffectsSpec.model_fields) == set(EFFECTS), "every dataset-spec effect
 # ------------------------------------------------------------------------------------ scene
 
 
+#: bytes of a scene file at most (1000 walls and 16 sources fit in well under this)
+MAX_SCENE_BYTES = 4_000_000
+
+
 class Scene(_Model):
     name: str = "scene"
     description: str = ""
-    sources: list[SourceSpec] = Field(min_length=1)
+    sources: list[SourceSpec] = Field(min_length=1, max_length=MAX_SOURCES)
     background: BackgroundSpec = BackgroundSpec()
-    walls: list[WallSpec] = Field(default_factory=list)
+    walls: list[WallSpec] = Field(default_factory=list, max_length=MAX_WALLS)
     bounds: BoundsSpec = BoundsSpec()
     detector: DetectorSpec = DetectorSpec()
     effects: EffectsSpec = EffectsSpec()
@@ -454,7 +468,9 @@ def validate_scene(data: Any, origin: str = "<scene>") -> Scene:
         for err in exc.errors():
             msg = err["msg"].removeprefix("Value error, ")
             value = err.get("input")
-            shown = "" if err["type"] == "missing" else f" (got {value!r})"
+            text = repr(value)
+            text = text if len(text) <= 80 else f"{text[:60]}... ({len(text)} characters)"
+            shown = "" if err["type"] == "missing" or err["type"] == "too_long" else f" (got {text})"
             lines.append(f"field '{_format_loc(err['loc'])}': {msg}{shown}")
         raise SceneError(f"{origin}: " + "; ".join(lines)) from None
 
@@ -470,6 +486,8 @@ def load_scene(path: str | Path | None = None) -> Scene:
     if not p.exists() and (SCENES_DIR / f"{p.name}.toml").exists() and p.suffix == "":
         p = SCENES_DIR / f"{p.name}.toml"
     try:
+        if p.stat().st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{p}: {p.stat().st_size} bytes; a scene file is at most {MAX_SCENE_BYTES} bytes")
         text = p.read_bytes().decode("utf-8-sig")
     except FileNotFoundError:
         bundled = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))

@@ -230,6 +230,10 @@ _FORMAT_RE = re.compile(r"radseek-dataset/1(?:\.\d+)*")
 #: drone searches at most a few hundred metres; anything beyond is a units error (mm, degrees), and
 #: +-1e6 m bounds make grid-based estimators and planners run without limit.
 MAX_EXTENT_M = 2000.0
+#: walls a scene or scenario may hold (a room's walls are tens; 10^6 walls made a 1.5 s-of-sim-per-28 s flight)
+MAX_WALLS = 1000
+#: sources a scene may hold
+MAX_SOURCES = 16
 #: the largest air attenuation coefficient scenario.json may declare (1/m): dense gas at 100x dry air's 0.0093
 MAX_AIR_MU_PER_M = 1.0
 MAX_COORD_M = 10_000.0
@@ -373,6 +377,8 @@ def read_scenario(file: Path) -> Scenario:
     walls_raw = d.get("walls", []) or []
     if not isinstance(walls_raw, list):
         raise _err(file, f"key 'walls' must be a list, got {walls_raw!r}")
+    if len(walls_raw) > MAX_WALLS:
+        raise _err(file, f"key 'walls' holds {len(walls_raw)} walls; at most {MAX_WALLS}")
     walls = [_read_wall(w, f"walls[{i}]", file) for i, w in enumerate(walls_raw)]
     for key in ("nuclide",):
         if key in d and not isinstance(d[key], str):

@@ -110,3 +110,30 @@ def test_bom_scene_file_is_read(tmp_path):
 @pytest.mark.parametrize("name", bundled_scenes())
 def test_every_bundled_scene_is_still_valid(name):
     load_scene(name)
+
+
+def test_scene_size_is_capped_with_the_limit_named(tmp_path):
+    """10^6 walls ran at 1.5 s of sim time per 28 s of wall: walls, sources and the file's bytes are capped, and the
+    message names the limit without echoing the whole list back."""
+    from radseek.dataset import MAX_SOURCES, MAX_WALLS
+
+    wall = {"start": [7.0, 1.0], "end": [7.0, 3.0], "thickness": 0.2}
+    with pytest.raises(SceneError, match=rf"field 'walls': List should have at most {MAX_WALLS} items") as exc:
+        validate_scene(_scene(walls=[wall] * (MAX_WALLS + 1)), "x.toml")
+    assert len(str(exc.value)) < 200
+    with pytest.raises(SceneError, match=rf"field 'sources': List should have at most {MAX_SOURCES} items"):
+        validate_scene(_scene(sources=[SOURCE] * (MAX_SOURCES + 1)), "x.toml")
+    big = tmp_path / "big.json"
+    big.write_text(json.dumps(_scene(description="x" * 5_000_000)))
+    with pytest.raises(SceneError, match=r"big.json: \d+ bytes; a scene file is at most"):
+        load_scene(big)
+
+
+def test_a_scenario_with_too_many_walls_is_refused(tmp_path, shared_datasets):
+    from radseek.dataset import MAX_WALLS, DatasetError, read_scenario
+
+    d = json.loads((shared_datasets / "lattice-wall" / "scenario.json").read_text())
+    d["walls"] = d["walls"] * (MAX_WALLS // len(d["walls"]) + 1)
+    (tmp_path / "scenario.json").write_text(json.dumps(d))
+    with pytest.raises(DatasetError, match=rf"scenario.json: key 'walls' holds \d+ walls; at most {MAX_WALLS}"):
+        read_scenario(tmp_path / "scenario.json")
