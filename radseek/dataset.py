@@ -574,6 +574,8 @@ def _block_error(block: dict[str, np.ndarray], counts: np.ndarray, prev_t: float
     checks.append(((dw < -1) | (dw > MAX_DWELL), "dwell", "must be -1 (moving) or a dwell index >= 0"))
     t = block["t"]
     checks.append((np.diff(t, prepend=prev_t) < 0, "t", "rows must be in time order"))
+    # each frame ends at its own time (durations are > 0): a row at its predecessor's t is the same frame twice
+    checks.append((np.diff(t, prepend=prev_t) == 0, "t", "repeats the previous row's time (a duplicated frame)"))
     first: tuple[int, str, str] | None = None
     for mask, column, what in checks:
         if np.any(mask):

@@ -108,3 +108,12 @@ def test_a_team_runs_dataset_folder_names_its_vehicles(tmp_path, shared_datasets
     with pytest.raises(DatasetError, match=r"uav0, uav1.*give one of them, e.g. .*uav0"):
         read_dataset(tmp_path)
     assert len(read_dataset(tmp_path / "uav1").frames) > 0
+
+
+def test_a_duplicated_frame_is_named_by_row(tmp_path, shared_datasets):
+    """One row repeated (a recorder that wrote a frame twice) was counted five more times by localize."""
+    shutil.copy(shared_datasets / "lattice-clean" / "scenario.json", tmp_path)
+    lines = (shared_datasets / "lattice-clean" / "frames.csv").read_text().splitlines()
+    (tmp_path / "frames.csv").write_text("\n".join(lines[:11] + [lines[10]] * 5 + lines[11:]) + "\n")
+    with pytest.raises(DatasetError, match=r"frames.csv: row 12, column 't': repeats the previous row's time"):
+        read_dataset(tmp_path)
