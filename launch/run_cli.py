@@ -310,10 +310,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=True,
                    help="the vehicle holds sim time while the mission computes (PX4 SITL lockstep): a pause "
                         "costs no flight time and the same seed flies the same flight (default on)")
-    p.add_argument("--zenoh-port", type=int, default=7447, help="router port on 127.0.0.1 (default 7447)")
-    p.add_argument("--mavlink-port", type=int, default=14540, help="MAVSDK API port (default 14540)")
-    p.add_argument("--gcs-port", type=int, default=14550, help="GCS port for QGroundControl/MAVProxy (default 14550)")
-    p.add_argument("--vehicle-local-ports", default="14580,18570", help="vehicle's own UDP ports (api,gcs)")
+    p.add_argument("--instance", type=int, metavar="N",
+                   help="fixed ports like PX4 SITL's -i N: zenoh 7447+N, MAVLink API 14540+N, GCS 14550+N (14550 "
+                        "with --no-mcap), vehicle local 14580+N,18570+N, system id 1+N (a team of V takes N..N+V-1). "
+                        "Without it and without the port flags below, the first free instance 0..9 is used and "
+                        "named on stderr (launch/ports.py)")
+    p.add_argument("--zenoh-port", type=int, help="router port on 127.0.0.1 (default 7447+N)")
+    p.add_argument("--mavlink-port", type=int, help="MAVSDK API port (default 14540+N)")
+    p.add_argument("--gcs-port", type=int,
+                   help="GCS port for QGroundControl/MAVProxy (default 14550+N; 14550 with --no-mcap)")
+    p.add_argument("--vehicle-local-ports", metavar="API,GCS",
+                   help="vehicle's own UDP ports (default 14580+N,18570+N)")
     p.add_argument("--mcap", action=argparse.BooleanOptionalAction, default=True,
                    help="record OUT/flight.mcap: every zenoh topic and the MAVLink telemetry, received on --gcs-port "
                         "(default on; --no-mcap leaves that port to a GCS)")
@@ -347,33 +354,70 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--vehicles N flies the active search only (a team's pattern baselines are not built)")
     if args.vehicles == 1 and args.kill_mission_at is not None:
         p.error("--kill-mission-at needs --vehicles N >= 2 (one vehicle's mission is the run)")
+    fixed = {name: getattr(args, attr) for name, attr in (("zenoh", "zenoh_port"), ("api", "mavlink_port"),
+                                                            ("gcs", "gcs_port")) if getattr(args, attr) is not None}
+    if args.vehicle_local_ports is not None:
+        try:
+            fixed["api_local"], fixed["gcs_local"] = (int(x) for x in args.vehicle_local_ports.split(","))
+        except ValueError:
+            p.error(f"--vehicle-local-ports {args.vehicle_local_ports!r} must be API,GCS (two port numbers)")
 
     from detector_fw_sim.scene import SceneError, load_scene
-    from radseek.dataset import write_json
-    from radseek.outdir import OutputDirError, atomic_write_json, prepare_output
-    from radseek.zenoh_session import open_session
+    from launch.ports import PortError, choose
+    from radseek.outdir import OutputDirError, prepare_output
 
     try:
         scene = load_scene(args.scene)
     except SceneError as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    out = Path(args.out or f"runs/{datetime.now():%Y%m%d-%H%M%S}-{scene.name}")
-    try:
-        prepare_output(out, force=args.force, outputs=RUN_OUTPUTS)
-    except OutputDirError as exc:
+    try:  # before any process starts (a port in use makes a process die, or join another stack's router) and
+        # before --force removes anything
+        ports = choose(instance=args.instance, fixed=fixed, n_vehicles=args.vehicles, record=args.mcap)
+    except PortError as exc:
         print(f"radseek run: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    if args.vehicles > 1:
-        from launch.run_team import run_team
+    try:
+        out = Path(args.out or f"runs/{datetime.now():%Y%m%d-%H%M%S}-{scene.name}")
+        try:
+            prepare_output(out, force=args.force, outputs=RUN_OUTPUTS)
+        except OutputDirError as exc:
+            print(f"radseek run: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        print(ports.line(args.vehicles), file=sys.stderr)
+        if args.vehicles > 1:
+            from launch.run_team import run_team
 
-        return run_team(args, scene, out, speedup)
+            return run_team(args, scene, out, speedup, ports)
+        return _run_one(args, scene, out, speedup, ports)
+    finally:
+        ports.release()
+
+
+def start_router(stack: Stack, ports) -> None:
+    """Start the router and wait until it listens; a port taken meanwhile is said with the flag that moves it."""
+    stack.start("router", _radseek("router", "--listen", ports.endpoint))
+    try:
+        stack.wait_for_line("router", "listening", timeout_s=60.0)
+    except RuntimeError as exc:
+        if "already in use" in (stack.logs / "router.log").read_text(errors="replace"):
+            raise RuntimeError(f"zenoh port {ports.zenoh} was taken before the router could listen (another "
+                               "stack?): run again (free ports are picked again), or give --instance N or "
+                               "--zenoh-port PORT") from exc
+        raise
+
+
+def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
+    from radseek.dataset import write_json
+    from radseek.outdir import atomic_write_json
+    from radseek.zenoh_session import open_session
+
     scenario_file = out / "scenario.json"
     write_json(scenario_file, scene.scenario().to_dict())
     scene_file = out / "scene.json"
     scene_file.write_text(scene.model_dump_json(indent=2))
-    endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
-    api_local, gcs_local = args.vehicle_local_ports.split(",")
+    endpoint = ports.endpoint
+    port = ports.vehicle(0)
     stack = Stack(out / "logs")
     if threading.current_thread() is threading.main_thread():
         # SIGTERM (kill, CI cancelling a job) stops the stack like Ctrl-C does, instead of orphaning it
@@ -381,10 +425,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"radseek run: scene {scene.name!r}, speed-up {speedup:g}, output {out}", file=sys.stderr)
     t0 = time.monotonic()
     with StackRun(stack, out) as run:
-        stack.start("router", _radseek("router", "--listen", endpoint))
-        if args.mcap:  # (radseek record gives up if no router answers within 3 s)
-            stack.wait_for_line("router", "listening", timeout_s=60.0)
-            start_recorder(stack, out, endpoint, args.gcs_port)
+        start_router(stack, ports)  # (radseek record gives up if no router answers within 3 s)
+        if args.mcap:
+            start_recorder(stack, out, endpoint, port["gcs"])
         detector_cmd = _radseek(
             "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
             "--connect", endpoint, *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg)
@@ -401,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
                                                    lambda _sample: mission_up.set())
             mission = stack.start("mission", _radseek(
                 "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
-                "--url", f"udpin://0.0.0.0:{args.mavlink_port}", "--seed", str(args.seed),
+                "--url", f"udpin://0.0.0.0:{port['api']}", "--seed", str(args.seed),
                 "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
             ready_by = time.monotonic() + 180.0
             while not mission_up.wait(0.1):
@@ -412,8 +455,9 @@ def main(argv: list[str] | None = None) -> int:
             state_sub.undeclare()
             stack.start("vehicle", _radseek(
                 "vehicle", "--speedup", str(speedup), "--seed", str(args.seed), "--connect", endpoint,
-                "--api-port", str(args.mavlink_port), "--gcs-port", str(args.gcs_port), "--api-local-port", api_local,
-                "--gcs-local-port", gcs_local, "--max-speed", "1.0",
+                "--api-port", str(port["api"]), "--gcs-port", str(port["gcs"]),
+                "--api-local-port", str(port["api_local"]), "--gcs-local-port", str(port["gcs_local"]),
+                "--sysid", str(port["sysid"]), "--max-speed", "1.0",
                 "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg))
             progress = None if args.quiet else Progress(session, topics.DEFAULT_VEHICLE)
             clock = ZenohClock(session, topics.DEFAULT_VEHICLE)

@@ -1,7 +1,8 @@
 """``radseek run --vehicles N`` (N = 2..4): a team on one zenoh router, one joint search (issue 18).
 
-Per vehicle ``uav<v>``: a mock autopilot (``radseek vehicle``: MAVLink system id v + 1, API port
-``--mavlink-port`` + v, GCS port ``--gcs-port`` + v, its own local ports ``--vehicle-local-ports`` + v, its own
+Per vehicle ``uav<v>``: a mock autopilot (``radseek vehicle``: PX4 instance N + v of the run's instance N,
+``launch/ports.py``: MAVLink system id N + v + 1, API port 14540 + N + v, GCS port 14550 + N + v, local ports
+14580 + N + v and 18570 + N + v; a port given by its flag replaces the base, e.g. ``--mavlink-port`` + v; its own
 odometry seed ``--seed`` + 1000 v, launch point ``mission.team.home_positions``), a detector (its own count
 seed) and a mission process (``radseek mission --team``: MAVSDK on its vehicle's port, the team brain of
 ``mission.team`` fed with every vehicle's frames). The missions announce their reservations and dwells on
@@ -43,6 +44,7 @@ from launch.run_cli import (
     recorder_ready,
     report_verdict,
     start_recorder,
+    start_router,
     stop_recorder,
 )
 from mission.search import search_failure
@@ -83,7 +85,8 @@ def team_verdict(summaries: dict[str, dict]) -> tuple[str | None, dict | None]:
     return None, None
 
 
-def run_team(args, scene, out: Path, speedup: float) -> int:
+def run_team(args, scene, out: Path, speedup: float, ports) -> int:
+    """The team flight on ``ports`` (``launch.ports.Ports``: vehicle v on PX4 instance N + v)."""
     from radseek.dataset import write_json
     from radseek.outdir import atomic_write_json
     from radseek.simclock import ZenohClock
@@ -102,8 +105,8 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
     write_json(scenario_file, scenario.to_dict())
     scene_file = out / "scene.json"
     scene_file.write_text(scene.model_dump_json(indent=2))
-    endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
-    api_local, gcs_local = (int(p) for p in args.vehicle_local_ports.split(","))
+    endpoint = ports.endpoint
+    port = [ports.vehicle(v) for v in range(n)]
     stack = Stack(out / "logs")
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
@@ -112,10 +115,9 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
     missions: dict[str, object] = {}
     killed: dict[str, float] = {}
     with StackRun(stack, out) as run:
-        stack.start("router", _radseek("router", "--listen", endpoint))
+        start_router(stack, ports)
         if args.mcap:
-            stack.wait_for_line("router", "listening", timeout_s=60.0)
-            start_recorder(stack, out, endpoint, args.gcs_port)
+            start_recorder(stack, out, endpoint, port[0]["gcs"])
         for v, name in enumerate(names):
             stack.start(f"detector-{name}", _radseek(
                 "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed + 1000 * v),
@@ -132,7 +134,7 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
                 missions[name] = stack.start(f"mission-{name}", _radseek(
                     "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset" / name),
                     "--connect", endpoint, "--vehicle-name", name, "--team", ",".join(names),
-                    "--url", f"udpin://0.0.0.0:{args.mavlink_port + v}", "--seed", str(args.seed + 1000 * v),
+                    "--url", f"udpin://0.0.0.0:{port[v]['api']}", "--seed", str(args.seed + 1000 * v),
                     "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
             ready_by = time.monotonic() + 180.0
             for name in names:
@@ -147,9 +149,9 @@ def run_team(args, scene, out: Path, speedup: float) -> int:
             for v, name in enumerate(names):
                 stack.start(f"vehicle-{name}", _radseek(
                     "vehicle", "--speedup", str(speedup), "--seed", str(args.seed + 1000 * v), "--connect", endpoint,
-                    "--vehicle-name", name, "--sysid", str(v + 1),
-                    "--api-port", str(args.mavlink_port + v), "--gcs-port", str(args.gcs_port + v),
-                    "--api-local-port", str(api_local + v), "--gcs-local-port", str(gcs_local + v),
+                    "--vehicle-name", name, "--sysid", str(port[v]["sysid"]),
+                    "--api-port", str(port[v]["api"]), "--gcs-port", str(port[v]["gcs"]),
+                    "--api-local-port", str(port[v]["api_local"]), "--gcs-local-port", str(port[v]["gcs_local"]),
                     f"--start={homes[v][0]:g},{homes[v][1]:g}", "--max-speed", "1.0",
                     "--lockstep" if args.lockstep else "--no-lockstep", *args.vehicle_arg,
                     *(("--lockstep-timeout", str(KILLED_LOCKSTEP_TIMEOUT_S)) if kill and kill[0] == name else ())))
