@@ -1,26 +1,33 @@
-"""docker/: no Docker engine runs here, so check what can be checked: every file the Dockerfile copies
-exists, its build-time step runs, and every service command is a radseek command whose parser
-accepts the options given."""
+"""docker/: what can be checked without a container engine (see README, Docker, for why none runs here):
+the tree the Dockerfile copies holds every package, every compose service's command runs from that tree
+alone, the build-time step works, base and dependencies are pinned, the services run unprivileged, and
+README says what compose publishes."""
 
+import ast
+import json
+import os
 import re
+import shlex
+import shutil
+import signal
+import socket
 import subprocess
 import sys
+import time
+import tomllib
+import uuid
 from pathlib import Path
 
+import pytest
 import yaml
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from setuptools import find_namespace_packages
 
 REPO = Path(__file__).resolve().parents[1]
 DOCKER = REPO / "docker"
 
 
-def test_dockerfile_copies_existing_paths_and_its_run_step_works(tmp_path):
-    text = (DOCKER / "Dockerfile").read_text()
-    for src in re.findall(r"^COPY (.+) \S+$", text, flags=re.M):
-        for part in src.split():
-            assert (REPO / part).exists(), part
-    snippet = re.search(r'RUN python -c "(.+)"', text).group(1).replace("/opt/radseek", str(tmp_path))
-    subprocess.run([sys.executable, "-c", snippet], check=True, cwd=REPO)
-    assert (tmp_path / "scenario.json").read_text().count("channel_edges_keV") == 1
 
 
 def test_compose_services_run_real_radseek_commands():
@@ -95,3 +102,369 @@ def test_compose_keeps_unsigned_mavlink_off_every_reachable_network():
                 f"{name}: unsigned MAVLink bound to all interfaces on non-internal network {net!r}"
     # the router, on a network the host reaches, is the one service still published (loopback only)
     assert compose["services"]["router"]["ports"] == ["127.0.0.1:7447:7447/tcp"]
+
+
+# --- the image's own tree --------------------------------------------------------------------------------------
+# What the image holds is what the Dockerfile's COPY lines take from the build context (the repo root) less
+# .dockerignore. Built here into a temp dir, the services run from it with the checkout out of reach, so a package
+# the image lacks fails here, not in a container.
+
+WORKDIR = "/opt/radseek"
+
+
+def _dockerignore_patterns() -> list[str]:
+    patterns = []
+    for line in (REPO / ".dockerignore").read_text().splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            assert not line.startswith("!"), "re-includes (!) are not modelled here: keep .dockerignore exclude-only"
+            patterns.append(line.strip("/"))
+    return patterns
+
+
+def _pattern_regex(pattern: str) -> re.Pattern:
+    """Docker's matching: anchored at the context root, ``*``/``?`` within one path segment, ``**`` any depth."""
+    out, i = "", 0
+    while i < len(pattern):
+        if pattern.startswith("**/", i):
+            out, i = out + "(?:.*/)?", i + 3
+        elif pattern.startswith("**", i):
+            out, i = out + ".*", i + 2
+        elif pattern[i] == "*":
+            out, i = out + "[^/]*", i + 1
+        elif pattern[i] == "?":
+            out, i = out + "[^/]", i + 1
+        else:
+            out, i = out + re.escape(pattern[i]), i + 1
+    return re.compile(out)
+
+
+def _ignored(rel: str, regexes: list[re.Pattern]) -> bool:
+    """A path is left out when it, or a folder above it, matches a pattern (Docker drops a matched folder whole)."""
+    parts = rel.split("/")
+    return any(rx.fullmatch("/".join(parts[:n])) for n in range(1, len(parts) + 1) for rx in regexes)
+
+
+def _copy_lines() -> list[tuple[list[str], str]]:
+    """(sources, destination) of each COPY, with flags (--chown=...) dropped."""
+    text = (DOCKER / "Dockerfile").read_text().replace("\\\n", " ")
+    lines = []
+    for m in re.finditer(r"^COPY\s+(.+)$", text, flags=re.M):
+        words = [w for w in m.group(1).split() if not w.startswith("--")]
+        lines.append((words[:-1], words[-1]))
+    return lines
+
+
+def build_image_tree(dest_root: Path) -> Path:
+    """Lay out in ``dest_root`` what the Dockerfile copies into its WORKDIR; return ``dest_root``."""
+    text = (DOCKER / "Dockerfile").read_text()
+    assert re.search(rf"^WORKDIR {WORKDIR}$", text, flags=re.M), "the tree is modelled for this WORKDIR"
+    regexes = [_pattern_regex(p) for p in _dockerignore_patterns()]
+    for sources, dest in _copy_lines():
+        for src in sources:
+            src_path = (REPO / src).resolve()
+            assert src_path.exists(), src
+            base = Path(dest) if dest != "." else Path()
+            if src_path.is_file():
+                target = base / src_path.name if dest.endswith("/") or len(sources) > 1 or dest == "." else base
+                rel = src_path.relative_to(REPO).as_posix()
+                if not _ignored(rel, regexes):
+                    (dest_root / target).parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy2(src_path, dest_root / target)
+                continue
+            for dirpath, dirnames, filenames in os.walk(src_path):
+                here = Path(dirpath)
+                keep = []
+                for d in dirnames:
+                    if not _ignored((here / d).relative_to(REPO).as_posix(), regexes):
+                        keep.append(d)
+                dirnames[:] = keep
+                for f in filenames:
+                    rel = (here / f).relative_to(REPO).as_posix()
+                    if _ignored(rel, regexes):
+                        continue
+                    target = dest_root / base / (here / f).relative_to(src_path)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy2(here / f, target)
+    return dest_root
+
+
+def _first_party() -> tuple[list[str], set[str]]:
+    """pyproject's package-discovery include patterns and the top-level packages they find in the checkout."""
+    includes = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]
+    tops = {p.rstrip("*").rstrip(".") for p in includes}
+    return includes, tops
+
+
+def _packages(root: Path, includes: list[str]) -> list[str]:
+    # the discovery pyproject configures ([tool.setuptools.packages.find] finds namespace packages too)
+    return sorted(find_namespace_packages(where=str(root), include=includes))
+
+
+@pytest.fixture(scope="module")
+def image_tree(tmp_path_factory) -> Path:
+    return build_image_tree(tmp_path_factory.mktemp("image") / "opt-radseek")
+
+
+# Run a radseek command the way the image does, from the image tree alone: the venv's editable install of the
+# checkout (a meta-path finder) is taken out, and every first-party module loaded must come from the tree.
+_RUNNER = r"""
+import json, runpy, sys
+tree, tops, argv = sys.argv[1], set(json.loads(sys.argv[2])), sys.argv[3:]
+editable = lambda o: str(getattr(o, "__module__", "")).startswith("__editable__")
+sys.meta_path[:] = [f for f in sys.meta_path if not editable(f)]
+sys.path_hooks[:] = [h for h in sys.path_hooks if not editable(h)]
+sys.path[:] = [p for p in sys.path if "__editable__" not in p]
+sys.path_importer_cache.clear()
+code = 0
+try:
+    if argv[0] == "-c":  # a Dockerfile RUN python -c step
+        exec(compile(argv[1], "<RUN>", "exec"), {"__name__": "__main__"})
+    else:  # the image's entry point, radseek
+        sys.argv = ["radseek", *argv]
+        runpy.run_module("radseek.cli", run_name="__main__", alter_sys=True)
+except SystemExit as exc:
+    code = exc.code
+for name, mod in list(sys.modules.items()):
+    if name.split(".")[0] in tops:
+        where = [getattr(mod, "__file__", None) or "", *getattr(mod, "__path__", [])]
+        outside = [w for w in where if w and not w.startswith(tree)]
+        if outside:
+            print(f"LEAK: {name} loaded from {outside} (not in the image tree)", file=sys.stderr)
+            code = 3
+sys.exit(code)
+"""
+
+
+def _run_from_tree(tree: Path, argv: list[str], timeout: float = 120, **kw) -> subprocess.CompletedProcess:
+    _, tops = _first_party()
+    env = {**os.environ, "PYTHONPATH": str(tree), "PYTHONDONTWRITEBYTECODE": "1"}
+    return subprocess.run([sys.executable, "-c", _RUNNER, str(tree), json.dumps(sorted(tops)), *argv],
+                          capture_output=True, text=True, cwd=tree, env=env, timeout=timeout, **kw)
+
+
+def test_dockerignore_matching_follows_docker():
+    rx = [_pattern_regex(p) for p in ("runs", "**/__pycache__", "*.egg-info", "docs")]
+    assert _ignored("runs/compose/frames.csv", rx)
+    assert _ignored("radseek/__pycache__/cli.cpython-311.pyc", rx) and _ignored("__pycache__/x.pyc", rx)
+    assert _ignored("radseek.egg-info/PKG-INFO", rx)
+    assert not _ignored("radseek/docs.py", rx) and not _ignored("vehicle_sim/runs.py", rx)
+    assert not _ignored("spectra/x.egg-info", rx), "Docker anchors a pattern without ** at the context root"
+
+
+def test_image_tree_holds_every_package_pyproject_discovers(image_tree):
+    includes, tops = _first_party()
+    in_repo, in_image = _packages(REPO, includes), _packages(image_tree, includes)
+    assert tops <= set(in_repo), f"an include pattern finds nothing: {sorted(tops - set(in_repo))}"
+    assert in_image == in_repo, f"missing from the image: {sorted(set(in_repo) - set(in_image))}"
+    # and each package whole: its modules and its package data (pyproject: *.toml, *.json)
+    for pkg in in_repo:
+        d = REPO / pkg.replace(".", "/")
+        for f in d.iterdir():
+            if f.is_file() and f.suffix in (".py", ".toml", ".json"):
+                assert (image_tree / f.relative_to(REPO)).is_file(), f"{f.relative_to(REPO)} is not in the image"
+    for f in ("pyproject.toml", "README.md", "docker/constraints.txt"):  # what pip install . and the lock need
+        assert (image_tree / f).is_file(), f
+    for f in ("tests", ".git", ".venv", "runs"):
+        assert not (image_tree / f).exists(), f"{f} should stay out of the image"
+
+
+def _absolute_imports(path: Path):
+    tree = ast.parse(path.read_text(), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            yield node.lineno, node.module
+
+
+def _resolves(tree: Path, module: str) -> bool:
+    p = tree.joinpath(*module.split("."))
+    return p.with_suffix(".py").is_file() or p.is_dir()
+
+
+def test_every_first_party_import_in_the_image_resolves_in_the_image(image_tree):
+    """Static, so the lazy imports inside each command's main (the run path --help never reaches) count too."""
+    _, tops = _first_party()
+    tops |= {d.name for d in REPO.iterdir() if (d / "__init__.py").is_file()}
+    missing = []
+    for py in sorted(image_tree.rglob("*.py")):
+        for lineno, module in _absolute_imports(py):
+            if module.split(".")[0] not in tops:
+                continue
+            if not _resolves(image_tree, module):  # `from M import name`: M must be there; name may be any attribute
+                missing.append(f"{py.relative_to(image_tree)}:{lineno}: {module}")
+    assert not missing, "imports the image cannot satisfy:\n" + "\n".join(missing)
+
+
+def test_every_compose_service_command_runs_from_the_image_tree(image_tree):
+    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    for name, svc in compose["services"].items():
+        cmd = svc["command"]
+        proc = _run_from_tree(image_tree, [*cmd, "--help"])
+        assert proc.returncode == 0, f"{name}: {proc.stderr[-800:]}"
+        assert proc.stdout.startswith(f"usage: radseek {cmd[0]}"), name
+
+
+def test_image_tree_runner_does_see_a_missing_package(image_tree, tmp_path):
+    """The check above can fail: without vehicle_sim the compose vehicle is refused, as in the old image."""
+    short = tmp_path / "opt-radseek"
+    shutil.copytree(image_tree, short, ignore=shutil.ignore_patterns("vehicle_sim"))
+    proc = _run_from_tree(short, ["vehicle", "--help"])
+    assert proc.returncode != 0 and "vehicle" in proc.stderr, proc.stderr[-500:]
+
+
+def test_router_starts_from_the_image_tree(image_tree):
+    """A short real start where it is cheap: the compose router's command on a free loopback port."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    _, tops = _first_party()
+    env = {**os.environ, "PYTHONPATH": str(image_tree), "PYTHONDONTWRITEBYTECODE": "1"}
+    proc = subprocess.Popen([sys.executable, "-c", _RUNNER, str(image_tree), json.dumps(sorted(tops)),
+                             "router", "--listen", f"tcp/127.0.0.1:{port}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=image_tree, env=env)
+    try:
+        line = proc.stdout.readline()
+        assert f"listening on tcp/127.0.0.1:{port}" in line, line + proc.stderr.read() if not line else line
+        with socket.create_connection(("127.0.0.1", port), timeout=5):
+            pass
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_dockerfile_pins_base_and_dependencies_and_drops_root():
+    text = (DOCKER / "Dockerfile").read_text()
+    base = re.search(r"^ARG BASE=(\S+)$", text, flags=re.M).group(1)
+    assert re.search(r"^FROM \$\{BASE\}$", text, flags=re.M)
+    assert "@sha256:" in base or re.fullmatch(r"python:\d+\.\d+\.\d+-slim-\w+", base), f"unpinned base {base}"
+    py = re.search(r"python:(\d+\.\d+)", base).group(1)
+    assert f"{sys.version_info.major}.{sys.version_info.minor}" == py, "the image's Python is the venv's"
+    # every pip install is held to the lock; setuptools (the build backend, installed unisolated) pinned too
+    for cmd in re.findall(r"pip install ([^&\n]+)", text):
+        assert "constraints.txt" in cmd, cmd
+    assert re.search(r"setuptools==\d", text)
+    users = re.findall(r"^USER (\S+)$", text, flags=re.M)
+    assert users and users[-1].split(":")[0] not in ("root", "0"), "the services must not run as root"
+    assert text.rindex("USER ") > text.rindex("RUN "), "nothing runs as root after the switch"
+
+
+def test_constraints_pin_the_run_time_closure_of_the_venv():
+    """docker/constraints.txt covers what the venv the tests run in needs (no network). Versions may differ
+    (CI resolves its venv afresh); each pin must still be within pyproject's range."""
+    proc = subprocess.run([sys.executable, str(DOCKER / "lock.py"), "--check"], capture_output=True, text=True,
+                          cwd=REPO, timeout=60)
+    assert proc.returncode == 0, f"rerun `.venv/bin/python docker/lock.py`:\n{proc.stdout}{proc.stderr}"
+    pins = {n: v for n, v in (line.split("==") for line in (DOCKER / "constraints.txt").read_text().splitlines()
+                              if line and not line.startswith("#"))}
+    deps = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["dependencies"]
+    for dep in map(Requirement, deps):
+        name = canonicalize_name(dep.name)
+        assert name in pins and dep.specifier.contains(pins[name]), f"{dep} not pinned within range: {pins.get(name)}"
+
+
+def _readme_docker_table() -> dict[str, tuple[set[str], set[str]]]:
+    """service -> (ports it listens on, host addresses it is published on), from README's Docker section."""
+    text = (REPO / "README.md").read_text()
+    section = re.search(r"^## Docker\n(.*?)(?=^## |\Z)", text, flags=re.M | re.S).group(1)
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip().strip("`") for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0] not in ("service",) and not set(cells[0]) <= {"-", " "}:
+            listens = set(re.findall(r"\d+/(?:tcp|udp)", cells[1]))
+            published = set(re.findall(r"[\d.]+:\d+(?:/(?:tcp|udp))?", cells[2]))
+            rows[cells[0]] = (listens, published)
+    return rows
+
+
+def test_readme_says_what_compose_listens_on_and_publishes():
+    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    table = _readme_docker_table()
+    assert set(table) == set(compose["services"]), "README's Docker table lists every compose service"
+    for name, svc in compose["services"].items():
+        listens, published = table[name]
+        assert listens == _listened_ports(svc["command"]), name
+        have = set()
+        for spec in map(str, svc.get("ports", [])):
+            host_ip, host_port, rest = spec.split(":", 2)
+            have.add(f"{host_ip}:{host_port}")
+        assert {p.split("/")[0] for p in published} == have, f"{name}: README says {published}, compose {have}"
+
+
+def test_dockerfile_run_step_works_from_the_image_tree(image_tree, tmp_path):
+    text = (DOCKER / "Dockerfile").read_text()
+    snippet = re.search(r'RUN python -c "(.+)"', text).group(1).replace(WORKDIR, str(tmp_path))
+    proc = _run_from_tree(image_tree, ["-c", snippet])
+    assert proc.returncode == 0, proc.stderr[-800:]
+    assert (tmp_path / "scenario.json").read_text().count("channel_edges_keV") == 1
+
+
+@pytest.mark.slow
+def test_image_builds_and_serves_the_router_on_the_published_port():
+    """The real thing, opt-in (RADSEEK_CONTAINER_TEST=1): it needs a container engine, PyPI and the base image,
+    and downloads ~0.5 GB. Every compose service's command answers --help in the image, as the unprivileged
+    user, and the compose router is reached from the host through its published loopback port. Where the
+    engine needs help (README, Docker: how it ran on the development machines), RADSEEK_CONTAINER_ENGINE_ARGS,
+    RADSEEK_CONTAINER_BUILD_ARGS, RADSEEK_CONTAINER_RUN_ARGS and RADSEEK_DOCKER_BASE pass it."""
+    if os.environ.get("RADSEEK_CONTAINER_TEST") != "1":
+        pytest.skip("opt-in: RADSEEK_CONTAINER_TEST=1 (builds the image: container engine, PyPI, ~0.5 GB)")
+    engine = os.environ.get("RADSEEK_CONTAINER_ENGINE") or shutil.which("podman") or shutil.which("docker")
+    if not engine:
+        pytest.skip("no podman or docker on PATH")
+    eng = [engine, *shlex.split(os.environ.get("RADSEEK_CONTAINER_ENGINE_ARGS", ""))]
+    run_args = shlex.split(os.environ.get("RADSEEK_CONTAINER_RUN_ARGS", ""))
+    build = [*eng, "build", *shlex.split(os.environ.get("RADSEEK_CONTAINER_BUILD_ARGS", ""))]
+    if os.environ.get("RADSEEK_DOCKER_BASE"):
+        build += ["--build-arg", f"BASE={os.environ['RADSEEK_DOCKER_BASE']}"]
+    tag = "localhost/radseek:test-docker-files"
+    proc = subprocess.run([*build, "-f", "docker/Dockerfile", "-t", tag, "."], cwd=REPO, capture_output=True,
+                          text=True, timeout=3000)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+
+    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    for name, svc in compose["services"].items():
+        proc = subprocess.run([*eng, "run", "--rm", *run_args, tag, *svc["command"], "--help"], capture_output=True,
+                              text=True, timeout=300)
+        assert proc.returncode == 0, f"{name}: {proc.stderr[-1500:]}"
+        assert proc.stdout.startswith(f"usage: radseek {svc['command'][0]}"), name
+    proc = subprocess.run([*eng, "run", "--rm", *run_args, "--entrypoint", "id", tag, "-u"], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.stdout.strip() == "10001", proc.stdout + proc.stderr
+
+    router = compose["services"]["router"]
+    ((host_ip, _, container_port),) = (str(p).split(":") for p in router["ports"])
+    with socket.socket() as s:
+        s.bind((host_ip, 0))
+        host_port = s.getsockname()[1]
+    cname = f"radseek-test-{uuid.uuid4().hex[:8]}"
+    publish = f"{host_ip}:{host_port}:{container_port}"
+    proc = subprocess.run([*eng, "run", "-d", "--name", cname, *run_args, "-p", publish, tag, *router["command"]],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    try:
+        deadline, logs = time.monotonic() + 60, ""
+        while "listening on" not in logs and time.monotonic() < deadline:
+            time.sleep(0.5)
+            logs = subprocess.run([*eng, "logs", cname], capture_output=True, text=True, timeout=60).stdout
+        assert "listening on" in logs, logs
+        zid = logs.split("radseek router ", 1)[1].split()[0]
+        client = (
+            "import json, zenoh\n"
+            "c = zenoh.Config()\n"
+            "c.insert_json5('mode', json.dumps('client'))\n"
+            f"c.insert_json5('connect/endpoints', json.dumps(['tcp/{host_ip}:{host_port}']))\n"
+            "c.insert_json5('scouting/multicast/enabled', 'false')\n"
+            "s = zenoh.open(c)\n"
+            "print(*[str(z) for z in s.info.routers_zid()])\n"
+            "s.close()\n"
+        )
+        proc = subprocess.run([sys.executable, "-c", client], capture_output=True, text=True, timeout=120)
+        assert zid in proc.stdout.split(), proc.stdout + proc.stderr[-1500:]
+    finally:
+        subprocess.run([*eng, "rm", "-f", cname], capture_output=True, timeout=120)
