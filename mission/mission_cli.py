@@ -45,8 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
     p.add_argument("--connect-timeout", type=float, default=60.0, metavar="S",
-                   help="wall seconds to wait for the autopilot's heartbeat and health (default 60; a booting "
-                        "SITL may need more)")
+                   help="wall seconds to wait for the zenoh router and for the autopilot's heartbeat and health "
+                        "(default 60; a booting SITL may need more)")
     p.add_argument("--altitude", type=float, default=1.5, help="dwell altitude, m (default 1.5)")
     p.add_argument("--stop-sigma", type=float, default=0.10, help="stop when the 1-sigma error ellipse is below, m")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
@@ -109,7 +109,13 @@ def main(argv: list[str] | None = None) -> int:
     from mission.client.connection import ConnectionFailed
 
     try:
-        with zenoh_session.session_from_args(args) as session:
+        # --connect-timeout governs every wait: the router's as well as the autopilot's
+        session = zenoh_session.session_from_args(args, wait_for_router_s=args.connect_timeout)
+    except TimeoutError as exc:
+        print(f"radseek mission: {exc}", file=sys.stderr)
+        return 1
+    try:
+        with session:
             summary = run_mission(session, scenario, Path(args.out), config, settings)
     except ConnectionFailed as exc:
         print(f"radseek mission: {exc} (frames recorded while waiting are in {args.out})", file=sys.stderr)

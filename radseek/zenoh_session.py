@@ -71,8 +71,9 @@ def open_session(
             return zenoh.open(client_config(config_file, connect))
         except zenoh.ZError as exc:
             if time.monotonic() > deadline:
+                reason = str(exc).split(" at /")[0]  # zenoh appends its Rust source location
                 raise TimeoutError(
-                    f"no zenoh router at {connect} after {wait_for_router_s:.0f} s ({exc}): "
+                    f"no zenoh router at {connect} after {wait_for_router_s:.0f} s ({reason}): "
                     "start one with 'radseek router'"
                 ) from None
             time.sleep(0.2)
