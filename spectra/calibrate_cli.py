@@ -7,11 +7,12 @@
 
 Joint form (``FILE=NUCLIDE[,NUCLIDE...]``, several spectra of one unit): one response fitted to all of them
 (``spectra.fit.Joint``), each spectrum its own amplitude; the pile-up share follows each spectrum's rate (one
-resolving time); ``--drift`` gives every spectrum after the first its own gain and offset (sessions days apart). A
-nuclide may be a natural chain head in secular equilibrium (Th-232, U-238, U-235, Ra-226; K-40), its lines walked
-down the chain from pydecay (``radseek.photon_lines.source_lines``). ``--predict FILE=NUCLIDE`` evaluates the fitted
-response on a spectrum it was not fitted to (only the amplitude fitted, pile-up rescaled by rate). ``--json`` gives
-``spectra`` and ``predicted``, one entry per file, each with its ``total_variation_32``.
+resolving time); ``--drift`` gives every spectrum after the first its own gain and offset (sessions days apart),
+``--drift-of FILE`` that spectrum only (one session days after the others). A nuclide may be a natural chain head in
+secular equilibrium (Th-232, U-238, U-235, Ra-226; K-40), its lines walked down the chain from pydecay
+(``radseek.photon_lines.source_lines``). ``--predict FILE=NUCLIDE`` evaluates the fitted response on a spectrum it
+was not fitted to (only the amplitude fitted, pile-up rescaled by rate). ``--json`` gives ``spectra`` and
+``predicted``, one entry per file, each with its ``total_variation_32``.
 
 ``--out`` never replaces an existing file unless ``--force``; a NaN or infinity is never written (to the detector
 file or ``--json``): the command refuses and names the field.
@@ -193,8 +194,9 @@ def _spectrum_summary(F, problem, res, base) -> dict:
 def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None, detector: str | None = None,
               no_fit: bool = False, out: str | None = None, plot: str | None = None,
               effects: list[str] | None = None, predict: list[tuple[str, list[str]]] | None = None,
-              drift: bool = False, log=None, force: bool = False) -> dict:
-    """The joint form: one response fitted to several spectra of one unit (module docstring)."""
+              drift: bool | tuple[int, ...] = False, log=None, force: bool = False) -> dict:
+    """The joint form: one response fitted to several spectra of one unit (module docstring). ``drift``: True for
+    every spectrum after the first, or the indices in ``pairs`` of the spectra that drift."""
     from spectra import fit as F
     from spectra import model as M
 
@@ -230,7 +232,7 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
     spectra = []
     for k, (pr, r, b) in enumerate(zip(joint.parts, res.parts, base.parts, strict=True)):
         row = _spectrum_summary(F, pr, r, b)
-        if drift and k > 0:
+        if k in joint.drifting():
             row["drift"] = {"gain": round(res.params[f"gain_drift_{k}"], 6),
                             "offset_keV": round(res.params[f"offset_drift_keV_{k}"], 3)}
         spectra.append(row)
@@ -244,7 +246,7 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
         predicted.append(_spectrum_summary(F, pr, F.evaluate(pr, q), F.evaluate(pr, M.baseline_params())))
     result = {
         "form": "joint", "spectra": spectra, "predicted": predicted, "background": background,
-        "no_fit": no_fit, "drift": drift,
+        "no_fit": no_fit, "drift": _drift_json(drift),
         "parameters": {k: round(v, 6) for k, v in res.params.items()},
         "errors": {k: float(f"{v:.3g}") for k, v in res.errors.items()},
         "effects": list(res.effects), "missing": missing,
@@ -264,7 +266,7 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
                                                       "live_time_s": pr.spectrum.live_time_s}
                                                      for (f, n), pr in zip(pairs, joint.parts, strict=True)],
                                          "background": Path(background).name if background else None,
-                                         "drift": drift},
+                                         "drift": _drift_json(drift)},
                           fit={"deviance_per_dof": result["deviance_per_dof"],
                                "total_variation_32": result["total_variation_32"],
                                "total_variation_native": result["total_variation_native"],
@@ -285,6 +287,10 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
             written.append(str(path))
         result["plot"] = written
     return result
+
+
+def _drift_json(drift: bool | tuple[int, ...]) -> bool | list[int]:
+    return drift if isinstance(drift, bool) else sorted(int(k) for k in drift)
 
 
 def _energy_law_from_background(problem, res, bg, log=None):
@@ -423,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="joint form: evaluate the fitted response on this spectrum, no refit (repeatable)")
     ap.add_argument("--drift", action="store_true",
                     help="joint form: every spectrum after the first gets its own gain and offset")
+    ap.add_argument("--drift-of", action="append", default=[], metavar="FILE",
+                    help="joint form: only this spectrum (not the first) gets its own gain and offset, e.g. a "
+                         "session days after the others (repeatable)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
     joint = any("=" in x for x in a.spectrum)
@@ -434,8 +443,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("several spectra need the joint form FILE=NUCLIDE (e.g. Cs137.xml=Cs-137 Eu152.xml=Eu-152)")
         if not a.nuclide:
             ap.error("--nuclide is required with one SPECTRUM (or use the joint form FILE=NUCLIDE)")
-        if a.predict or a.drift:
-            ap.error("--predict and --drift belong to the joint form FILE=NUCLIDE")
+        if a.predict or a.drift or a.drift_of:
+            ap.error("--predict, --drift and --drift-of belong to the joint form FILE=NUCLIDE")
     try:
         from spectra import model as M
 
@@ -447,7 +456,16 @@ def main(argv: list[str] | None = None) -> int:
         if joint:
             pairs = [parse_pair(x) for x in a.spectrum]
             predict = [parse_pair(x) for x in a.predict]
-            r = run_joint(pairs, a.background, a.detector, a.no_fit, a.out, a.plot, effects, predict, a.drift,
+            drift = a.drift
+            if a.drift_of:
+                if a.drift:
+                    ap.error("--drift (every spectrum after the first) or --drift-of FILE, not both")
+                files = [f for f, _ in pairs]
+                unknown = [f for f in a.drift_of if f not in files[1:]]
+                if unknown:
+                    ap.error(f"--drift-of {unknown[0]}: not one of the fitted spectra after the first")
+                drift = tuple(files.index(f, 1) for f in a.drift_of)
+            r = run_joint(pairs, a.background, a.detector, a.no_fit, a.out, a.plot, effects, predict, drift,
                           log=log, force=a.force)
         else:
             r = run(a.spectrum[0], a.nuclide, a.background, a.detector, a.no_fit, a.out, a.plot, effects,

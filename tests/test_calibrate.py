@@ -147,7 +147,9 @@ def test_single_form_gives_the_figures_it_gave_before_the_joint_form(detector_fi
     det = read_detector_file(detector_file)
     assert det.fit["total_variation_32"] == 0.0875
     assert det.fit["total_variation_native"] == 0.0992
-    assert det.fit["deviance_per_dof"] == 5.8324
+    # 5.8324 at 371a248; the overflow channel (0 counts in Cs137_b.xml) is out of the fit since K40.rcspg, so one
+    # degree of freedom fewer: the deviance over dof - 1 (that channel holds no counts and next to no model)
+    assert det.fit["deviance_per_dof"] == 5.8382
     assert det.parameters["gain"] == pytest.approx(0.992422, abs=2e-6)
     assert det.parameters["fwhm_at_662"] == pytest.approx(0.126626, abs=2e-6)
     assert det.parameters["offset_keV"] == 0.0 and det.parameters["quadratic_per_MeV"] == 0.0

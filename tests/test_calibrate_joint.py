@@ -141,6 +141,52 @@ def test_drift_of_a_later_session_is_recovered():
     assert len(res.parts) == 2 and res.dof == sum(int(pr.mask.sum()) - 1 for pr in parts) - 2
 
 
+def test_drift_of_one_spectrum_leaves_the_others_on_the_shared_law():
+    """``Joint(drift=(2,))`` (``--drift-of K40.rcspg``): only that spectrum gets a gain and an offset; a same-day
+    spectrum sees the shared law; an index that is not a spectrum after the first is refused."""
+    from radseek import spectrum_files as sf
+    from spectra import fit as F
+    from spectra import model as M
+
+    cal = (-6.0, 4.8, 1.6e-3)
+    parts = tuple(F.Problem(sf.Spectrum(np.ones(512), 300.0, calibration=cal), (n,))
+                  for n in ("Cs-137", "Eu-152", "K-40"))
+    joint = F.Joint(parts, drift=(2,))
+    assert joint.drift_params() == ("gain_drift_2", "offset_drift_keV_2")
+    p = dict(M.baseline_params(), gain_drift_2=1.03, offset_drift_keV_2=-5.0)
+    assert joint.part_params(p, 1)["gain"] == p["gain"] and joint.part_params(p, 1)["offset_keV"] == p["offset_keV"]
+    assert joint.part_params(p, 2)["gain"] == pytest.approx(1.03 * p["gain"])
+    assert F.Joint(parts, drift=True).drifting() == (1, 2)
+    for bad in ((0,), (3,)):
+        with pytest.raises(ValueError, match="drift indices"):
+            F.Joint(parts, drift=bad)
+
+
+def test_drift_of_arguments_are_checked(capsys):
+    from radseek.cli import main
+
+    cs, eu = f"{DATA / 'Cs137_b.xml'}=Cs-137", f"{DATA / 'Eu152_b.xml'}=Eu-152"
+    for argv, msg in ((["calibrate", cs, eu, "--drift-of", "other.xml"], "not one of the fitted spectra"),
+                      (["calibrate", cs, eu, "--drift-of", str(DATA / "Cs137_b.xml")], "not one of the fitted"),
+                      (["calibrate", cs, eu, "--drift", "--drift-of", str(DATA / "Eu152_b.xml")], "not both")):
+        with pytest.raises(SystemExit):
+            main(argv)
+        assert msg in capsys.readouterr().err
+
+
+def test_overflow_channel_is_out_of_the_fit_and_the_distances():
+    """K40.rcspg (sum of its 690 time rows) holds 1030 counts in its last channel, every pulse above the top edge:
+    the fit and the shape distances leave that channel out (the XML spectra hold 0 there)."""
+    from radseek.spectrum_files import read_spectrum
+    from spectra import fit as F
+
+    sp = read_spectrum(DATA / "K40.rcspg")
+    assert sp.kind == "foreground" and sp.live_time_s == pytest.approx(43510.0) and sp.counts[-1] > 1000
+    pr = F.Problem(sp, ("K-40",), read_spectrum(DATA / "bg.xml"))
+    assert not pr.mask[-1] and pr.net()[-1] == 0
+    assert pr.shape(F.M.baseline_params())[-1] == 0
+
+
 REPO = Path(__file__).resolve().parents[1]
 #: the joint calibration that ``python -m benchmarks.real_spectra`` writes (Cs137_b.xml + Eu152_b.xml, bg.xml)
 JOINT_DET = REPO / "docs" / "img" / "rc102-001272.joint.detector.json"
