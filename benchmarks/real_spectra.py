@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spectra.calibrate_cli import run, run_joint
+from spectra.calibrate_cli import _versus, run, run_joint
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "real-spectra"
 BG = "bg.xml"
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {ln['line_keV']:>7.1f} keV: shift {ln['shift_keV']:+6.2f} +- "
                   f"{ln['shift_error_keV']:<5.2g} keV, FWHM x {ln['fwhm_ratio']:.3f} +- {ln['fwhm_ratio_error']:.2g}")
         for w in r["still_missing"]:
-            print(f"    {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: measured {100 * w['relative']:+.1f} % vs model "
+            print(f"    {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: {_versus(w)} "
                   f"(deviance {w['deviance']:.0f} over {w['channels']} channels)")
     print(f"\nCPU: Cs-137 only {t1 - t0:.0f} s, joint {t2 - t1:.0f} s")
     if a.json:
