@@ -96,6 +96,9 @@ def export_plan(path: Path, plan: DwellPlan, occ: OccupancyMap, home_text: str, 
     for pt in points:
         items.append(waypoint(len(items), home, pt.x, pt.y, pt.z, pt.max_dwell_s, pt.yaw))
     items += build_items([], home, finish="land")
+    # the vehicle reads a LAND at 0, 0 as "land where you are"; a .plan shows it there, at Null Island: give it
+    # the last point's position (where the vehicle is when it lands)
+    items[-1].x, items[-1].y = items[-2].x, items[-2].y
     for k, it in enumerate(items):
         it.seq = k
     lo, hi = occ.bounds_min, occ.bounds_max

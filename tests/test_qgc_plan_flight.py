@@ -26,6 +26,8 @@ def test_export_plan_from_the_planner(tmp_path):
     cmds = [i["command"] for i in doc["mission"]["items"]]
     assert cmds[0] == 22 and cmds[-1] == 21 and cmds.count(16) >= 2
     assert any(i["params"][0] == 60.0 for i in doc["mission"]["items"])  # dwell holds
+    land, last = doc["mission"]["items"][-1], doc["mission"]["items"][-2]
+    assert land["params"][4:6] == last["params"][4:6] and abs(land["params"][4]) > 1  # not Null Island
     assert len(doc["geoFence"]["polygons"]) == 1 and doc["geoFence"]["polygons"][0]["inclusion"]
     mission, fence, rally = read_plan(out)
     assert [m.command for m in mission] == cmds and len(fence) == 4 and all(f.param1 == 4 for f in fence)
