@@ -101,23 +101,43 @@ def _f(v: Any) -> float:
 
 
 def read_plan(path: str | Path) -> tuple[list[RawItem], list[RawItem], list[RawItem]]:
-    """(mission, fence, rally) items of a QGC .plan file. Only SimpleItems are read (a ComplexItem,
-    e.g. a survey, must be flattened in QGC first: PlanError)."""
+    """(mission, fence, rally) items of a QGC .plan file. SimpleItems are read as they are; a transect-style
+    ComplexItem (QGC's ``survey`` and ``CorridorScan``) as the SimpleItems QGC saved inside it
+    (``TransectStyleComplexItem.Items``, the waypoints and camera commands it flies). Other ComplexItems (a
+    structure scan) are a PlanError naming the item."""
     try:
         doc = json.loads(Path(path).read_text())
         raw_items = doc["mission"]["items"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise PlanError(f"{path}: not a QGC .plan file ({exc})") from None
-    mission: list[RawItem] = []
+    flat: list[tuple[str, Any]] = []
     for k, it in enumerate(raw_items):
-        if it.get("type") != "SimpleItem":
-            raise PlanError(f"{path}: item {k} is a {it.get('type')}, only SimpleItems are supported")
-        p = [_f(v) for v in it["params"]]
-        frame = int(it["frame"])
-        glob = frame in GLOBAL_FRAMES
-        x = int(round(p[4] * 1e7)) if glob else int(0 if math.isnan(p[4]) else p[4])
-        y = int(round(p[5] * 1e7)) if glob else int(0 if math.isnan(p[5]) else p[5])
-        mission.append(RawItem(len(mission), frame, int(it["command"]), 1 if not mission else 0,
+        if not isinstance(it, dict):
+            raise PlanError(f"{path}: item {k} is not an object")
+        if it.get("type") == "ComplexItem":
+            inner = (it.get("TransectStyleComplexItem") or {}).get("Items")
+            if not isinstance(inner, list) or not inner:
+                raise PlanError(f"{path}: item {k} is a {it.get('complexItemType')!r} ComplexItem without saved "
+                                "items (TransectStyleComplexItem.Items); only surveys and corridor scans are read")
+            flat += [(f"item {k} ({it.get('complexItemType')}) sub-item {j}", sub) for j, sub in enumerate(inner)]
+        else:
+            flat.append((f"item {k}", it))
+    mission: list[RawItem] = []
+    for where, it in flat:
+        if not isinstance(it, dict) or it.get("type") != "SimpleItem":
+            raise PlanError(f"{path}: {where} is a {it.get('type') if isinstance(it, dict) else it!r}, "
+                            "not a SimpleItem")
+        try:
+            p = [_f(v) for v in it["params"]]
+            if len(p) != 7:
+                raise ValueError(f"{len(p)} params, 7 expected")
+            frame, command = int(it["frame"]), int(it["command"])
+            glob = frame in GLOBAL_FRAMES
+            x = int(round(p[4] * 1e7)) if glob else int(0 if math.isnan(p[4]) else p[4])
+            y = int(round(p[5] * 1e7)) if glob else int(0 if math.isnan(p[5]) else p[5])
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise PlanError(f"{path}: {where}: bad SimpleItem ({type(exc).__name__}: {exc})") from None
+        mission.append(RawItem(len(mission), frame, command, 1 if not mission else 0,
                                int(bool(it.get("autoContinue", True))), p[0], p[1], p[2], p[3], x, y,
                                0.0 if math.isnan(p[6]) else p[6], 0))
     fence: list[RawItem] = []

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from mission.client.mission_upload import build_items, waypoint
-from mission.qgc_plan import read_plan, write_plan
+from mission.qgc_plan import PlanError, read_plan, write_plan
 from radseek.coordinates import Home, enu_to_geodetic
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
@@ -73,3 +73,32 @@ def test_mission_flies_a_plan_with_fence_and_rally(tmp_path):
     n = math.radians(last.lat / 1e7 - home.lat_deg) * 6378137.0
     e = math.radians(last.lon / 1e7 - home.lon_deg) * 6378137.0 * math.cos(math.radians(home.lat_deg))
     assert math.hypot(e - 12.0, n - 4.0) < 0.5 and last.relative_alt < 200  # landed at the rally point
+
+
+def _simple(cmd: int, lat: float, lon: float, alt: float, hold: float = 0.0) -> dict:
+    return {"type": "SimpleItem", "autoContinue": True, "command": cmd, "doJumpId": 1, "frame": 3,
+            "params": [hold, 0, 0, None, lat, lon, alt], "Altitude": alt, "AltitudeMode": 1}
+
+
+def test_a_survey_complex_item_is_read_as_the_items_qgc_saved_in_it(tmp_path):
+    """QGC saves a survey (and a corridor scan) as a ComplexItem holding the SimpleItems it flies
+    (TransectStyleComplexItem.Items): read_plan flattens them in order; a structure scan is named, not guessed."""
+    lat0, lon0 = 47.3977, 8.5456
+    transect = [_simple(16, lat0 + 1e-5 * k, lon0 + 2e-5 * (k % 2), 10.0) for k in range(4)]
+    survey = {"type": "ComplexItem", "complexItemType": "survey", "version": 5, "angle": 0,
+              "polygon": [[lat0, lon0], [lat0 + 1e-4, lon0], [lat0 + 1e-4, lon0 + 1e-4]],
+              "TransectStyleComplexItem": {"version": 1, "Items": transect, "CameraCalc": {"version": 2}}}
+    doc = {"fileType": "Plan", "version": 1, "groundStation": "QGroundControl",
+           "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "plannedHomePosition": [lat0, lon0, 488],
+                       "items": [_simple(22, lat0, lon0, 10.0), survey, _simple(21, lat0, lon0, 0.0)]},
+           "geoFence": {"version": 2, "polygons": [], "circles": []}, "rallyPoints": {"version": 2, "points": []}}
+    path = tmp_path / "survey.plan"
+    path.write_text(json.dumps(doc))
+    mission, _, _ = read_plan(path)
+    assert [m.command for m in mission] == [22, 16, 16, 16, 16, 21]
+    assert [m.seq for m in mission] == list(range(6))
+    assert mission[3].x == round((lat0 + 2e-5) * 1e7) and mission[2].y == round((lon0 + 2e-5) * 1e7)
+    doc["mission"]["items"][1] = {"type": "ComplexItem", "complexItemType": "StructureScan", "Items": []}
+    path.write_text(json.dumps(doc))
+    with pytest.raises(PlanError, match=r"item 1 is a 'StructureScan' ComplexItem without saved items"):
+        read_plan(path)
