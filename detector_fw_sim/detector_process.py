@@ -244,9 +244,9 @@ class DetectorProcess:
         self.state = "starting"
         self._rng = np.random.default_rng([config.seed, 0xFA17])  # faults only; the emulator has its own
         v = config.vehicle
-        self._raw_pub = session.declare_publisher(topics.key(topics.RAW_FRAME, v))
-        self._hist_pub = session.declare_publisher(topics.key(topics.HISTOGRAM, v))
-        self._status_pub = session.declare_publisher(topics.key(topics.DETECTOR_STATUS, v))
+        self._raw_pub = topics.declare_publisher(session, topics.RAW_FRAME, v)
+        self._hist_pub = topics.declare_publisher(session, topics.HISTOGRAM, v)
+        self._status_pub = topics.declare_publisher(session, topics.DETECTOR_STATUS, v)
         self._poses = None if config.fixed_pose is not None else \
             TruthPoseFollower(session, v, self.counters, clock, config.max_pose_lead_s)
         self._clock_epoch = getattr(clock, "epoch", 0)

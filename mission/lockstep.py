@@ -21,7 +21,7 @@ HEARTBEAT_WALL_S = 0.5
 
 class LockstepAck:
     def __init__(self, session: zenoh.Session, vehicle: str, heartbeat_wall_s: float = HEARTBEAT_WALL_S):
-        self._pub = session.declare_publisher(topics.key(topics.MISSION_LOCKSTEP, vehicle))
+        self._pub = topics.declare_publisher(session, topics.MISSION_LOCKSTEP, vehicle)
         self._lock = threading.Lock()
         # attached, nothing taken yet: the vehicle holds at t = 0 until the first ack
         self._msg = topics.MissionLockstep(t=0.0, until=0.0, busy=True)

@@ -285,8 +285,8 @@ class _Team:
             self._subs += [session.declare_subscriber(topics.key(topics.POSE, n), m.on_pose),
                            session.declare_subscriber(topics.key(topics.HISTOGRAM, n), m.on_histogram),
                            session.declare_subscriber(topics.key(topics.TEAM_STATUS, n), m.on_status)]
-        self._pub = session.declare_publisher(topics.key(topics.TEAM_STATUS, me))
-        self._est_pub = session.declare_publisher(topics.key(topics.ESTIMATE, topics.TEAM))
+        self._pub = topics.declare_publisher(session, topics.TEAM_STATUS, me)
+        self._est_pub = topics.declare_publisher(session, topics.ESTIMATE, topics.TEAM)
         self.seq = 0
         self.state = "start"
         self.reservation = np.zeros((1, 3))
@@ -445,9 +445,9 @@ class MissionRunner:
                                                 seed=settings.seed)
         else:
             self.brain = SearchBrain(scenario, config, seed=settings.seed)
-        self._state_pub = session.declare_publisher(topics.key(topics.MISSION_STATE, v))
-        self._est_pub = session.declare_publisher(topics.key(topics.ESTIMATE, v))
-        self._plan_pub = session.declare_publisher(topics.key(topics.PLAN, v))
+        self._state_pub = topics.declare_publisher(session, topics.MISSION_STATE, v)
+        self._est_pub = topics.declare_publisher(session, topics.ESTIMATE, v)
+        self._plan_pub = topics.declare_publisher(session, topics.PLAN, v)
         self.log: list[dict] = []
         self.t_start: float | None = None
         self.battery = math.nan

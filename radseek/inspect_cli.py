@@ -132,8 +132,11 @@ def topics_markdown() -> str:
         "local ENU metres, yaw in radians counter-clockwise from +x (east); times in simulation seconds from",
         "the shared clock. Topics under `sim/` carry the simulated truth: only the detector emulator reads them.",
         "",
-        "| key | publisher | rate | payload |",
-        "| --- | --- | --- | --- |",
+        "Every sample carries its zenoh encoding with a schema name (the table's last column), so a subscriber",
+        "that does not know radseek can tell JSON from binary by `sample.encoding` (`tests/test_topic_encodings.py`).",
+        "",
+        "| key | publisher | rate | payload | zenoh encoding |",
+        "| --- | --- | --- | --- | --- |",
     ]
     all_topics = list(topics.PAYLOADS)
     if topics.RAW_FRAME not in all_topics:
@@ -142,7 +145,7 @@ def topics_markdown() -> str:
         cls = topics.PAYLOADS.get(t)
         payload = f"`{cls.__name__}` (JSON)" if cls else "board frame (90 bytes binary)"
         lines.append(f"| `{topics.PREFIX}/<vehicle>/{t}` | {PUBLISHERS.get(t, '?')} | {RATES.get(t, 'on change')} "
-                     f"| {payload} |")
+                     f"| {payload} | `{topics.encoding(t)}` |")
     lines += ["", "## Watching with zenoh-cli", "", ZENOH_CLI_RECIPE]
     flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
     lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]

@@ -68,7 +68,7 @@ class ClockPublisher:
 
     def __init__(self, session: zenoh.Session, vehicle: str, speedup: float):
         self.speedup = speedup
-        self._pub = session.declare_publisher(topics.key(topics.SIM_CLOCK, vehicle))
+        self._pub = topics.declare_publisher(session, topics.SIM_CLOCK, vehicle)
 
     def publish(self, t: float) -> None:
         self._pub.put(topics.SimClock(t=float(t), speedup=self.speedup).to_bytes())

@@ -481,6 +481,28 @@ PAYLOADS: dict[str, type[_Payload]] = {
 }
 
 
+#: schema name of the raw board frame (docs/frame-format.md; decoded by radseek.board_wire)
+RAW_FRAME_SCHEMA = "radseek.BoardFrame"
+
+
+def encoding(topic: str) -> str:
+    """The zenoh encoding a topic's samples carry, MIME type and schema name: ``application/json;radseek.<Payload>``
+    for the JSON payloads above, ``application/octet-stream;radseek.BoardFrame`` for the raw frames. Subscribers
+    (zenoh-cli, Foxglove's zenoh bridge, a ground station) can tell JSON from binary without knowing radseek."""
+    if topic == RAW_FRAME:
+        return f"application/octet-stream;{RAW_FRAME_SCHEMA}"
+    if topic in PAYLOADS:
+        return f"application/json;{PREFIX}.{PAYLOADS[topic].__name__}"
+    raise KeyError(f"{topic!r} is not a radseek topic")
+
+
+def declare_publisher(session: Any, topic: str, vehicle: str = DEFAULT_VEHICLE) -> Any:
+    """``session.declare_publisher`` for ``key(topic, vehicle)`` with the topic's :func:`encoding`."""
+    import zenoh
+
+    return session.declare_publisher(key(topic, vehicle), encoding=zenoh.Encoding(encoding(topic)))
+
+
 def topic_of(full_key: str) -> str:
     """The topic name of a full key: ``radseek/uav0/detector/histogram`` -> ``detector/histogram``."""
     parts = full_key.split("/", 2)

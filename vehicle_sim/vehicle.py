@@ -106,8 +106,8 @@ class _ZenohOut:
             return
         name = self.cfg.vehicle_name
         self._clock = ClockPublisher(session, name, self.cfg.speedup)
-        self._truth = session.declare_publisher(topics.key(topics.SIM_TRUTH_POSE, name))
-        self._pose = session.declare_publisher(topics.key(topics.POSE, name))
+        self._truth = topics.declare_publisher(session, topics.SIM_TRUTH_POSE, name)
+        self._pose = topics.declare_publisher(session, topics.POSE, name)
         if self._gate is not None:
             self._lockstep = session.declare_subscriber(topics.key(topics.MISSION_LOCKSTEP, name),
                                                         self._gate.on_sample)
