@@ -1,6 +1,7 @@
 """``radseek view``: an opt-in live view of a flight in Foxglove (WebSocket protocol, foxglove-sdk).
 
-Open Foxglove, "Open connection" → ``ws://127.0.0.1:8765``. Channels:
+Open Foxglove, "Open connection" → ``ws://127.0.0.1:8765`` (subprotocol ``foxglove.sdk.v1`` or
+``foxglove.websocket.v1``: ``launch.ws_relay``). Channels:
 
 - ``/map`` (foxglove.SceneUpdate, frame ``map`` = local ENU): the flight area's bounds and mapped walls
   (from ``--scenario`` or ``--scene``), the vehicle and its estimated track (``pose``), the planned path
@@ -136,8 +137,17 @@ class LiveView:
         import foxglove
         from foxglove.channels import SceneUpdateChannel
 
-        self.server = foxglove.start_server(name="radseek", host=host, port=port)
-        self.port = self.server.port
+        from launch.ws_relay import SubprotocolRelay
+
+        # the SDK's server on a loopback port of its own; the relay on the public one accepts foxglove.websocket.v1
+        # clients (Lichtblick, older Foxglove, the reference client) as well as foxglove.sdk.v1 ones
+        self.server = foxglove.start_server(name="radseek", host="127.0.0.1", port=0)
+        try:
+            self.relay = SubprotocolRelay(host, port, self.server.port)
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.relay.port
         self._map = SceneUpdateChannel("/map")
         self._state = MapState(bounds, list(walls))
         self._channels: dict[str, Any] = {}
@@ -178,6 +188,7 @@ class LiveView:
 
     def close(self) -> None:
         self._sub.undeclare()
+        self.relay.close()
         self.server.stop()
 
 

@@ -33,8 +33,9 @@ def test_map_state_draws_walls_track_plan_and_estimate_ellipse():
     assert len(st.scene().encode()) > 200  # a foxglove.SceneUpdate with walls, track, path, dwells, estimate
 
 
-async def _client(port: int, publish) -> tuple[dict, bytes]:
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"]) as ws:
+async def _client(port: int, publish, subprotocol: str = "foxglove.sdk.v1") -> tuple[dict, bytes]:
+    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol]) as ws:
+        assert ws.subprotocol == subprotocol
         channels: dict[str, dict] = {}
         deadline = time.monotonic() + WAIT_S
         want = {"/map", "/" + topics.key(topics.POSE), "/" + topics.key(topics.HISTOGRAM)}
@@ -59,7 +60,10 @@ async def _client(port: int, publish) -> tuple[dict, bytes]:
 
 
 @pytest.mark.slow
-def test_foxglove_client_sees_the_map_and_topics(router):
+@pytest.mark.parametrize("subprotocol", ["foxglove.sdk.v1", "foxglove.websocket.v1"])
+def test_foxglove_client_sees_the_map_and_topics(router, subprotocol):
+    """Both protocol generations: foxglove.websocket.v1 is what Lichtblick, older Foxglove and the npm reference
+    client send (the SDK's own server answers it with HTTP 400)."""
     session = open_session(None, router)
     view = LiveView(session, port=0, bounds=((0, 0, 0), (10, 8, 3)), walls=[])
     k = [0]
@@ -71,7 +75,7 @@ def test_foxglove_client_sees_the_map_and_topics(router):
         session.put(topics.key(topics.HISTOGRAM), json.dumps({"t": 0.1 * k[0], "counts": [1] * 32}).encode())
 
     try:
-        channels, data = asyncio.run(_client(view.port, publish))
+        channels, data = asyncio.run(_client(view.port, publish, subprotocol))
     finally:
         view.close()
         session.close()
