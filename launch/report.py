@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from radseek.dataset import Dataset, read_dataset  # noqa: E402
+from radseek.dataset import Dataset, DatasetError, read_dataset  # noqa: E402
 from radseek.geometry import semi_major_axis  # noqa: E402
 from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
 
@@ -299,7 +299,15 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
     ({vehicle, dwell_points, distance_m, failed}) beside ``error_m``, ``sigma_m``, ``mission_time_s``."""
     out = Path(out)
     killed = killed or {}
-    data = {n: read_dataset(out / "dataset" / n) for n in names if (out / "dataset" / n / "frames.csv").exists()}
+    data, unreadable = {}, {}
+    for n in names:
+        if (out / "dataset" / n / "frames.csv").exists():
+            try:
+                data[n] = read_dataset(out / "dataset" / n)
+            except DatasetError as exc:  # a member that recorded nothing (killed early, flooded) loses no one else's
+                unreadable[n] = str(exc)
+    if not data:
+        raise ValueError(f"no vehicle's dataset could be read ({'; '.join(unreadable.values()) or 'none recorded'})")
     missions = {}
     for n in names:
         try:
@@ -326,9 +334,12 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
     per_vehicle = []
     for i, n in enumerate(names):
         colour = VEHICLE_COLOURS[i % len(VEHICLE_COLOURS)]
-        row = {"vehicle": n, "dwell_points": 0, "distance_m": 0.0, "failed": n in killed or n not in missions}
+        row = {"vehicle": n, "dwell_points": 0, "distance_m": 0.0,
+               "failed": n in killed or n not in missions or n in unreadable}
         if n in killed:
             row["failed_at_s"] = killed[n]
+        if n in unreadable:
+            row["error"] = unreadable[n]
         if n in data:
             f = data[n].frames
             row.update(vehicle_track(f))
@@ -338,9 +349,12 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
             state = " (failed)" if row["failed"] else ""
             ax.plot(f.x, f.y, "-", color=colour, lw=0.9, alpha=0.8, label=f"{n}{state}: {row['dwell_points']} dwells, "
                                                                              f"{row['distance_m']:.1f} m")
-            for k in sorted(set(f.dwell[f.dwell >= 0].tolist())):
+            for j, k in enumerate(sorted(set(f.dwell[f.dwell >= 0].tolist()))):
                 m = f.dwell == k
-                ax.scatter(f.x[m].mean(), f.y[m].mean(), s=60, color=colour, edgecolor="k", zorder=3)
+                # the dwells counted in the legend filled; one begun but not ended hollow
+                done = ended is None or j < row["dwell_points"]
+                ax.scatter(f.x[m].mean(), f.y[m].mean(), s=60, color=colour if done else "none", edgecolor="k",
+                           zorder=3)
                 ax.annotate(f"{n[-1]}.{k}", (f.x[m].mean(), f.y[m].mean()), xytext=(4, 4), textcoords="offset points",
                             fontsize=8)
         per_vehicle.append(row)
