@@ -40,6 +40,7 @@ from launch.run_cli import (
     Progress,
     Stack,
     StackRun,
+    _last_words,
     _radseek,
     recorder_ready,
     report_verdict,
@@ -190,7 +191,8 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
             continue
         code = missions[name].returncode
         if code not in (EXIT_FOUND, EXIT_SEARCH_FAILED):
-            print(f"radseek run: mission {name} failed (exit {code}); see {out}/logs/mission-{name}.log",
+            print(f"radseek run: mission {name} failed (exit {code})"
+                  f"{_last_words(out / 'logs' / f'mission-{name}.log')}; see {out}/logs/mission-{name}.log",
                   file=sys.stderr)
             continue
         try:
