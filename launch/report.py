@@ -107,6 +107,32 @@ def _map_frame(ax, scenario) -> None:
     ax.set_ylabel("y north (m)")
 
 
+#: the zoom inset's size (axes fraction) and the corners it may take (lower left, lower right, upper left; the
+#: legend holds the upper right)
+INSET_SIZE = 0.36
+INSET_CORNERS = ((0.02, 0.02), (0.62, 0.02), (0.02, 0.56))
+
+
+def _emptiest_corner(ax, frames, src: dict[str, float]) -> list[float]:
+    """The inset's [x0, y0, w, h] in the corner of the map that hides the fewest dwell points (each worth a
+    thousand track frames) and none of the estimate: the inset hid dwells 0 and 1 of five in the lower left."""
+    to_axes = ax.transAxes.inverted().transform
+    xy = to_axes(ax.transData.transform(np.column_stack([frames.x, frames.y])))
+    dw = np.asarray(frames.dwell)
+    ks = sorted(set(dw[dw >= 0].tolist()))
+    cen = to_axes(ax.transData.transform(np.array([[frames.x[dw == k].mean(), frames.y[dw == k].mean()]
+                                                   for k in ks]).reshape(-1, 2)))
+    est = to_axes(ax.transData.transform([[src["x"], src["y"]]]))
+
+    def hidden(x0: float, y0: float, pts: np.ndarray) -> int:
+        inside = (pts[:, 0] >= x0 - 0.03) & (pts[:, 0] <= x0 + INSET_SIZE + 0.03) & \
+                 (pts[:, 1] >= y0 - 0.03) & (pts[:, 1] <= y0 + INSET_SIZE + 0.06)  # its title above it
+        return int(inside.sum())
+
+    x0, y0 = min(INSET_CORNERS, key=lambda c: (1000 * hidden(*c, cen) + 10_000 * hidden(*c, est) + hidden(*c, xy)))
+    return [x0, y0, INSET_SIZE, INSET_SIZE]
+
+
 def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: dict[str, Any], truth) -> None:
     """An inset zoomed on the estimate: its 1-sigma and 95 % ellipses (centimetres, invisible at map
     scale under the marker) and the truth if it is near."""
@@ -117,7 +143,7 @@ def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: di
         d = math.hypot(truth.sources[0].x - src["x"], truth.sources[0].y - src["y"])
         if d < 5 * half:  # show the truth too unless it is far outside the ellipses
             half = max(half, 1.3 * d)
-    ins = ax.inset_axes([0.02, 0.02, 0.36, 0.36])
+    ins = ax.inset_axes(_emptiest_corner(ax, ds.frames, src))
     for wl in ds.scenario.walls:
         ins.add_patch(Polygon(_wall_polygon(wl), color="0.45", alpha=0.5))
     if a95 > 0:

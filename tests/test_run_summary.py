@@ -106,3 +106,26 @@ def test_failed_goodness_of_fit_is_said_by_replay(shared_datasets):
     rows = json.loads(out.stdout)  # the JSON stays clean: the warning goes to stderr
     assert rows[-1]["p_value"] < GOOD_FIT_P
     assert "the model misses something here" in out.stderr
+
+
+def test_the_zoom_inset_takes_the_corner_that_hides_no_dwell(shared_datasets):
+    """Dwells in the lower left (where the inset used to sit): it moves to a corner that hides none of them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from launch.report import _emptiest_corner
+    from radseek.dataset import read_dataset
+
+    f = read_dataset(shared_datasets / "lattice-clean").frames
+    fig, ax = plt.subplots()
+    ax.set_xlim(f.x.min() - 0.5, f.x.max() + 6.0)  # room to the right, as a map with bounds beyond the flight
+    ax.set_ylim(f.y.min() - 0.5, f.y.max() + 0.5)
+    x0, y0, w, h = _emptiest_corner(ax, f, {"x": float(f.x.mean()), "y": float(f.y.mean())})
+    to_axes = ax.transAxes.inverted().transform
+    for k in sorted(set(f.dwell[f.dwell >= 0].tolist())):
+        m = f.dwell == k
+        cx, cy = to_axes(ax.transData.transform([[f.x[m].mean(), f.y[m].mean()]]))[0]
+        assert not (x0 <= cx <= x0 + w and y0 <= cy <= y0 + h), f"dwell {k} under the inset"
+    plt.close(fig)
