@@ -32,12 +32,17 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
                label=f"emulator's response before calibration (deviance/dof {base.deviance_per_dof:.1f})")
     ax[0].set_yscale("log")
     ax[0].set_ylabel("counts / keV / s")
-    ax[0].set_xlim(0, min(b[-1], max(1.4 * float(centre[m][np.argmax(np.cumsum(net[m]) > 0.995 * net[m].sum())]),
-                                     200.0)))
-    ax[0].legend(fontsize=8)
-    ax[0].set_title(title)
     mu = np.maximum(res.expected, 1e-9)
     pr = (problem.n - mu) / np.sqrt(mu)
+    # up to the spectrum's end (99.5 % of its counts), and far enough to show every channel the model misses by
+    # more than 3 sigma (the text names those windows: the plot must show them)
+    upper = 1.4 * float(centre[m][np.argmax(np.cumsum(net[m]) > 0.995 * net[m].sum())])
+    missed = m & (np.abs(pr) > 3)
+    if missed.any():
+        upper = max(upper, 1.05 * float(centre[missed].max()))
+    ax[0].set_xlim(0, min(b[-1], max(upper, 200.0)))
+    ax[0].legend(fontsize=8)
+    ax[0].set_title(title)
     ax[1].plot(centre[m], np.clip(pr[m], -8, 8), ".", ms=2, color="C3")
     ax[1].set_ylim(-8.5, 8.5)  # clipped at +-8 so that channels where the model is ~0 do not hide the rest
     ax[1].axhline(0, color="k", lw=0.5)
