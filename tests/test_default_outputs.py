@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from detector_fw_sim.simulate_cli import build_parser as simulate_parser
 from estimator.compare_cli import _build_parser as compare_parser
 
@@ -28,6 +30,7 @@ def test_every_default_output_is_under_runs():
     assert "runs/" in (REPO / ".gitignore").read_text().split()
 
 
+@pytest.mark.io
 def test_bare_simulate_dataset_writes_only_under_runs(tmp_path):
     r = subprocess.run([sys.executable, "-m", "radseek.cli", "simulate-dataset"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})

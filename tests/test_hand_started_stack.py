@@ -13,7 +13,7 @@ from tests.conftest import free_port
 from tests.test_clock_jumps import WAIT_S, Histograms
 from tests.test_detector_stream import Proc
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.timeout(600)]
 
 
 def test_bare_detector_then_bare_vehicle_share_the_vehicles_clock(router):
