@@ -1,5 +1,9 @@
 # The two commands a new user needs: `make run` (a search mission against the mock vehicle)
-# and `make test` (the whole test suite). Both create .venv and install radseek on first use.
+# and `make test` (the whole test suite, what CI runs: every test, in 2 parallel pytest-xdist workers;
+# tests that share a fixed port carry an xdist_group so they never run at the same time).
+# `make check` is the edit-test loop's unit tier (about a minute): lint plus every test that is neither
+# `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
+# All create .venv and install radseek on first use.
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +13,7 @@ STAMP := $(VENV)/.installed
 GRPC_VENV := .venv-mavsdk-grpc
 GRPC_STAMP := $(GRPC_VENV)/.installed
 
-.PHONY: run test lint bench clean
+.PHONY: run test check lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -29,7 +33,11 @@ run: $(STAMP)
 
 test: $(STAMP) $(GRPC_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 2 --dist loadgroup
+
+check: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/pytest -q -n 2 -m "not slow and not io" --unit
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
