@@ -7,12 +7,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 DOCKER = REPO / "docker"
 
 
+@pytest.mark.io
 def test_dockerfile_copies_existing_paths_and_its_run_step_works(tmp_path):
     text = (DOCKER / "Dockerfile").read_text()
     for src in re.findall(r"^COPY (.+) \S+$", text, flags=re.M):
@@ -23,6 +25,7 @@ def test_dockerfile_copies_existing_paths_and_its_run_step_works(tmp_path):
     assert (tmp_path / "scenario.json").read_text().count("channel_edges_keV") == 1
 
 
+@pytest.mark.io
 def test_compose_services_run_real_radseek_commands():
     compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
     services = compose["services"]
