@@ -5,6 +5,7 @@ the statistics, no wall-clock assertions. The full power curves and false-alarm 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import stats
 
 from benchmarks.forward2 import FlightSpec, simulate
@@ -56,6 +57,7 @@ def test_over_dispersion_is_named_and_not_taken_for_geometry():
     assert abs(a.gof.deviance_per_dof - a.gof.expected_per_dof) < 4 * a.gof.sd_per_dof  # the variance term
 
 
+@pytest.mark.slow
 def test_strong_wall_on_an_l_shape_is_named_and_lowers_the_source_error():
     ds = simulate(FlightSpec("lshape", {"wall_attenuation": {"mu_per_m": 3.0}}, crystal="wide", dwell_s=6.0), seed=503)
     d = diagnose(ds, quiet=True, n_starts=2)
