@@ -39,12 +39,14 @@ def test_over_dispersion_test_is_calibrated_under_a_wrong_mean_and_finds_real_sc
     assert fit.lr > 30 and abs(fit.rel_sd - 0.1) < 4 * fit.error
 
 
+@pytest.mark.slow
 def test_null_independent_flight_names_nothing():
     ds = simulate(FlightSpec("lattice", {}, crystal="fill", dwell_s=6.0, scatter=0.02), seed=501)
     d = diagnose(ds, quiet=True, n_starts=2)
     assert d.selection.missing == []
 
 
+@pytest.mark.slow
 def test_over_dispersion_is_named_and_not_taken_for_geometry():
     ds = simulate(FlightSpec("lattice", {"over_dispersion": {"rel_sd": 0.15}}, crystal="real", dwell_s=6.0), seed=502)
     d = diagnose(ds, quiet=True, n_starts=2)
@@ -68,6 +70,7 @@ def test_strong_wall_on_an_l_shape_is_named_and_lowers_the_source_error():
     assert abs(mu - 3.0) < 5 * err + 0.3
 
 
+@pytest.mark.slow
 def test_gain_drift_measured_on_a_crystal_unlike_the_templates_with_a_changing_shape():
     """The issue-14 miss: a crystal with more scatter fill, a spectrum whose shape changes with distance (outdoor
     buildup). No drift -> no evidence; 0.9 %/min -> found, not scaled away by the shape change."""
