@@ -1,6 +1,7 @@
-# The two commands a new user needs: `make run` (a search mission against the mock vehicle)
-# and `make test` (the whole test suite, what CI runs: every test, in 2 parallel pytest-xdist workers;
-# tests that share a fixed port carry an xdist_group so they never run at the same time).
+# The commands a new user needs: `make run` (a search mission against the mock vehicle)
+# and `make test` (the whole test suite, what CI runs: every test, in 2 parallel pytest-xdist workers
+# handed one test at a time, the slow ones first; tests taking the same fixed port are marked
+# `exclusive` and never overlap).
 # `make check` is the edit-test loop's unit tier (about a minute): lint plus every test that is neither
 # `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
 # All create .venv and install radseek on first use.
@@ -33,11 +34,11 @@ run: $(STAMP)
 
 test: $(STAMP) $(GRPC_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q -n 2 --dist loadgroup
+	$(BIN)/pytest -q -n 2 --maxschedchunk 1
 
 check: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q -n 2 -m "not slow and not io" --unit
+	$(BIN)/pytest -q -n 2 --maxschedchunk 1 -m "not slow and not io" --unit
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

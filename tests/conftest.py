@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -40,8 +42,9 @@ def pytest_collection_modifyitems(config, items):
         if "router" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.io)
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        # in parallel workers (`make test`), the long end-to-end tests are handed out first: one started last
-        # would keep one worker busy while the other has nothing left (every worker sorts alike, as xdist needs)
+        # in parallel workers (`make test`: one test at a time, --maxschedchunk 1), the long end-to-end tests are
+        # handed out first: one started last would keep one worker busy while the other has nothing left
+        # (every worker sorts alike, as xdist needs)
         items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
@@ -123,6 +126,31 @@ def pytest_runtest_makereport(item, call):
 
 
 _GUARD = pytest.StashKey[_UnitGuard]()
+
+
+# ---- tests that need a fixed port: one at a time on this machine
+#
+# `make test` runs 2 pytest-xdist workers (and another clone's tests may run beside them). A test marked
+# ``exclusive("NAME")`` holds a machine-wide lock NAME (a flock on a file in the temp folder) from before its
+# first fixture to after its last, so two tests taking the same fixed port (MAVSDK-Python's examples: 14540
+# and gRPC 50051; a local Ray cluster's default ports) never run at the same time, whichever worker or clone
+# runs them. (xdist_group is not used: with pytest 9.2, pytest-xdist 3.8 cannot rename the node ids it
+# groups by, and silently runs a group on both workers.)
+
+
+@pytest.fixture(autouse=True)
+def _exclusive(request):
+    mark = request.node.get_closest_marker("exclusive")
+    if mark is None:
+        yield
+        return
+    path = Path(tempfile.gettempdir()) / f"radseek-tests-{mark.args[0]}.lock"
+    with path.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # waits while another worker's (or clone's) test holds it
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATASETS = REPO.parent / "shared" / "datasets"

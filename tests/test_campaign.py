@@ -122,9 +122,9 @@ def _rows(out: Path) -> list[dict]:
     return pq.read_table(out / "flights.parquet").to_pylist()
 
 
-# Ray: a local cluster takes fixed default ports of its own (dashboard agent, metrics): under pytest-xdist
-# one worker starts the two clusters one after the other (`make test`: --dist loadgroup)
-RAY_GROUP = pytest.mark.xdist_group("ray-clusters")
+# Ray: a local cluster takes fixed default ports of its own (dashboard agent, metrics): the two clusters are
+# started one at a time on this machine, whichever pytest worker runs them (conftest: exclusive)
+RAY_GROUP = pytest.mark.exclusive("ray-cluster")
 
 
 @pytest.mark.slow

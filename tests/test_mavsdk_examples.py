@@ -31,9 +31,9 @@ import pytest
 
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
-# the examples' ports are fixed (MAVLink 14540, mavsdk_server's gRPC 50051): under pytest-xdist one worker runs
-# them all, one after the other (`make test`: --dist loadgroup)
-pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.xdist_group("mavsdk-examples-fixed-ports")]
+# the examples' ports are fixed (MAVLink 14540, mavsdk_server's gRPC 50051): one at a time on this machine,
+# whichever pytest worker runs them (conftest: exclusive)
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")]
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
 VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
