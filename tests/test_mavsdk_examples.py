@@ -9,8 +9,8 @@ Each example connects to `udpin://0.0.0.0:14540` and its mavsdk_server takes gRP
 fixed: they run one after the other, the vehicle sending to 14540 from free local ports. A pymavlink
 listener on the vehicle's GCS port records what the vehicle did (sim time, position, mode), so the
 asserts are on events and the vehicle's state, not on wall-clock durations. Examples that never end
-(goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (orbit,
-offboard, takeoff) run on a sped-up clock (tests/support/run_sped_up.py): their own sleeps are FACTOR times
+(goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (offboard,
+takeoff) run on a sped-up clock (tests/support/run_sped_up.py): their own sleeps are FACTOR times
 shorter and the vehicle FACTOR times faster, so each sleep spans the same simulated time as at 1x.
 """
 
@@ -206,8 +206,10 @@ def test_offboard_velocity_ned():
 
 
 def test_do_orbit():
-    out, w = completes("do_orbit.py", ["--speedup", "10"], ["--- Taking Off", "Do orbit at 10m height from the ground",
-                                                            "--- Landing"], runner=sped_up(10))
+    # at 1x: on the sped-up clock (10x) the vehicle was twice seen nowhere on the circle on a loaded machine
+    # (0 of its positions; orbit started, landed at t=84 s) - not understood yet, so the 70 s of sleeps stay
+    out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
+                                           "--- Landing"])
     center = (47.398036222362471, 8.5450146439425509)
     on_circle = [p for p in w.positions if abs(_dist_m(p[1], p[2], *center) - 10.0) < 0.5 and abs(p[3] - 10) < 0.5]
     assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
