@@ -1,5 +1,10 @@
-# The two commands a new user needs: `make run` (a search mission against the mock vehicle)
-# and `make test` (the whole test suite). Both create .venv and install radseek on first use.
+# The commands a new user needs: `make run` (a search mission against the mock vehicle)
+# and `make test` (the whole test suite, what CI runs: every test, in 2 parallel pytest-xdist workers
+# handed one test at a time, the slow ones first; tests taking the same fixed port are marked
+# `exclusive` and never overlap).
+# `make check` is the edit-test loop's unit tier (about a minute): lint plus every test that is neither
+# `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
+# All create .venv and install radseek on first use.
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +14,7 @@ STAMP := $(VENV)/.installed
 GRPC_VENV := .venv-mavsdk-grpc
 GRPC_STAMP := $(GRPC_VENV)/.installed
 
-.PHONY: run test lint bench clean
+.PHONY: run test check lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -29,7 +34,11 @@ run: $(STAMP)
 
 test: $(STAMP) $(GRPC_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 2 --maxschedchunk 1
+
+check: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/pytest -q -n 2 --maxschedchunk 1 -m "not slow and not io" --unit
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

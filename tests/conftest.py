@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import socket
 import subprocess
 import sys
+import tempfile
+import threading
 from pathlib import Path
 
 import pytest
@@ -17,6 +20,137 @@ from hypothesis import settings
 settings.register_profile("ci", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False, database=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+# ---- the unit tier (`make check`): no subprocesses, no sockets, no routers
+#
+# Tests that start a process, open a socket (loopback UDP/TCP, a zenoh session, a websocket) or need a
+# router are marked ``io`` (a test using the ``router`` fixture is marked here). `make check` runs
+# ``-m "not slow and not io" --unit``; with ``--unit`` the tier polices itself: a test that starts a
+# process or opens a socket anyway fails, naming the marker it lacks, so the tier stays fast and free of
+# ports as tests are added. `make test` runs everything, marked or not.
+
+IO_REASON = "starts a subprocess, opens a socket or a zenoh session: mark it @pytest.mark.io (README: make check)"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--unit", action="store_true",
+                     help="the unit tier (make check): fail any test that starts a subprocess or opens a socket")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if "router" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.io)
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        # in parallel workers (`make test`: one test at a time, --maxschedchunk 1), the long end-to-end tests are
+        # handed out first: one started last would keep one worker busy while the other has nothing left
+        # (every worker sorts alike, as xdist needs)
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+_INHERITED = object()
+
+
+class _UnitGuard:
+    """While a test runs under ``--unit``: every way to start a process or reach a socket records what was
+    tried and raises; the test then fails with ``IO_REASON`` even if the code under test swallowed the error
+    (or it happened in a thread). What a third-party module does while it is being imported (urllib3's IPv6
+    probe binds a socket, ``platform`` runs ``uname -p``) is the library's, not the test's: let through."""
+
+    def __init__(self):
+        self.tried: list[str] = []
+        self._saved: list[tuple[object, str, object]] = []
+        self._lock = threading.Lock()
+
+    def _deny(self, what: str, real):
+        def denied(*args, **kwargs):
+            frame = sys._getframe(1)
+            while frame is not None:
+                if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+                    return real(*args, **kwargs)
+                frame = frame.f_back
+            with self._lock:
+                self.tried.append(what)
+            raise PermissionError(f"unit tier: {what}: {IO_REASON}")
+        return denied
+
+    def _patch(self, owner, name: str, what: str) -> None:
+        if hasattr(owner, name):
+            real = getattr(owner, name)
+            self._saved.append((owner, name, vars(owner).get(name, _INHERITED)))
+            setattr(owner, name, self._deny(what, real))
+
+    def start(self) -> None:
+        self.tried.clear()
+        self._patch(subprocess.Popen, "__init__", "subprocess.Popen")
+        for name in ("fork", "forkpty", "posix_spawn", "posix_spawnp", "system", "execv", "execve"):
+            self._patch(os, name, f"os.{name}")
+        for name in ("bind", "connect", "connect_ex", "sendto", "listen"):
+            self._patch(socket.socket, name, f"socket.{name}")
+        try:
+            import zenoh
+        except ImportError:
+            zenoh = None
+        if zenoh is not None:
+            self._patch(zenoh, "open", "zenoh.open")
+
+    def stop(self) -> None:
+        while self._saved:
+            owner, name, value = self._saved.pop()
+            if value is _INHERITED:
+                delattr(owner, name)
+            else:
+                setattr(owner, name, value)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not item.config.getoption("unit"):
+        return (yield)
+    guard = item.config.stash.setdefault(_GUARD, _UnitGuard())
+    guard.start()
+    try:
+        return (yield)
+    finally:
+        guard.stop()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    guard = item.config.stash.get(_GUARD, None)
+    if guard is not None and guard.tried and report.when == "call" and not report.skipped:
+        report.outcome = "failed"
+        report.longrepr = f"unit tier: the test tried {sorted(set(guard.tried))}: {IO_REASON}"
+    return report
+
+
+_GUARD = pytest.StashKey[_UnitGuard]()
+
+
+# ---- tests that need a fixed port: one at a time on this machine
+#
+# `make test` runs 2 pytest-xdist workers (and another clone's tests may run beside them). A test marked
+# ``exclusive("NAME")`` holds a machine-wide lock NAME (a flock on a file in the temp folder) from before its
+# first fixture to after its last, so two tests taking the same fixed port (MAVSDK-Python's examples: 14540
+# and gRPC 50051; a local Ray cluster's default ports) never run at the same time, whichever worker or clone
+# runs them. (xdist_group is not used: with pytest 9.2, pytest-xdist 3.8 cannot rename the node ids it
+# groups by, and silently runs a group on both workers.)
+
+
+@pytest.fixture(autouse=True)
+def _exclusive(request):
+    mark = request.node.get_closest_marker("exclusive")
+    if mark is None:
+        yield
+        return
+    path = Path(tempfile.gettempdir()) / f"radseek-tests-{mark.args[0]}.lock"
+    with path.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # waits while another worker's (or clone's) test holds it
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATASETS = REPO.parent / "shared" / "datasets"

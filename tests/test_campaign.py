@@ -122,7 +122,14 @@ def _rows(out: Path) -> list[dict]:
     return pq.read_table(out / "flights.parquet").to_pylist()
 
 
+# Ray: a local cluster takes fixed default ports of its own (dashboard agent, metrics): the two clusters are
+# started one at a time on this machine, whichever pytest worker runs them (conftest: exclusive)
+RAY_GROUP = pytest.mark.exclusive("ray-cluster")
+
+
 @pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
 def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path):
     out = tmp_path / "c"
 
@@ -226,6 +233,8 @@ def _stop(pids: set[int]) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
 def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
     temp_dir = f"/tmp/rsk-test-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
     port = _free_port()

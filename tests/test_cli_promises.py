@@ -48,6 +48,7 @@ def test_zenoh_cli_recipe_prints_decoded_json(router):
     assert json.loads(line.split(" ", 1)[1])["speedup"] == 1.0  # JSON, not base64
 
 
+@pytest.mark.io
 def test_topics_and_echo_say_when_no_router_answers():
     nobody = f"tcp/127.0.0.1:{free_port()}"
     for cmd in (["topics"], ["echo", "sim/clock"]):
@@ -62,6 +63,7 @@ def test_router_port_in_use_is_named_with_the_flag(router):
     assert f"{router} is already in use" in proc.stderr and "--listen" in proc.stderr
 
 
+@pytest.mark.io
 def test_vehicle_port_in_use_is_named_with_the_flag():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:
         held.bind(("127.0.0.1", 0))
@@ -73,6 +75,7 @@ def test_vehicle_port_in_use_is_named_with_the_flag():
     assert f"UDP port {port}" in proc.stderr and "--api-local-port" in proc.stderr
 
 
+@pytest.mark.io
 def test_plan_runs_with_no_arguments(tmp_path):
     proc = subprocess.run([*RADSEEK, "plan"], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -276,7 +276,9 @@ def test_faults_stale_pose_and_restart_over_zenoh(router):
         except FrameError:
             bad += 1
     hists = [topics.Histogram.from_bytes(p) for k, p, _ in first if k == topics.HISTOGRAM]
-    assert [h.seq for h in hists] == good
+    # the detector publishes a frame's raw bytes, then its histogram: the kill -9 may land between the two, so
+    # the last good raw frame before the kill may have no histogram (seen on a loaded machine); none other may
+    assert [h.seq for h in hists] in (good, good[:-1]), ([h.seq for h in hists][-3:], good[-3:])
     # Binomial(n, 0.2) rejected frames; bounds at 5 standard deviations (false failure ~1e-6)
     n = len(raws)
     sd = math.sqrt(n * 0.2 * 0.8)

@@ -224,6 +224,7 @@ def test_localize_refuses_fewer_frames_than_a_fit_needs(shared_datasets, tmp_pat
 # ---------------------------------------------------------------------------------------- the whole command
 
 
+@pytest.mark.io
 def test_radseek_diagnose_command_prints_one_line(shared_datasets, tmp_path):
     path = _walls(_copy(shared_datasets, tmp_path), [_wall((4, 1), (4, 3)), _wall((4, 2), (4, 5))])
     r = subprocess.run([sys.executable, "-m", "radseek.cli", "diagnose", str(path), "--no-plots"], cwd=REPO,

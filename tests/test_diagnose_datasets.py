@@ -24,6 +24,7 @@ def _run_cli(argv: list[str]) -> tuple[int, str]:
     return code, buf.getvalue()
 
 
+@pytest.mark.io
 def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_datasets, tmp_path):
     code, out = _run_cli([str(shared_datasets / "spin-anisotropy"), "--json", "--quiet", "--out", str(tmp_path),
                           "--starts", "4"])
@@ -44,6 +45,7 @@ def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_
     assert all(p.endswith(".png") for p in rep["plots"]) and (tmp_path / "residual_map.png").exists()
 
 
+@pytest.mark.io
 def test_cli_add_shows_before_and_after(shared_datasets, tmp_path):
     code, out = _run_cli([str(shared_datasets / "lattice-clean"), "--add", "air_attenuation", "--quiet", "--out",
                           str(tmp_path), "--starts", "4"])
@@ -70,6 +72,7 @@ def _sim(effect: str | None, path: str = "lattice", seed: int = 5, **params):
     return simulate_flight(scene, path=path, seed=seed)
 
 
+@pytest.mark.slow
 def test_null_emulated_flight_is_called_adequate():
     d = diagnose(_sim(None, seed=21), quiet=True, n_starts=4)
     assert d.selection.missing == []
@@ -83,6 +86,7 @@ def test_null_emulated_flight_is_called_adequate():
         ("pose_drift", {"vx": 0.003, "vy": -0.002}, None),
     ],
 )
+@pytest.mark.slow
 def test_emulated_effect_is_named(effect, params, feature):
     ds = _sim(effect, path="lawnmower" if effect == "background_gradient" else "lattice", **params)
     d = diagnose(ds, quiet=True, n_starts=4)
@@ -106,6 +110,7 @@ def test_clean_shared_dataset_reads_without_truth_leak(shared_datasets):
     assert a.values == b.values
 
 
+@pytest.mark.slow
 def test_two_missing_effects_are_both_found_one_after_the_other():
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight

@@ -5,6 +5,7 @@ the statistics, no wall-clock assertions. The full power curves and false-alarm 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import stats
 
 from benchmarks.forward2 import FlightSpec, simulate
@@ -38,12 +39,14 @@ def test_over_dispersion_test_is_calibrated_under_a_wrong_mean_and_finds_real_sc
     assert fit.lr > 30 and abs(fit.rel_sd - 0.1) < 4 * fit.error
 
 
+@pytest.mark.slow
 def test_null_independent_flight_names_nothing():
     ds = simulate(FlightSpec("lattice", {}, crystal="fill", dwell_s=6.0, scatter=0.02), seed=501)
     d = diagnose(ds, quiet=True, n_starts=2)
     assert d.selection.missing == []
 
 
+@pytest.mark.slow
 def test_over_dispersion_is_named_and_not_taken_for_geometry():
     ds = simulate(FlightSpec("lattice", {"over_dispersion": {"rel_sd": 0.15}}, crystal="real", dwell_s=6.0), seed=502)
     d = diagnose(ds, quiet=True, n_starts=2)
@@ -56,6 +59,7 @@ def test_over_dispersion_is_named_and_not_taken_for_geometry():
     assert abs(a.gof.deviance_per_dof - a.gof.expected_per_dof) < 4 * a.gof.sd_per_dof  # the variance term
 
 
+@pytest.mark.slow
 def test_strong_wall_on_an_l_shape_is_named_and_lowers_the_source_error():
     ds = simulate(FlightSpec("lshape", {"wall_attenuation": {"mu_per_m": 3.0}}, crystal="wide", dwell_s=6.0), seed=503)
     d = diagnose(ds, quiet=True, n_starts=2)
@@ -66,6 +70,7 @@ def test_strong_wall_on_an_l_shape_is_named_and_lowers_the_source_error():
     assert abs(mu - 3.0) < 5 * err + 0.3
 
 
+@pytest.mark.slow
 def test_gain_drift_measured_on_a_crystal_unlike_the_templates_with_a_changing_shape():
     """The issue-14 miss: a crystal with more scatter fill, a spectrum whose shape changes with distance (outdoor
     buildup). No drift -> no evidence; 0.9 %/min -> found, not scaled away by the shape change."""

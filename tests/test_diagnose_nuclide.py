@@ -154,6 +154,7 @@ def test_shapes_carried_from_the_primary_match_the_measured_spectra():
 
 @needs_spectra
 @pytest.mark.parametrize("second", ["Co-60", "Ba-133", "Eu-152", "Cs-137", "Am-241"])
+@pytest.mark.slow
 def test_second_nuclide_named_under_a_cs137_primary(second):
     # strong (1300 cps at 1 m, ~40k counts) and moderate (~60-100 cps, ~2-3k counts) second sources: at the
     # dwells near it the second source gives about as many counts as the primary 4-5 m away
@@ -177,6 +178,7 @@ def test_cs137_second_under_a_co60_primary():
 
 @needs_spectra
 @pytest.mark.parametrize("second", ["Co-60", "Ba-133", "Eu-152"])
+@pytest.mark.slow
 def test_a_very_weak_second_source_is_not_given_a_wrong_nuclide(second):
     # ~60-120 second-source counts under ~45k of the primary: undetermined (None), never another nuclide
     outcomes = []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from estimator.diagnose.backend import CountFitter, FitTask
 from estimator.model import MeasurementModel
@@ -34,6 +35,7 @@ def test_cached_wall_path_lengths_are_exact(shared_datasets):
     np.testing.assert_allclose(part._lengths(pos, srcs, m._walls), exact.lengths(pos, srcs), atol=1e-12)
 
 
+@pytest.mark.io
 def test_parallel_candidate_fits_equal_serial_ones(shared_datasets):
     ds = read_dataset(shared_datasets / "lattice-clean")
     serial = CountFitter(ds.scenario, ds.frames, n_starts=1, quiet=True)

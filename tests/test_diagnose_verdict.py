@@ -16,7 +16,9 @@ def test_physics_off_the_list_is_called_unexplained_with_where_it_lives():
     missing, the verdict says so, and the hotspots point at the low channels' spectrum over time."""
     ds = simulate(FlightSpec(geometry="spin", effects={"background_drift": {"amplitude": 0.6, "period_s": 60.0}},
                              background_cps=80.0), seed=4)
-    j = json_report(diagnose(ds, quiet=True, n_starts=4, jobs=2))
+    # in this process (jobs=1): the same fits and verdict as jobs=2 (parallel equals serial: test_diagnose_speed)
+    # at less than half the CPU and wall time of jobs=2 on this flight, next to another pytest worker
+    j = json_report(diagnose(ds, quiet=True, n_starts=4, jobs=1))
     assert j["unexplained"] is True
     assert j["missing"] == []
     kinds = {h["kind"] for h in j["residual_hotspots"]}

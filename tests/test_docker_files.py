@@ -30,6 +30,7 @@ DOCKER = REPO / "docker"
 
 
 
+@pytest.mark.io
 def test_compose_services_run_real_radseek_commands():
     compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
     services = compose["services"]

@@ -100,6 +100,7 @@ SHAPES = [analytic("narrow"), analytic("wide"), analytic("backscatter")]
 
 
 @pytest.mark.parametrize("src", SHAPES + [analytic("co60")], ids=lambda r: r.name)
+@pytest.mark.slow
 def test_a_drift_of_0_9_percent_per_min_is_found_for_every_crystal_shape(src):
     fit = SpectralModel(EDGES).fit(flight(src, 0.9, seed=3))
     assert fit.p_value < THRESHOLD, fit.p_value
@@ -120,6 +121,7 @@ def test_a_drift_of_0_6_percent_per_min_is_found_in_the_measured_spectra(name):
     assert abs(fit.percent_per_min - 0.6) < 3 * fit.error, (fit.percent_per_min, fit.error)
 
 
+@pytest.mark.slow
 def test_no_drift_gives_no_false_alarm_across_shapes_and_scattered_photons():
     """20 flights without drift: analytic shapes, Co-60, the measured Cs-137, with and without a scattered
     continuum that grows with distance. Under a calibrated test the 20 p-values are uniform: the chance that

@@ -113,6 +113,7 @@ def test_docs_topics_md_is_generated_from_topics_py():
         assert f"{cls.__name__}" in doc
 
 
+@pytest.mark.io
 def test_echo_decodes_a_serial_byte_stream(tmp_path):
     b = Board()
     frames = [encode_frame(b.make_frame(k, np.arange(32))) for k in range(5)]

@@ -97,6 +97,7 @@ def test_every_method_on_a_simulated_flight(method, simulated_lattice):
     assert est.method == method and [len(b) for b in est.covariance] == [16] * len(loc.sources_)
 
 
+@pytest.mark.slow
 def test_every_method_on_every_shared_dataset(shared_datasets):
     from estimator.localizers import make_localizer
     from radseek.dataset import read_dataset

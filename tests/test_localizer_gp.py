@@ -28,6 +28,7 @@ def test_find_peaks_orders_by_height():
     assert find_peaks(f)[:2] == [(10, 10), (35, 30)]
 
 
+@pytest.mark.slow
 def test_single_source_lattice():
     errs = []
     for seed in range(3):

@@ -9,7 +9,9 @@ Each example connects to `udpin://0.0.0.0:14540` and its mavsdk_server takes gRP
 fixed: they run one after the other, the vehicle sending to 14540 from free local ports. A pymavlink
 listener on the vehicle's GCS port records what the vehicle did (sim time, position, mode), so the
 asserts are on events and the vehicle's state, not on wall-clock durations. Examples that never end
-(goto, telemetry) are stopped once the awaited event has happened.
+(goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (offboard,
+takeoff) run on a sped-up clock (tests/support/run_sped_up.py): their own sleeps are FACTOR times
+shorter and the vehicle FACTOR times faster, so each sleep spans the same simulated time as at 1x.
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ import pytest
 
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
-pytestmark = pytest.mark.slow
+# the examples' ports are fixed (MAVLink 14540, mavsdk_server's gRPC 50051): one at a time on this machine,
+# whichever pytest worker runs them (conftest: exclusive)
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")]
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
 VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
@@ -130,6 +134,12 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
     return out, watch, code
 
 
+def sped_up(factor: int) -> list[str]:
+    """The runner of an example whose sleeps are ``factor`` times shorter (the vehicle must run ``factor`` times
+    faster than at 1x for the same simulated flight)."""
+    return [str(grpc_python()), "-u", str(Path(__file__).parent / "support" / "run_sped_up.py"), str(factor)]
+
+
 def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None) -> tuple[str, Watch]:
     out, watch, code = run_example(script, args, expect=expect, runner=runner)
     assert code == 0, f"{script} did not complete (exit {code})"
@@ -138,8 +148,9 @@ def completes(script: str, args: list[str], expect: list[str], runner: list[str]
 
 
 def test_takeoff_and_land():
-    out, w = completes("takeoff_and_land.py", ["--speedup", "2"], ["-- Connected to drone!", "-- Taking off",
-                                                                    "-- Landing"])
+    # as at --speedup 2 with the script's own clock: its 10 s wait is 20 s of flight
+    out, w = completes("takeoff_and_land.py", ["--speedup", "10"], ["-- Connected to drone!", "-- Taking off",
+                                                                     "-- Landing"], runner=sped_up(5))
     assert w.max_alt() > 2.0  # MIS_TAKEOFF_ALT 2.5 m
 
 
@@ -178,7 +189,8 @@ def test_geofence_upload():
 
 
 def test_offboard_position_ned():
-    out, w = completes("offboard_position_ned.py", [], ["-- Starting offboard", "-- Stopping offboard"])
+    out, w = completes("offboard_position_ned.py", ["--speedup", "5"], ["-- Starting offboard", "-- Stopping offboard"],
+                       runner=sped_up(5))
     assert "failed" not in out
     assert 4.5 < w.max_alt() < 5.5  # climbed to 5 m
     assert w.near(HOME[0] + 5 / 111_194.9, HOME[1] + 10 / (111_194.9 * math.cos(math.radians(HOME[0]))), 5.0, 0.5)
@@ -186,14 +198,16 @@ def test_offboard_position_ned():
 
 
 def test_offboard_velocity_ned():
-    out, w = completes("offboard_velocity_ned.py", [], ["-- Starting offboard", "-- Go up 2 m/s",
-                                                        "-- Stopping offboard"])
+    out, w = completes("offboard_velocity_ned.py", ["--speedup", "5"], ["-- Starting offboard", "-- Go up 2 m/s",
+                                                                         "-- Stopping offboard"], runner=sped_up(5))
     assert "failed" not in out
     assert w.max_alt() > 5.0  # 4 s at 2 m/s up
     assert 6 << 16 in w.modes
 
 
 def test_do_orbit():
+    # at 1x: on the sped-up clock (10x) the vehicle was twice seen nowhere on the circle on a loaded machine
+    # (0 of its positions; orbit started, landed at t=84 s) - not understood yet, so the 70 s of sleeps stay
     out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
                                            "--- Landing"])
     center = (47.398036222362471, 8.5450146439425509)

@@ -9,6 +9,7 @@ import pytest
 from mission.client.connection import ConnectionFailed, ConnectionResult, connect
 
 
+@pytest.mark.io
 def test_a_taken_port_is_a_named_connection_error():
     taken = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:

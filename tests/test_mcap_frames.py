@@ -105,6 +105,7 @@ def _as_messages(ds):
     return msgs
 
 
+@pytest.mark.io
 def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, tmp_path):
     """A reference flight written as topics and read back: the same frames column for column, and `radseek
     replay FILE.mcap` (scenario and truth found beside it in dataset/) gives the dataset's replay."""
@@ -156,6 +157,7 @@ def test_unreadable_logs_are_refused_naming_the_file(tmp_path):
         read_flight(good, vehicle="uav1")
 
 
+@pytest.mark.io
 def test_replay_cli_says_which_mcap_file_it_cannot_use(shared_datasets, tmp_path):
     scenario = str(shared_datasets / "lattice-clean" / "scenario.json")
     good = _write(tmp_path / "good.mcap", [(topics.POSE, _pose(0.1, 0.0)), (topics.HISTOGRAM, _hist(0.1))])

@@ -118,6 +118,7 @@ def test_simulate_dataset_refuses_a_non_empty_folder_unless_force(tmp_path, caps
     assert not (out / "truth.json").exists() and not (out / "frames.csv").exists()
 
 
+@pytest.mark.io
 def test_mission_refuses_a_non_empty_folder_before_connecting(tmp_path, capsys):
     from detector_fw_sim.scene import load_scene
 
@@ -136,6 +137,7 @@ def test_mission_refuses_a_non_empty_folder_before_connecting(tmp_path, capsys):
     assert read_scenario(scenario).background_cps > 0
 
 
+@pytest.mark.io
 def test_run_refuses_a_non_empty_folder(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
@@ -147,6 +149,7 @@ def test_run_refuses_a_non_empty_folder(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["summary.json"]  # nothing started, nothing written
 
 
+@pytest.mark.io
 def test_run_help_documents_exit_codes():
     proc = subprocess.run([sys.executable, "-m", "radseek.cli", "run", "--help"], capture_output=True, text=True,
                           timeout=120)

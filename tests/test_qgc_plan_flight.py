@@ -17,6 +17,7 @@ from radseek.coordinates import Home, enu_to_geodetic
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
 
+@pytest.mark.io
 def test_export_plan_from_the_planner(tmp_path):
     out = tmp_path / "search.plan"
     proc = subprocess.run([sys.executable, "-m", "radseek.cli", "plan", "--method", "lawnmower", "--export-plan",

@@ -43,6 +43,7 @@ def test_sigma_is_the_xy_semi_major_axis_of_a_trustworthy_estimate():
     assert sigma_m(np.full((2, 2), np.nan)) == math.inf
 
 
+@pytest.mark.io
 def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
     ds = tmp_path / "flight"
     shutil.copytree(shared_datasets / "lattice-clean", ds)
@@ -69,6 +70,7 @@ def test_replay_converges_on_the_reference_lattice(shared_datasets):
     assert rows[-1]["error_m"] < 4 * rows[-1]["sigma_m"] + 0.04
 
 
+@pytest.mark.io
 def test_replay_cli_json_and_bad_input(shared_datasets, tmp_path):
     out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(shared_datasets / "lattice-clean"),
                           "--method", "sphere", "--json", "--plot", str(tmp_path / "r.png")],

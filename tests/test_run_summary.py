@@ -94,6 +94,7 @@ def test_failed_goodness_of_fit_is_said_by_run(shared_datasets, tmp_path, capsys
     assert "radseek run: warning: goodness of fit" in err and "radseek diagnose" in err
 
 
+@pytest.mark.io
 def test_failed_goodness_of_fit_is_said_by_replay(shared_datasets):
     ds = shared_datasets / "spin-anisotropy"
     out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "8"],

@@ -64,6 +64,7 @@ def test_gain_drift_recovered_on_a_synthetic_mixture(pct):
         assert abs(fit.percent_per_min - pct) < 4 * fit.error + 0.05
 
 
+@pytest.mark.slow
 def test_gain_drift_found_in_an_emulated_flight_and_absent_from_the_clean_shared_one(shared_datasets):
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight

@@ -33,6 +33,7 @@ def _alive(pid: int) -> bool:
         return fh.read().split(")")[-1].split()[0] != "Z"
 
 
+@pytest.mark.io
 def test_stack_processes_die_with_a_killed_run(tmp_path):
     parent = subprocess.Popen([sys.executable, "-c", PARENT, str(tmp_path / "logs")], stdout=subprocess.PIPE,
                               text=True)

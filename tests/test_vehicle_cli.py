@@ -49,6 +49,7 @@ def test_bad_values_exit_with_a_message(capsys):
                              "--gcs-local-port", "0"]) == 2
 
 
+@pytest.mark.io
 def test_runs_for_a_fixed_sim_duration(capsys):
     assert vehicle_cli.main(["--no-zenoh", "--api-local-port", "0", "--gcs-local-port", "0", "--api-port", "9",
                              "--gcs-port", "9", "--speedup", "100", "--duration", "5"]) == 0

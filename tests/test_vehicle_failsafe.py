@@ -3,6 +3,7 @@
 import math
 import time
 
+import pytest
 from pymavlink.dialects.v20 import common as M
 
 from vehicle_sim.battery import BatteryParams
@@ -61,6 +62,7 @@ def _texts(gcs, want, timeout=WAIT_S, keepalive=False):
     raise AssertionError(f"no {want!r} in {texts}")
 
 
+@pytest.mark.io
 def test_link_loss_holds_then_returns_to_launch():
     gcs_port = free_udp_port()
     # the link-loss timeout is on the link's (wall) clock, the hold before RTL in sim seconds
@@ -87,6 +89,7 @@ def test_link_loss_holds_then_returns_to_launch():
     assert hold_s <= rtl.t - hold.t <= hold_s + cfg.dt + 1e-9, (hold, rtl)
 
 
+@pytest.mark.io
 def test_low_battery_returns_to_launch():
     gcs_port = free_udp_port()
     cfg = thread_config(free_udp_port(), gcs_port, speedup=20.0,

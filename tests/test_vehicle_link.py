@@ -27,6 +27,7 @@ def flying_setup():
     assert not vt.alive
 
 
+@pytest.mark.io
 def test_telemetry_streams_and_autopilot_identity(flying_setup):
     vehicle, gcs, _ = flying_setup
     deadline = time.monotonic() + 60  # bounds the wait only
@@ -60,6 +61,7 @@ def test_telemetry_streams_and_autopilot_identity(flying_setup):
     assert "ATTITUDE" not in {m.get_type() for m in gcs.received}
 
 
+@pytest.mark.io
 def test_commands_fly_and_answer(flying_setup):
     vehicle, gcs, _ = flying_setup
     assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7) == M.MAV_RESULT_TEMPORARILY_REJECTED  # disarmed
@@ -89,6 +91,7 @@ def test_commands_fly_and_answer(flying_setup):
     assert gcs.command(M.MAV_CMD_NAV_LAND) == M.MAV_RESULT_DENIED  # already on the ground
 
 
+@pytest.mark.io
 def test_parameters(flying_setup):
     _, gcs, _ = flying_setup
     gcs.send(M.MAVLink_param_request_list_message(1, 1))
@@ -110,6 +113,7 @@ def test_parameters(flying_setup):
     gcs.recv("LOCAL_POSITION_NED", lambda m: abs(m.z + 4.0) < 0.25)  # the new takeoff altitude
 
 
+@pytest.mark.io
 def test_malformed_input_never_stops_the_vehicle(flying_setup):
     vehicle, gcs, vt = flying_setup
     good = M.MAVLink_ping_message(1, 7, 0, 0).pack(M.MAVLink(None, 255, 190))
@@ -135,6 +139,7 @@ def test_malformed_input_never_stops_the_vehicle(flying_setup):
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
 
 
+@pytest.mark.io
 def test_signing_refuses_unsigned_and_wrongly_signed_commands():
     key, other = bytes(range(32)), bytes(range(1, 33))
     gcs_port = free_udp_port()

@@ -89,6 +89,7 @@ def request_av(mav: M.MAVLink) -> bytes:
 
 
 # -- deterministic in-process checks -------------------------------------------------------------------
+@pytest.mark.io
 def test_parser_keeps_nothing_between_datagrams(plain):
     mav = encoder()
     assert plain.feed(b"\xfd\xff") == []
@@ -111,6 +112,7 @@ def test_decode_datagram_resynchronises_inside_a_datagram():
     assert frames == [] and bad > 0
 
 
+@pytest.mark.io
 def test_forged_frames_move_no_state(signed, caplog):
     h, ep = signed, signed.ep
     gcs = encoder(KEY)
@@ -139,6 +141,7 @@ def test_forged_frames_move_no_state(signed, caplog):
     assert [a.result for a in h.acks(request_av(gcs), M.MAV_CMD_REQUEST_MESSAGE)] == [M.MAV_RESULT_ACCEPTED]
 
 
+@pytest.mark.io
 def test_signed_timestamps_must_be_fresh_and_not_far_ahead(signed):
     h, ep = signed, signed.ep
     req = M.MAV_CMD_REQUEST_MESSAGE
@@ -159,6 +162,7 @@ def test_signed_timestamps_must_be_fresh_and_not_far_ahead(signed):
     assert h.vehicle.link.stats.rejected_signature == 4
 
 
+@pytest.mark.io
 def test_outgoing_signing_clock_follows_real_time(signed):
     ep = signed.ep
     ep.mav.signing.timestamp -= 3600 * TICKS  # as if it had only counted messages for an hour
@@ -223,6 +227,7 @@ def build(recipe, mav: M.MAVLink) -> bytes:
 
 @FUZZ
 @given(datagrams)
+@pytest.mark.io
 def test_fuzzed_datagrams_never_stop_the_next_command(datagram_recipes):
     h = InProcess()
     try:
@@ -237,6 +242,7 @@ def test_fuzzed_datagrams_never_stop_the_next_command(datagram_recipes):
 
 @FUZZ
 @given(datagrams)
+@pytest.mark.io
 def test_fuzzed_datagrams_never_lock_out_the_signed_gcs(datagram_recipes):
     h = InProcess(KEY)
     try:
@@ -262,6 +268,7 @@ anyfloat = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32),
                           st.lists(anyfloat, min_size=7, max_size=7), st.integers(-2**31, 2**31 - 1),
                           st.integers(-2**31, 2**31 - 1), st.sampled_from([0, 3, 5, 6, 99])),
                 min_size=1, max_size=6))
+@pytest.mark.io
 def test_every_command_gets_exactly_one_ack(commands):
     h = InProcess()
     try:
@@ -284,6 +291,7 @@ def test_every_command_gets_exactly_one_ack(commands):
 
 
 # -- one fuzz run over real UDP ------------------------------------------------------------------------
+@pytest.mark.io
 def test_fuzzed_datagrams_over_udp():
     gcs_port = free_udp_port()
     vt = VehicleThread(thread_config(free_udp_port(), gcs_port, speedup=5.0))

@@ -52,6 +52,7 @@ def plain():
 
 
 # -- 1. the parser starts afresh with every datagram ---------------------------------------------------
+@pytest.mark.io
 def test_two_byte_datagram_does_not_swallow_the_next_command(plain):
     vehicle, gcs = plain
     gcs.send_raw(b"\xfd\xff")  # a MAVLink 2 start byte announcing a 255-byte payload, and nothing else
@@ -63,6 +64,7 @@ def test_two_byte_datagram_does_not_swallow_the_next_command(plain):
     assert vehicle.link.stats.bad_data >= 2
 
 
+@pytest.mark.io
 def test_one_datagram_with_two_messages_yields_both(plain):
     vehicle, gcs = plain
     first = M.MAVLink_command_long_message(1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(gcs.mav)
@@ -85,6 +87,7 @@ def test_one_datagram_with_two_messages_yields_both(plain):
 
 
 # -- 2. a signature is verified before its timestamp counts ------------------------------------------
+@pytest.mark.io
 def test_forged_future_timestamp_does_not_lock_out_the_signed_gcs():
     gcs_port = free_udp_port()
     with VehicleThread(thread_config(free_udp_port(), gcs_port, speedup=5.0, signing_key=KEY)) as vehicle:
@@ -109,6 +112,7 @@ def test_forged_future_timestamp_does_not_lock_out_the_signed_gcs():
                    for ts in ep.signature.streams.values())
 
 
+@pytest.mark.io
 def test_replayed_signed_command_is_refused():
     gcs_port = free_udp_port()
     with VehicleThread(thread_config(free_udp_port(), gcs_port, speedup=5.0, signing_key=KEY)) as vehicle, \
@@ -125,6 +129,7 @@ def test_replayed_signed_command_is_refused():
 
 
 # -- 3. every command is answered ---------------------------------------------------------------------
+@pytest.mark.io
 def test_every_command_gets_an_ack(plain):
     vehicle, gcs = plain
     nan, inf = math.nan, math.inf

@@ -113,6 +113,7 @@ def test_count_limits_types_and_clear():
     assert ack.type == M.MAV_MISSION_DENIED
 
 
+@pytest.mark.io
 def test_geofence_rejects_items_outside_bounds_per_axis():
     v = Vehicle(thread_config(0, 0, fence=Geofence(-50, -50, 0, 50, 50, 30)))
     try:

@@ -48,6 +48,7 @@ def _text(gcs: Gcs, part: str):
     return gcs.recv("STATUSTEXT", lambda m: part in m.text, WAIT_S)
 
 
+@pytest.mark.io
 def test_offboard_needs_a_stream_and_holds_when_it_stops(setup):
     vehicle, gcs = setup
     offboard = (1, 6, 0)
@@ -76,6 +77,7 @@ def test_offboard_needs_a_stream_and_holds_when_it_stops(setup):
     assert vehicle.nav.in_air  # holds in the air, does not drop
 
 
+@pytest.mark.io
 def test_fence_zones_refuse_items_and_gotos_and_rtl_lands_at_the_rally_point(setup):
     vehicle, gcs = setup
     home = vehicle.home
@@ -138,6 +140,7 @@ def test_fence_zones_refuse_items_and_gotos_and_rtl_lands_at_the_rally_point(set
     assert math.hypot(p.y + 10, p.x - 5) < 0.5 and p.z > -0.05  # landed at the nearest safe point: the rally point
 
 
+@pytest.mark.io
 def test_orbit_circles_the_centre(setup):
     vehicle, gcs = setup
     assert gcs.command(M.MAV_CMD_DO_ORBIT, 5, 2, 0, math.nan, math.nan, math.nan, math.nan) == M.MAV_RESULT_DENIED

@@ -4,6 +4,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from mission.client.mission_upload import DwellPoint, build_items
 from mission.qgc_plan import write_plan
@@ -43,6 +44,7 @@ def _fly(seed: int) -> tuple[np.ndarray, np.ndarray]:
         v.link.close()
 
 
+@pytest.mark.io
 def test_same_seed_same_flight_other_seed_other_drift():
     a, var_a = _fly(7)
     b, var_b = _fly(7)

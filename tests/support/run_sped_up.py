@@ -1,0 +1,32 @@
+"""Run an unchanged MAVSDK-Python example on a sped-up clock: each ``asyncio.sleep``/``time.sleep`` the script
+itself calls waits 1/FACTOR of what it asks, and the vehicle runs with its ``--speedup`` multiplied by FACTOR,
+so every wait of the script still spans the same simulated time (as PX4 SITL at a speed factor). Sleeps inside
+MAVSDK and asyncio are left alone. Usage: python run_sped_up.py FACTOR SCRIPT [ARGS...]"""
+
+import asyncio
+import os
+import runpy
+import sys
+import time
+
+factor = float(sys.argv[1])
+script = os.path.abspath(sys.argv[2])
+_async_sleep, _sleep = asyncio.sleep, time.sleep
+
+
+def _scaled(delay: float) -> float:
+    return delay / factor if sys._getframe(2).f_code.co_filename == script else delay
+
+
+def async_sleep(delay, *args, **kwargs):
+    return _async_sleep(_scaled(delay), *args, **kwargs)
+
+
+def sleep(delay):
+    return _sleep(_scaled(delay))
+
+
+asyncio.sleep, time.sleep = async_sleep, sleep
+sys.argv = sys.argv[2:]
+sys.path.insert(0, os.path.dirname(script))
+runpy.run_path(script, run_name="__main__")
