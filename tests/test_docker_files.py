@@ -299,6 +299,7 @@ def test_every_first_party_import_in_the_image_resolves_in_the_image(image_tree)
     assert not missing, "imports the image cannot satisfy:\n" + "\n".join(missing)
 
 
+@pytest.mark.io
 def test_every_compose_service_command_runs_from_the_image_tree(image_tree):
     compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
     for name, svc in compose["services"].items():
@@ -308,6 +309,7 @@ def test_every_compose_service_command_runs_from_the_image_tree(image_tree):
         assert proc.stdout.startswith(f"usage: radseek {cmd[0]}"), name
 
 
+@pytest.mark.io
 def test_image_tree_runner_does_see_a_missing_package(image_tree, tmp_path):
     """The check above can fail: without vehicle_sim the compose vehicle is refused, as in the old image."""
     short = tmp_path / "opt-radseek"
@@ -316,6 +318,7 @@ def test_image_tree_runner_does_see_a_missing_package(image_tree, tmp_path):
     assert proc.returncode != 0 and "vehicle" in proc.stderr, proc.stderr[-500:]
 
 
+@pytest.mark.io
 def test_router_starts_from_the_image_tree(image_tree):
     """A short real start where it is cheap: the compose router's command on a free loopback port."""
     with socket.socket() as s:
@@ -356,6 +359,7 @@ def test_dockerfile_pins_base_and_dependencies_and_drops_root():
     assert text.rindex("USER ") > text.rindex("RUN "), "nothing runs as root after the switch"
 
 
+@pytest.mark.io
 def test_constraints_pin_the_run_time_closure_of_the_venv():
     """docker/constraints.txt covers what the venv the tests run in needs (no network). Versions may differ
     (CI resolves its venv afresh); each pin must still be within pyproject's range."""
@@ -398,6 +402,7 @@ def test_readme_says_what_compose_listens_on_and_publishes():
         assert {p.split("/")[0] for p in published} == have, f"{name}: README says {published}, compose {have}"
 
 
+@pytest.mark.io
 def test_dockerfile_run_step_works_from_the_image_tree(image_tree, tmp_path):
     text = (DOCKER / "Dockerfile").read_text()
     snippet = re.search(r'RUN python -c "(.+)"', text).group(1).replace(WORKDIR, str(tmp_path))

@@ -260,6 +260,7 @@ def _run(*args):
                           cwd=REPO, timeout=300)
 
 
+@pytest.mark.io
 def test_show_json_is_strict_and_complete():
     r = _run("spectra", "show", WALK, "--json")
     assert r.returncode == 0, r.stderr
@@ -275,6 +276,7 @@ def test_show_json_is_strict_and_complete():
     assert r.returncode == 0 and "rows: 690" in r.stdout and "accumulated" in r.stdout, r.stdout + r.stderr
 
 
+@pytest.mark.io
 def test_show_csv_live_time_from_the_command_line(tmp_path):
     p = _csv(tmp_path, "channel,counts\n1,5\n0,4\n")
     r = _run("spectra", "show", p, "--json")
@@ -285,12 +287,14 @@ def test_show_csv_live_time_from_the_command_line(tmp_path):
     assert (s["live_time_s"], s["total_counts"], s["channels"], s["real_time_s"]) == (30, 9, 2, None)
 
 
+@pytest.mark.io
 def test_show_refuses_bad_file_without_traceback(tmp_path):
     p = _csv(tmp_path, "# live_time_s: 10\nchannel,counts\n0,5\n2000000000,4\n")
     r = _run("spectra", "show", p, "--json")
     assert r.returncode == 2 and "Traceback" not in r.stderr and "2000000000" in r.stderr
 
 
+@pytest.mark.io
 def test_import_ndjson_flight_then_localize(tmp_path):
     out = tmp_path / "walk"
     assert flight_cli.main(["import-flight", str(WALK), "--out", str(out)]) == 0
