@@ -116,6 +116,7 @@ def detector_file(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_cli_calibrate_writes_detector_file_and_json(detector_file, capsys):
     from spectra.calibrate_cli import main
 
@@ -140,6 +141,7 @@ def test_cli_calibrate_writes_detector_file_and_json(detector_file, capsys):
     assert 0 <= bs["total_variation_32"] <= 1
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_single_form_gives_the_figures_it_gave_before_the_joint_form(detector_file):
     """``radseek calibrate SPECTRUM --nuclide N`` is unchanged by the joint form (issue 32): the effects that need
     several lines (``energy_nonlinearity``) are not candidates on one Cs-137 photopeak, and the figures are those
@@ -156,6 +158,7 @@ def test_single_form_gives_the_figures_it_gave_before_the_joint_form(detector_fi
     assert det.calibrated_on["spectrum"] == "Cs137_b.xml"
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 @pytest.mark.parametrize("name,nuclide", [("Co60_a.xml", "Co-60"), ("Eu152_b.xml", "Eu-152")])
 def test_a_cs137_response_moves_other_nuclides_toward_the_measurement(detector_file, name, nuclide):
     """The same device's Co-60 and Eu-152 (no refit): the response calibrated on Cs-137 alone is closer to them
@@ -201,6 +204,7 @@ def test_cli_errors_name_the_file(tmp_path, capsys):
         read_detector_file(tmp_path / "d.json")
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_detector_file_drives_the_emulator(detector_file):
     from detector_fw_sim.emulator import DetectorEmulator
     from detector_fw_sim.scene import load_scene
@@ -231,6 +235,7 @@ def test_detector_file_drives_the_emulator(detector_file):
     assert r_cal[k] / r_cal.sum() < r_plain[k] / r_plain.sum()
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_detector_file_template_in_the_spectral_model(detector_file):
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight

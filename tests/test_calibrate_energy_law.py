@@ -83,6 +83,7 @@ def test_background_outside_the_fitted_range_says_nothing():
         json.dumps(d, allow_nan=False)  # strict JSON
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_calibrate_reports_the_energy_law(tmp_path):
     from spectra.calibrate_cli import run
 

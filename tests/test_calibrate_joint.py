@@ -214,6 +214,7 @@ def joint_fit():
     return joint, F.fit(joint, start, ("energy_nonlinearity",), maxfev=300, hesse=False)
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_joint_fit_on_real_cs137_and_eu152_reaches_the_fitted_bound(joint_fit):
     from spectra import fit as F
 
@@ -225,6 +226,7 @@ def test_joint_fit_on_real_cs137_and_eu152_reaches_the_fitted_bound(joint_fit):
     assert res.deviance_per_dof < 1.6
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 @pytest.mark.parametrize("name,nuclide", [("Co60_a.xml", "Co-60"), ("Ba133_a.xml", "Ba-133")])
 def test_joint_response_predicts_co60_and_ba133_with_no_refit(joint_fit, name, nuclide):
     """The same unit's Co-60 and Ba-133, not in the fit: only the amplitude fitted (pile-up rescaled by rate). They

@@ -131,6 +131,7 @@ def test_spe_and_chn_errors(tmp_path):
         sf.read_spectrum(c)
 
 
+@pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_spe_agrees_with_becquerel(tmp_path):
     import becquerel as bq  # an independent reader (dev dependency)
     sp = sf.read_spectrum(DATA / "Cs137_b.xml")
