@@ -624,8 +624,22 @@ def second_source_starts(
 # ----------------------------------------------------------------------------------- fitting
 
 
+class DevianceTest:
+    """The goodness of fit of a deviance against its exact moments (``deviance``, ``dof``, ``deviance_expected``,
+    ``deviance_sd`` fields of the dataclass using it)."""
+
+    @property
+    def deviance_per_dof(self) -> float:
+        return self.deviance / max(self.dof, 1)
+
+    @property
+    def p_value(self) -> float:
+        """P(D >= observed) under the fitted model, from the exact deviance moments (normal approx.)."""
+        return float(stats.norm.sf((self.deviance - self.deviance_expected) / max(self.deviance_sd, 1e-9)))
+
+
 @dataclass
-class FitResult:
+class FitResult(DevianceTest):
     model: MeasurementModel
     values: dict[str, float]
     errors: dict[str, float]
@@ -643,15 +657,6 @@ class FitResult:
     starts_tried: int = 0
     all_nll: list[float] = field(default_factory=list)
     pose_error: str = ""  # the pose-error prior used: random_walk, independent, or "" (poses taken as exact)
-
-    @property
-    def deviance_per_dof(self) -> float:
-        return self.deviance / max(self.dof, 1)
-
-    @property
-    def p_value(self) -> float:
-        """P(D >= observed) under the fitted model, from the exact deviance moments (normal approx.)."""
-        return float(stats.norm.sf((self.deviance - self.deviance_expected) / max(self.deviance_sd, 1e-9)))
 
     @property
     def aic(self) -> float:
@@ -883,7 +888,7 @@ def crlb(model: MeasurementModel, theta: dict[str, Any], frames: Frames, names: 
 
 
 @dataclass(frozen=True)
-class FitCheck:
+class FitCheck(DevianceTest):
     """Goodness of fit of a given estimate (any localizer's) under the common count model, pose offsets profiled
     as the MLE does, and the Cramér-Rao bound at the flown poses."""
 
@@ -893,14 +898,6 @@ class FitCheck:
     deviance_sd: float
     crlb: np.ndarray  # (k, k) over ``names``
     names: list[str]
-
-    @property
-    def deviance_per_dof(self) -> float:
-        return self.deviance / max(self.dof, 1)
-
-    @property
-    def p_value(self) -> float:
-        return float(stats.norm.sf((self.deviance - self.deviance_expected) / max(self.deviance_sd, 1e-9)))
 
 
 def check_estimate(model: MeasurementModel, theta: dict[str, float], frames: Frames) -> FitCheck:

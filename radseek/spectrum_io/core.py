@@ -166,21 +166,9 @@ def check_times(who: str, where: str, live: float, real: float | None) -> None:
 
 def read_limited(path: str | Path, max_bytes: int | None = None) -> bytes:
     """The file's bytes, refused (SpectrumFileError) when missing or larger than ``max_bytes`` (default
-    MAX_FILE_BYTES) before anything is read."""
-    p = Path(path)
-    limit = MAX_FILE_BYTES if max_bytes is None else int(max_bytes)
-    try:
-        size = p.stat().st_size
-        if size > limit:
-            raise SpectrumFileError(f"{p}: {size / 1e6:.1f} MB, over the {limit / 1e6:.0f} MB limit for spectrum "
-                                    "files (split the file, or raise the limit with --max-mb)")
-        return p.read_bytes()
-    except FileNotFoundError:
-        raise SpectrumFileError(f"{p}: file not found") from None
-    except IsADirectoryError:
-        raise SpectrumFileError(f"{p}: is a directory, not a spectrum file") from None
-    except PermissionError:
-        raise SpectrumFileError(f"{p}: permission denied") from None
+    MAX_FILE_BYTES) before anything is read (:func:`open_stream`)."""
+    with open_stream(path, max_bytes=max_bytes) as fh:
+        return fh.read()
 
 
 def open_stream(path: str | Path, data: bytes | None = None, max_bytes: int | None = None) -> BinaryIO:
