@@ -33,13 +33,13 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zenoh
 
-from detector_fw_sim import transport
 from detector_fw_sim.board import Board
+from detector_fw_sim.readout import CountSource, read_out, true_pose_for
 from radseek import topics
 from radseek.board_wire import FRAME_SIZE, FrameConsumer, encode_frame
 from radseek.board_wire import frame_to_histogram as _to_histogram
@@ -48,38 +48,11 @@ from radseek.pose_history import PoseHistory
 from radseek.simclock import Clock
 
 if TYPE_CHECKING:
-    from detector_fw_sim.scene import Scene
+    pass
 
 
 #: sim s: a true pose this far behind a frame's end is not late by a race with sim/clock (a step or two)
 RACE_WINDOW_S = 1.0
-
-class CountSource(Protocol):
-    """What the process needs from ``detector_fw_sim.emulator.DetectorEmulator``."""
-
-    scene: Scene
-
-    def draw(self, pose: np.ndarray, t: float, duration: float) -> np.ndarray:
-        """(32,) counts for true pose (x, y, z, yaw), frame mid-time ``t`` and ``duration`` (s)."""
-        ...
-
-    def true_rates(self, poses: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """(N, 32) true rates before dead time, cps."""
-        ...
-
-
-def live_time(emulator: CountSource, pose: np.ndarray, t_mid: float, duration: float) -> float:
-    """Emulator truth for diagnostics: the live part of ``duration``.
-
-    With paralyzable dead time (paper 000 eq. 10) the recorded/true ratio exp(-n tau), n the total true
-    rate, is the live fraction; without the dead-time effect the whole interval is live.
-    """
-    dt = emulator.scene.effects.dead_time
-    if not dt.enabled:
-        return float(duration)
-    n = float(np.sum(emulator.true_rates(np.asarray(pose, dtype=float)[None, :], np.array([t_mid]))))
-    return float(duration * transport.dead_time(n, dt.tau_s))
-
 
 @dataclass(frozen=True)
 class FaultConfig:
@@ -260,13 +233,7 @@ class DetectorProcess:
         """The true pose at the frame's mid-time; None (stale) when no pose arrived for stale_after_s."""
         if self.config.fixed_pose is not None:
             return np.asarray(self.config.fixed_pose, dtype=float)
-        last = self._poses.latest() if self._poses else None
-        if last is None or t_end - last.t > self.config.stale_after_s:
-            return None
-        msg = self._poses.at(0.5 * (t_start + t_end), self.config.stale_after_s)
-        if msg is None:
-            return None
-        return np.array([msg.x, msg.y, msg.z, msg.yaw])
+        return true_pose_for(self._poses.latest(), self._poses.at, t_start, t_end, self.config.stale_after_s)
 
     def produce(self, k: int) -> None:
         """Make, publish and decode frame ``k`` (its interval has ended on the sim clock)."""
@@ -278,26 +245,16 @@ class DetectorProcess:
         if self._poses is not None and self.config.truth_wait_wall_s > 0:  # the pose at t1 may arrive after the clock
             self._poses.wait_until(t1, self.config.truth_wait_wall_s)
         pose = self._pose_for(t0, t1)
-        live: float | None = None
-        if pose is None:
-            counts = np.zeros(topics.N_CHANNELS, dtype=np.int64)  # no pose: invent nothing
+        got = read_out(self.board, self.emulator, k, pose)
+        self.state = got.state
+        live, frame = got.live_time, got.frame
+        if got.state != "ok":
             self.counters.stale_frames += 1
-            self.state = "stale_pose"
-        else:
-            t_mid = 0.5 * (t0 + t1)
-            try:
-                counts = np.asarray(self.emulator.draw(pose, t_mid, self.board.period_s))
-                live = live_time(self.emulator, pose, t_mid, self.board.period_s)
-                self.state = "ok"
-            except ValueError as exc:  # an absurd pose the physics cannot evaluate: report, send no data
-                self.counters.emulator_errors += 1
-                if self.counters.emulator_errors == 1:
-                    print(f"radseek detector: emulator failed at pose {pose.tolist()} ({exc}); "
-                          "sending STALE_POSE frames for such poses", file=sys.stderr, flush=True)
-                pose, counts = None, np.zeros(topics.N_CHANNELS, dtype=np.int64)
-                self.counters.stale_frames += 1
-                self.state = "emulator_error"
-        frame = self.board.make_frame(k, counts, stale_pose=pose is None)
+        if got.state == "emulator_error":
+            self.counters.emulator_errors += 1
+            if self.counters.emulator_errors == 1:
+                print(f"radseek detector: emulator failed at pose {pose.tolist()} ({got.error}); "
+                      "sending STALE_POSE frames for such poses", file=sys.stderr, flush=True)
         self.counters.frames += 1
         raw, _ = inject(encode_frame(frame), self.config.faults, self._rng)
         self._raw_pub.put(raw)

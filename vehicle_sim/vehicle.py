@@ -20,14 +20,15 @@ from pymavlink.dialects.v20 import common as M
 from radseek.coordinates import Home, geodetic_to_enu
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
-from vehicle_sim.failsafe import Action, Failsafe, FailsafeParams
+from vehicle_sim.failsafe import FailsafeParams
 from vehicle_sim.geofence import Geofence, zones_from_items
 from vehicle_sim.link import Endpoint, Link
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
-from vehicle_sim.navigator import Mode, Navigator, NavParams
-from vehicle_sim.odometry import Odometry, OdometryParams
+from vehicle_sim.navigator import Mode, NavParams
+from vehicle_sim.odometry import OdometryParams
 from vehicle_sim.params import Param, ParamTable
+from vehicle_sim.sim_vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
 
@@ -144,23 +145,14 @@ class _ZenohOut:
                 pass
 
 
-class Vehicle:
+class Vehicle(SimVehicle):
+    """The simulated vehicle (``SimVehicle``) behind its MAVLink endpoints and zenoh topics."""
+
     def __init__(self, cfg: VehicleConfig):
-        self.cfg = cfg
-        self.home, self.fence = cfg.home, cfg.fence
-        self.nav = Navigator(cfg.home, cfg.limits, cfg.nav)
-        if any(cfg.start_xy):
-            self.nav.pos[:2] = cfg.start_xy
-            self.nav.target = self.nav.pos.copy()
-            self.nav.launch_xy = np.asarray(cfg.start_xy, dtype=float)
-        self.odo = Odometry(cfg.odometry, seed=cfg.seed)
-        self.battery = 1.0
-        self.failsafe = Failsafe(cfg.failsafe, cfg.battery.low_threshold, cfg.battery.critical_threshold)
-        self.failsafe_active = False
+        super().__init__(cfg)
         self.protocol = MissionProtocol(self._validate_item, sysid=cfg.sysid, compid=cfg.compid,
                                         validate_list=self._validate_list)
         self.offboard = offboard.OffboardStream()
-        self._breached = False
         self._refused_sp: np.ndarray | None = None
         self._proto_ep: Endpoint | None = None
         self.link = Link(
@@ -170,8 +162,6 @@ class Vehicle:
             seed=cfg.seed, wall_time_s=time.time())
         self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
         self.params = self._make_params()
-        self.t = 0.0
-        self._yaw_rate = 0.0
         self._text_id = 0
         self._stop = threading.Event()
         self._zenoh: _ZenohOut | None = None
@@ -395,20 +385,6 @@ class Vehicle:
             self.statustext(f"Failsafe: offboard setpoints lost for {self.offboard.loss_timeout_s:g} s, holding",
                             M.MAV_SEVERITY_CRITICAL)
 
-    def _check_fence(self) -> None:
-        """Breach check in flight (offboard velocity, drift): leaving the fence -> HOLD, announced once."""
-        nav = self.nav
-        inside = not nav.in_air or self.fence.contains(nav.pos, tol=0.5)
-        if inside:
-            self._breached = False
-            return
-        if not self._breached:
-            self._breached = True
-            if nav.mode not in (Mode.RTL, Mode.LAND):
-                nav.hold()
-            self.statustext(f"Geofence breached at {np.round(nav.pos, 1).tolist()} m, holding",
-                            M.MAV_SEVERITY_CRITICAL)
-
     def _react_to_mission_change(self) -> None:
         if self.protocol.changed:
             self.protocol.changed = False
@@ -425,38 +401,19 @@ class Vehicle:
                 self.statustext(f"Rally: {len(rally)} point(s) uploaded")
 
     # -- simulation ------------------------------------------------------------------------------
-    def step(self, dt: float, link_age: float | None) -> None:
-        nav = self.nav
-        yaw0 = nav.yaw
-        dist = nav.step(self.t, dt)
-        self.t += dt
-        self._yaw_rate = math.remainder(nav.yaw - yaw0, 2 * math.pi) / dt
-        self.odo.advance(dist)
-        speed = float(np.linalg.norm(nav.vel))
-        self.battery = battery_model.drain(self.battery, dt, nav.armed, nav.in_air, speed, self.cfg.battery)
-        for ev in self.failsafe.update(self.t, link_age is not None, link_age or 0.0, self.battery, nav.in_air):
-            self.failsafe_active = ev.action is not Action.NONE
-            if ev.action is Action.HOLD:
-                nav.hold()
-            elif ev.action is Action.RTL:
-                nav.rtl()
-            elif ev.action is Action.LAND:
-                nav.land()
-            self.statustext(ev.text, ev.severity)  # announced once acted upon
-        self._check_fence()
-        for kind, data in nav.events:
-            if kind == "reached":
-                self.link.send(M.MAVLink_mission_item_reached_message(int(data)))
+    def step(self, dt: float, link_age: float | None) -> list:
+        """One sim step (``SimVehicle.step``), its events told over MAVLink."""
+        events = super().step(dt, link_age)
+        for ev in events:
+            if ev.kind == "reached":
+                self.link.send(M.MAVLink_mission_item_reached_message(int(ev.data)))
                 self.link.send(telemetry.mission_current(self.snapshot()))
-            elif kind == "text":
-                self.statustext(str(data))
-            elif kind == "mode":
-                log.info("mode %s", data.value)
-        nav.events.clear()
+            elif ev.kind == "text":
+                self.statustext(*ev.data)
+            elif ev.kind == "mode":
+                log.info("mode %s", ev.data.value)
         self.stats["steps"] += 1
-
-    def truth(self) -> tuple[np.ndarray, float]:
-        return self.odo.truth_from_estimate(self.nav.pos, self.nav.yaw)
+        return events
 
     def emit(self) -> None:
         due = self.scheduler.due(self.t)
