@@ -277,7 +277,7 @@ class DetectorProcess:
         """``detector/status`` at ``t``: every frame ending at or before ``t`` has been handled (its
         histogram, if any, is already published). Sent every ``status_period_s`` of sim time, at once
         after a frame that was not sent (drop-out, rejected by the driver), and every 0.25 s of wall time
-        while the clock does not move (a lockstep hold): the mission (``mission_process._tick``) tells a
+        while the clock does not move (a lockstep hold): the mission (``mission_process.ZenohFrames.tick``) tells a
         lost frame from a late one by it, on sim time, and a silent detector from a slow one."""
         c = self.counters
         msg = topics.DetectorStatus(t=float(t), frames=c.frames, stale_frames=c.stale_frames,

@@ -26,21 +26,19 @@ follows the pose until the detector speaks again. That flight differs from run t
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import math
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from mission.client.action import ActionFailed, Actions
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
-from mission.client.mission_upload import DwellPoint, MissionControl
-from mission.client.telemetry import TelemetryWatch
+from mission.client.vehicle_link import MavsdkVehicle
+from mission.executive import MissionExecutive
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
@@ -55,13 +53,10 @@ from radseek.payload_drops import DropCounter
 
 log = logging.getLogger("radseek.mission")
 
-ARRIVE_RADIUS_M = 0.12
-ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
 FRAME_S = 0.1  # s, the board's frame period until the first histogram says otherwise
 FRAME_TIMEOUT_WALL_S = 10.0  # wall s of detector silence (no histogram, no status) before frames are lost
 POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
-LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle
 TEAM_SILENT_WALL_S = 10.0  # wall s without a teammate's team/status (nor its vehicle's clock) before it is failed
 #: sim s a teammate's vehicle may fly past its mission's last team/status before the mission is taken as failed:
 #: under lockstep a live mission's vehicle never runs more than a frame past its ack, and the mission repeats its
@@ -83,12 +78,6 @@ class MissionSettings:
     leg_speed_m_s: float = 1.0  # expected cruise speed: a leg may take 3 x distance / speed + 30 s (sim)
     #: the team's vehicle names, this one included (``radseek run --vehicles N``); empty: a single vehicle
     team: tuple[str, ...] = ()
-
-
-async def _in_air(tel: TelemetryWatch) -> bool:
-    async for v in tel._tel.subscribe_in_air():
-        return bool(v)
-    return False
 
 
 class _PosedHistograms:
@@ -429,66 +418,37 @@ class _Team:
         self._subs = []
 
 
-class MissionRunner:
-    def __init__(self, session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig,
-                 settings: MissionSettings):
-        self.session = session
-        self.scenario = scenario
-        self.out = Path(out)
-        self.config = config
-        self.settings = settings
-        v = settings.vehicle
-        self.team: _Team | None = None
-        if len(settings.team) > 1:
-            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
-            self.brain: SearchBrain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)),
-                                                seed=settings.seed)
-        else:
-            self.brain = SearchBrain(scenario, config, seed=settings.seed)
-        self._state_pub = topics.declare_publisher(session, topics.MISSION_STATE, v)
-        self._est_pub = topics.declare_publisher(session, topics.ESTIMATE, v)
-        self._plan_pub = topics.declare_publisher(session, topics.PLAN, v)
-        self.log: list[dict] = []
-        self.t_start: float | None = None
-        self.battery = math.nan
-        self.abort_reason: str | None = None  # set when the vehicle leaves the search (failsafe, landed)
-        self.airborne = False
+class ZenohFrames:
+    """The executive's ``FrameSource`` over zenoh: the histograms of ``stream`` taken one at a time under lockstep
+    (``mission.lockstep``), with the lost-frame rule (``tick``)."""
+
+    def __init__(self, stream: _Stream, lockstep: LockstepAck, vehicle: str, event):
+        self.stream, self.lockstep, self.vehicle = stream, lockstep, vehicle
+        self._event = event  # MissionExecutive.event
         self.t = 0.0  # sim time of the frame being handled: the mission's "now"
         self.frame_s = FRAME_S
-        self.frames_lost = 0  # frames declared lost by the lockstep pump (the pose passed their time)
+        self.frames_lost = 0  # frames declared lost (the pose passed their time)
         self._following_pose = False  # the detector is silent: tick on the pose until it speaks
         self._losing = False  # in a run of lost frames (logged once)
-        self.lockstep: LockstepAck | None = None
 
-    async def _watch(self, tel: TelemetryWatch, stream: _Stream) -> None:
-        """Background: keep the battery level and log every STATUSTEXT (failsafes say why here)."""
+    @property
+    def records(self) -> list[FrameRecord]:
+        return self.stream.records
 
-        async def battery() -> None:
-            async for b in tel._tel.subscribe_battery():
-                self.battery = float(b.remaining_percent) / (100.0 if b.remaining_percent > 1.0 else 1.0)
+    def pose_at(self, t: float) -> topics.Pose | None:
+        return self.stream.pose_at(t)
 
-        async def texts() -> None:
-            async for severity, text in tel.status_texts():
-                self._event(stream, "statustext", severity=severity, text=text)
-                if text.lower().startswith("failsafe") and self.abort_reason is None:
-                    self.abort_reason = f"vehicle failsafe: {text}"
+    def pose(self) -> topics.Pose | None:
+        return self.stream.pose()
 
-        async def in_air() -> None:
-            async for flying in tel._tel.subscribe_in_air():
-                if self.airborne and not flying and self.abort_reason is None:
-                    self.abort_reason = "vehicle landed"
-                self.airborne = self.airborne or flying
+    def set_dwell(self, index: int) -> None:
+        with self.stream.lock:
+            self.stream.dwell_index = index
 
-        await asyncio.gather(battery(), texts(), in_air())
+    def frames(self) -> Frames:
+        return self.stream.frames()
 
-    # ------------------------------------------------------------------------------ publishing
-
-    def _now(self, stream: _Stream) -> float:
-        return self.t
-
-    # ------------------------------------------------------------------------------ lockstep pump
-
-    async def _tick(self, stream: _Stream, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
+    async def tick(self, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
         """Ack the frame handled last (its commands are already sent), then take the next one: its
         histogram, or None when it was lost. ``self.t`` is then the sim time of that frame's end.
 
@@ -500,10 +460,8 @@ class MissionRunner:
         and the vehicle's pose has passed the frame's end; while it stays silent the mission follows
         the pose frame by frame. A detector that is alive but slow is always waited for.
         ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
-        if self.lockstep is not None:
-            self.lockstep.ack(self.t, self.frame_s)
-        if self.team is not None:
-            self._team_heartbeat(stream)
+        stream = self.stream
+        self.lockstep.ack(self.t, self.frame_s)
         t_next = self.t + self.frame_s
         loop = asyncio.get_running_loop()
         start = last_pose_at = loop.time()
@@ -517,14 +475,13 @@ class MissionRunner:
             if hist is not None:
                 if hist.t > self.t + 1e-6:
                     self.t, self.frame_s, self._following_pose, self._losing = hist.t, hist.duration, False, False
-                if self.lockstep is not None:
-                    self.lockstep.take(self.t)
+                self.lockstep.take(self.t)
                 return hist  # (a frame older than self.t arrived after it was declared lost: handled late)
             now = loop.time()
             if first_timeout_wall_s is not None:
                 if now - start > first_timeout_wall_s:
                     raise RuntimeError(f"no detector histograms after {first_timeout_wall_s:g} s on "
-                                       f"{topics.key(topics.HISTOGRAM, self.settings.vehicle)}")
+                                       f"{topics.key(topics.HISTOGRAM, self.vehicle)}")
                 continue
             p = stream.pose()
             if p is not None and p.t > last_pose_t:
@@ -545,87 +502,63 @@ class MissionRunner:
                 self._following_pose = self._following_pose or lost
             if lost:
                 if not self._losing:  # one event per run of lost frames
-                    self._event(stream, "frames_lost", after=self.t, why=why)
+                    self._event("frames_lost", after=self.t, why=why)
                 self._losing = True
                 self.frames_lost += 1
                 self.t = t_next
-                if self.lockstep is not None:
-                    self.lockstep.take(self.t)
+                self.lockstep.take(self.t)
                 return None
 
-    def publish_state(self, stream: _Stream, phase: str, progress: str) -> None:
-        msg = topics.MissionState(t=self._now(stream), phase=phase, dwell_index=stream.dwell_index,
-                                  battery=1.0 if math.isnan(self.battery) else self.battery, progress=progress)
-        self._state_pub.put(msg.to_bytes())
 
-    def _event(self, stream: _Stream, kind: str, **fields) -> None:
-        entry = {"t": self._now(stream), "event": kind, **fields}
-        self.log.append(entry)
-        with open(self.out / "mission_log.jsonl", "a") as fh:
-            fh.write(json.dumps(entry) + "\n")
+class MissionRunner(MissionExecutive):
+    """The mission process: the executive over MAVSDK (``MavsdkVehicle``) and zenoh (``ZenohFrames``), plus the
+    team's search (``mission.team``) when it flies in a team."""
 
-    # ------------------------------------------------------------------------------ flying
+    def __init__(self, session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig,
+                 settings: MissionSettings):
+        v = settings.vehicle
+        self.session = session
+        self.out = Path(out)
+        self.settings = settings
+        self.team: _Team | None = None
+        if len(settings.team) > 1:
+            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
+            brain: SearchBrain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)),
+                                           seed=settings.seed)
+        else:
+            brain = SearchBrain(scenario, config, seed=settings.seed)
+        self._pubs = {topic: topics.declare_publisher(session, topic, v)
+                      for topic in (topics.MISSION_STATE, topics.ESTIMATE, topics.PLAN)}
+        super().__init__(scenario, config, brain, leg_speed_m_s=settings.leg_speed_m_s,
+                         log_path=self.out / "mission_log.jsonl",
+                         put=lambda topic, payload: self._pubs[topic].put(payload.to_bytes()))
+        self.lockstep: LockstepAck | None = None
 
-    async def _arrive(self, stream: _Stream, target: np.ndarray, path_length: float) -> bool:
-        """Frame by frame until the estimated position (at each frame's time) has stayed within
-        ARRIVE_RADIUS_M of target for ARRIVE_SETTLE_S of sim time; False after 3 x the expected flight
-        time + 30 s of sim time, or when the vehicle left the search (failsafe, landed)."""
-        t0 = self.t
-        limit = 3.0 * path_length / self.settings.leg_speed_m_s + 30.0
-        inside_since: float | None = None
-        while self.t - t0 < limit and self.abort_reason is None and self._team_over() is None:
-            await self._tick(stream)
-            p = stream.pose_at(self.t)
-            if p is not None:
-                if math.dist((p.x, p.y, p.z), target[:3]) < ARRIVE_RADIUS_M:
-                    inside_since = self.t if inside_since is None else inside_since
-                    if self.t - inside_since >= ARRIVE_SETTLE_S:
-                        return True
-                else:
-                    inside_since = None
-        return False
+    # ------------------------------------------------------------------------------ team hooks
+    def search_over(self) -> str | None:
+        """Why the team's search is over (a teammate's estimate ended it), else None; always None alone."""
+        return None if self.team is None else self.team.over()
 
-    async def _dwell(self, stream: _Stream):
-        """Feed the frames after arrival (their interval starts there: frames integrated while still
-        moving do not count) to the dwell controller until it is satisfied (None if the vehicle left
-        the search meanwhile)."""
-        self.brain.begin_dwell()
-        while self.abort_reason is None and self._team_over() is None:
-            hist = await self._tick(stream)
-            if hist is None:
-                continue
-            status = self.brain.on_frame(hist)
-            if status.done:
-                return status
-        return None
+    def on_tick(self) -> None:
+        if self.team is not None:
+            self.team.heartbeat(self.t)
+            for name, why in self.team.newly_silent():
+                self.event("teammate_lost", vehicle=name, why=why)
 
-    async def _climb(self, stream: _Stream, altitude: float, limit_s: float = 120.0) -> None:
-        """Frame by frame until the estimated altitude is within 0.2 m of ``altitude``."""
-        t0 = self.t
-        while True:
-            await self._tick(stream)
-            p = stream.pose_at(self.t)
-            if p is not None and p.z > altitude - 0.2:
-                return
-            if self.t - t0 > limit_s:
-                raise RuntimeError(f"takeoff: {altitude:g} m not reached in {limit_s:g} s of sim time")
+    def publish_estimate(self) -> None:
+        loc = self.brain.localizer
+        if loc is not None:
+            msg = loc.to_estimate(self.t)
+            self.publish(msg)
+            if self.team is not None:  # the joint estimate, on the team's one key
+                self.team.publish_estimate(msg.to_bytes())
 
-    async def _landed(self, stream: _Stream, limit_s: float = 600.0) -> None:
-        """Frame by frame until the estimated pose has stayed on the ground for ARRIVE_SETTLE_S."""
-        t0 = self.t
-        down_since: float | None = None
-        while True:
-            p = stream.pose_at(self.t)
-            if p is not None and p.z <= LANDED_Z_M:
-                down_since = self.t if down_since is None else down_since
-                if self.t - down_since >= ARRIVE_SETTLE_S:
-                    return
-            else:
-                down_since = None
-            if self.t - t0 > limit_s:
-                raise RuntimeError(f"not landed {limit_s:g} s of sim time after the return to launch")
-            await self._tick(stream)
+    async def search(self) -> Decision:
+        if self.team is None:
+            return await super().search()
+        return await self._fly_team()  # decided jointly, flown here
 
+    # ------------------------------------------------------------------------------ the process
     async def run(self) -> dict:
         loop = asyncio.get_running_loop()
         recorder = FlightRecorder(self.out, self.scenario)
@@ -639,61 +572,19 @@ class MissionRunner:
         wall0 = time.monotonic()
         # attached from here: a vehicle run with --lockstep holds at t = 0 until the first ack
         self.lockstep = LockstepAck(self.session, v)
+        frames = ZenohFrames(stream, self.lockstep, v, self.event)
+        self.frames = frames
         try:
-            self.publish_state(stream, "connect", f"waiting for an autopilot on {self.settings.url}")
+            self.publish_state("connect", f"waiting for an autopilot on {self.settings.url}")
             conn = await connect(self.settings.url, self.settings.connect_timeout_s)
             home = await wait_healthy(conn, self.settings.connect_timeout_s)
-            actions, mission, tel = Actions(conn), MissionControl(conn), TelemetryWatch(conn)
-            watcher = asyncio.create_task(self._watch(tel, stream))
-            self._event(stream, "connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
-            self.publish_state(stream, "connect", "waiting for the detector's histograms")
-            await self._tick(stream, first_timeout_wall_s=self.settings.connect_timeout_s)
-            self.publish_state(stream, "takeoff", "arming and taking off")
-            await actions.arm()  # both answered while the vehicle holds at this frame's time
-            await actions.takeoff(self.config.altitude_m)
-            await self._climb(stream, self.config.altitude_m)
-            self.t_start = self.t
-            current = self._current(stream)
-            if self.team is not None:  # the team's search (mission.team): decided jointly, flown here
-                decision = await self._fly_team(stream, mission)
-            else:
-                decision = self.brain.start(current)
-            while decision.plan is not None and self.abort_reason is None:
-                self._publish_plan(stream, decision)
-                plan = decision.plan
-                d = await self._upload(mission, plan)
-                self.publish_state(stream, decision.phase.value,
-                                   f"flying to dwell point {len(self.brain.history)}: {decision.reason}")
-                if not await self._arrive(stream, d, plan.path_length() + 0.5):
-                    if self.abort_reason is not None:
-                        break
-                    self._event(stream, "leg_timeout", target=d.tolist())
-                with stream.lock:
-                    stream.dwell_index = len(self.brain.history)
-                self.publish_state(stream, "dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
-                status = await self._dwell(stream)
-                if status is None:
-                    break
-                position = self._dwelt(stream, d, stream.dwell_index, status)
-                decision = self.brain.end_dwell(position, status, stream.frames(), self._current(stream))
-                await self._end_dwell(stream, mission, decision)
-            reason = decision.reason if self.abort_reason is None else f"search aborted: {self.abort_reason}"
-            if self.abort_reason is not None:
-                self._event(stream, "abort", reason=self.abort_reason)
-            self.publish_state(stream, "rtl", f"search done: {reason}")
-            t_done = self._now(stream)
-            try:
-                if self.team is not None:  # land where it is: the vehicles are apart there (RTL paths may cross)
-                    await actions.land()
-                else:
-                    await actions.return_to_launch()
-            except ActionFailed as exc:
-                # a failsafe (low battery, link loss) may have taken the vehicle home already
-                if await _in_air(tel):
-                    raise
-                self._event(stream, "rtl_refused_on_ground", result=exc.result)
-            await self._landed(stream)
-            t_landed = self.t
+            vehicle = MavsdkVehicle(conn, on_text=lambda severity, text: self.event("statustext", severity=severity,
+                                                                                   text=text))
+            self.vehicle = vehicle
+            watcher = asyncio.create_task(vehicle.watch())
+            self.event("connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
+            summary = await self.fly(vehicle, frames, land_in_place=self.team is not None,
+                                     first_timeout_wall_s=self.settings.connect_timeout_s)
             for sub in subs:  # stop recording before counting, so the summary matches the files
                 sub.undeclare()
             subs = []
@@ -702,24 +593,17 @@ class MissionRunner:
             watcher.cancel()
             await conn.close()
             recorder.close()
-            summary = {
-                "reason": reason,
-                "dwell_points": len(self.brain.history),
-                "search_dwell_points": self.brain.search_dwells,
-                "mission_time_s": t_done - (self.t_start or 0.0),
-                "flight_time_s": t_landed,
+            summary.update({
                 "wall_time_s": time.monotonic() - wall0,
-                "estimate": self.brain.estimate,
-                "estimates": self.brain.estimates,
                 "frames_received": recorder.received,
                 "frames_recorded": recorder.recorded,
                 "frames_flagged": recorder.flagged,
                 "bad_payloads": stream.drops.count,
-                "frames_lost": self.frames_lost,
-            }
+                "frames_lost": frames.frames_lost,
+            })
             if self.team is not None:
                 summary.update(self.team.summary(self.brain, stream.frames()))
-            self.publish_state(stream, "done", summary["reason"])
+            self.publish_state("done", summary["reason"])
             return summary
         finally:
             for s in subs:
@@ -729,73 +613,13 @@ class MissionRunner:
             self.lockstep.detach()
             recorder.close()
 
-    async def _upload(self, mission: MissionControl, plan) -> np.ndarray:
-        """Fly ``plan``: its path as pass-through waypoints, then its dwell point holding for the longest dwell
-        allowed, from the new first item; returns the dwell point."""
-        points = [DwellPoint(*p[:3], yaw=p[3], max_dwell_s=0.0) for p in plan.path[1:-1]]
-        d = plan.dwell_points[0]
-        points.append(DwellPoint(*d[:3], yaw=d[3], max_dwell_s=self.config.dwell.t_timeout + 30.0))
-        await mission.replace_remaining(points)
-        await mission.start()  # (re)enter AUTO.MISSION at the new first item
-        return d
-
-    def _dwelt(self, stream: _Stream, d: np.ndarray, index: int, status) -> np.ndarray:
-        """Where dwell ``index`` (at dwell point ``d``) was measured: the estimated pose now (else ``d``), logged
-        with the dwell's ``status``."""
-        p = stream.pose_at(self.t)
-        position = np.array([p.x, p.y, p.z]) if p is not None else d[:3]
-        self._event(stream, "dwell", index=index, position=position.tolist(),
-                    **{k: v for k, v in asdict(status).items() if isinstance(v, int | float | str | bool)})
-        return position
-
-    async def _end_dwell(self, stream: _Stream, mission: MissionControl, decision) -> None:
-        """End the hold at the dwell point; the frames from here are transit; publish the estimate and log the
-        ``decision``."""
-        await mission.end_dwell()
-        with stream.lock:
-            stream.dwell_index = -1
-        if self.brain.estimate is not None:
-            self._publish_estimate(stream)
-        self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
-                    estimate=self.brain.estimate)
-
-    def _current(self, stream: _Stream) -> np.ndarray:
-        p = stream.pose_at(self.t)
-        if p is None:
-            return np.array([0.0, 0.0, self.config.altitude_m, 0.0])
-        return np.array([p.x, p.y, p.z, p.yaw])
-
-    def _publish_plan(self, stream: _Stream, decision: Decision) -> None:
-        assert decision.plan is not None
-        self._plan_pub.put(decision.plan.to_topic(self._now(stream)).to_bytes())
-
-    def _publish_estimate(self, stream: _Stream) -> None:
-        loc = self.brain.localizer
-        if loc is not None:
-            payload = loc.to_estimate(self._now(stream)).to_bytes()
-            self._est_pub.put(payload)
-            if self.team is not None:  # the joint estimate, on the team's one key
-                self.team.publish_estimate(payload)
-
-    # ------------------------------------------------------------------------------ team (mission.team)
-
-    def _team_over(self) -> str | None:
-        """Why the team's search is over (a teammate's estimate ended it), else None; always None alone."""
-        return None if self.team is None else self.team.over()
-
-    def _team_heartbeat(self, stream: _Stream) -> None:
-        assert self.team is not None
-        self.team.heartbeat(self.t)
-        for name, why in self.team.newly_silent():
-            self._event(stream, "teammate_lost", vehicle=name, why=why)
-
     def _ingest_team(self) -> None:
         """Hand the teammates' newly announced dwells to the team brain."""
         assert self.team is not None and isinstance(self.brain, TeamBrain)
         for index, dwell, flown in self.team.new_dwells():
             self.brain.add_dwell(index, np.array([dwell["x"], dwell["y"], dwell["z"]]), dwell["mean_rate"], flown)
 
-    async def _claim(self, stream: _Stream, decide, first: TeamDecision | None = None) -> TeamDecision:
+    async def _claim(self, decide, first: TeamDecision | None = None) -> TeamDecision:
         """Decide (``decide()`` -> TeamDecision) and claim the plan's reservation: publish it, wait
         ``CLAIM_WALL_S`` of wall time (lockstep holds sim time) for a teammate's claim made at the same time,
         and plan again if an earlier claim crosses this one (``mission.team``'s allocation rule, made safe
@@ -804,7 +628,7 @@ class MissionRunner:
         team = self.team
         for attempt in range(CLAIM_ATTEMPTS):
             self._ingest_team()
-            self._own_pose_variance(stream)
+            self._own_pose_variance()
             decision = first if attempt == 0 and first is not None else decide()
             if decision.plan is None:
                 return decision
@@ -815,30 +639,30 @@ class MissionRunner:
             crossing = team.earlier_crossing(path, stamp, self.brain.team.separation_m, var_end)
             if crossing is None:
                 return decision
-            self._event(stream, "yield", to=crossing, attempt=attempt)
-            team.set(self.t, "hold", self._current(stream)[None, :3])
+            self.event("yield", to=crossing, attempt=attempt)
+            team.set(self.t, "hold", self.current()[None, :3])
         return TeamDecision(self.team.index, self.brain.phase, None, "hold: claims kept crossing",
                             self.brain.team.hold_s)
 
-    def _own_pose_variance(self, stream: _Stream) -> tuple[float, float]:
+    def _own_pose_variance(self) -> tuple[float, float]:
         """This vehicle's reported x-y pose variance now and its growth per metre flown (from its frames),
         handed to the team brain for the drift margin of its next path."""
         assert self.team is not None and isinstance(self.brain, TeamBrain)
-        p = stream.pose_at(self.t) or stream.pose()
-        f = stream.frames()
+        p = self.frames.pose_at(self.t) or self.frames.pose()
+        f = self.frames.frames()
         var = float(p.var_x) if p is not None and math.isfinite(p.var_x) else 0.0
         density = float(drift_density_from_poses(f.positions, f.pose_variances, f.dwell)[0]) if len(f) > 1 else 0.0
         self.brain.set_pose_variance(self.team.index, var, density)
         return var, density
 
-    async def _fly_team(self, stream: _Stream, mission: MissionControl) -> Decision:
+    async def _fly_team(self) -> Decision:
         """The team's search from this vehicle: plans from the team brain (every vehicle's dwells and frames),
         reservations claimed on ``team/status``; returns the final decision (the plan None)."""
         assert self.team is not None and isinstance(self.brain, TeamBrain)
         team, brain, me = self.team, self.brain, self.team.index
-        current = self._current(stream)
+        current = self.current()
         team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :],
-                 self._own_pose_variance(stream)[0])
+                 self._own_pose_variance()[0])
         # no plan before every teammate has said where it is (airborne at its launch point), or is given up
         # on: the wait is in wall time, while lockstep holds sim time, so it costs no flight time
         waited = time.monotonic()
@@ -847,8 +671,8 @@ class MissionRunner:
             await asyncio.sleep(0.05)
         missing = [n for n in team.mates if self.team.names.index(n) not in team.reserved()]
         if missing:
-            self._event(stream, "teammates_missing_at_start", vehicles=missing)
-        decision = await self._claim(stream, lambda: brain.start(self._current(stream), me, team.reserved()))
+            self.event("teammates_missing_at_start", vehicles=missing)
+        decision = await self._claim(lambda: brain.start(self.current(), me, team.reserved()))
         own_dwells = 0
         while self.abort_reason is None:
             over = team.over()
@@ -861,45 +685,43 @@ class MissionRunner:
                 team.finish(self.t, decision.reason, decided=False)
                 return decision.as_decision()
             if decision.plan is None:  # hold where it is, then ask again
-                here = self._current(stream)
+                here = self.current()
                 team.set(self.t, "hold", here[None, :3])
-                self.publish_state(stream, "hold", decision.reason)
+                self.publish_state("hold", decision.reason)
                 t_end = self.t + decision.hold_s
                 while self.t < t_end - 1e-6 and self.abort_reason is None and team.over() is None:
-                    await self._tick(stream)
-                decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()))
+                    await self.tick()
+                decision = await self._claim(lambda: brain.replan(me, self.current(), team.reserved()))
                 continue
-            self._publish_plan(stream, decision.as_decision())
+            self.publish_plan(decision.as_decision())
             plan = decision.plan
-            d = await self._upload(mission, plan)
-            self.publish_state(stream, decision.phase.value, f"flying to dwell point {own_dwells}: {decision.reason}")
-            first_frame = len(stream.records)
-            if not await self._arrive(stream, d, plan.path_length() + 0.5):
+            d = await self.upload(plan)
+            self.publish_state(decision.phase.value, f"flying to dwell point {own_dwells}: {decision.reason}")
+            first_frame = len(self.frames.records)
+            if not await self.arrive(d, plan.path_length() + 0.5):
                 if self.abort_reason is not None or team.over() is not None:
                     continue
-                self._event(stream, "leg_timeout", target=d.tolist())
-            with stream.lock:
-                stream.dwell_index = own_dwells
+                self.event("leg_timeout", target=d.tolist())
+            self.set_dwell(own_dwells)
             team.set(self.t, "dwell", d[None, :3])
-            self.publish_state(stream, "dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
-            status = await self._dwell(stream)
+            self.publish_state("dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
+            status = await self.dwell()
             if status is None:
                 continue
-            position = self._dwelt(stream, d, own_dwells, status)
-            with stream.lock:
-                records = list(stream.records)
+            position = self.dwelt(d, own_dwells, status)
+            records = list(self.frames.records)
             times = [r.t for r in records if r.dwell == own_dwells]
             flown = np.array([(r.x, r.y, r.z) for r in records[first_frame:] if r.dwell < 0]).reshape(-1, 3)
             team.add_dwell(own_dwells, position, status.mean_rate, min(times, default=self.t),
                            max(times, default=self.t), flown)
             self._ingest_team()
-            frames = team.frames(stream.frames())
-            self._own_pose_variance(stream)
-            decision = brain.end_dwell(position, status, frames, self._current(stream), flown, me, team.reserved())
+            frames = team.frames(self.frames.frames())
+            self._own_pose_variance()
+            decision = brain.end_dwell(position, status, frames, self.current(), flown, me, team.reserved())
             if decision.plan is not None:  # claim it (and plan again if an earlier claim crosses it)
-                decision = await self._claim(stream, lambda: brain.replan(me, self._current(stream), team.reserved()),
+                decision = await self._claim(lambda: brain.replan(me, self.current(), team.reserved()),
                                              first=decision)
-            await self._end_dwell(stream, mission, decision)
+            await self.end_dwell(decision)
             own_dwells += 1
         team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
         return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")

@@ -76,3 +76,13 @@ class TelemetryWatch:
         """Async iterator of (type name, text)."""
         async for s in self._tel.subscribe_status_text():
             yield s.type.name, s.text
+
+    async def battery_levels(self):
+        """Async iterator of the remaining fraction in [0, 1], as reported."""
+        async for b in self._tel.subscribe_battery():
+            yield float(b.remaining_percent) / (100.0 if b.remaining_percent > 1.0 else 1.0)
+
+    async def in_air_states(self):
+        """Async iterator of the in-air flag, as reported."""
+        async for v in self._tel.subscribe_in_air():
+            yield bool(v)
