@@ -1,15 +1,20 @@
-"""Fly the search brain in-process against the emulator: no sockets, many seeds per minute.
+"""Fly the mission in-process: ``radseek run``'s stack minus its sockets, many seeds per minute.
 
-This is the simulator side (it sees the scene's truth); the brain it drives sees only the scenario,
-the estimated poses and the histograms, exactly as over MAVLink and zenoh. The vehicle flies on its
-own pose estimate like the mock autopilot (``vehicle_sim.odometry``: the truth is the estimate
-minus a random-walk drift that grows with distance flown), at constant speed with a yaw-rate limit.
-Used for benchmarks (error vs dwell points against the baselines) and fast end-to-end tests; the
-real stack is ``radseek run``.
+The one mission executive (``mission.executive``) flies the one simulated world (``vehicle_sim.world``:
+the mock autopilot's vehicle and the detector board on one sim clock) over two in-process ports instead of
+MAVSDK and zenoh. The world is stepped as lockstep steps the stack: after the mission has handled a frame
+(its commands applied to the vehicle at that frame's time), the vehicle steps one frame on, then the board
+measures the frame. So ``fly_offline(scene, seed=S)`` flies the flight ``radseek run SCENE --seed S``
+flies (same dwell points, mission time and error), and the campaigns and benchmarks measure that flight.
+
+This is the simulator side (it sees the scene's truth); the executive and brain it drives see only the
+scenario, the estimated poses and the histograms, exactly as over MAVLink and zenoh.
 """
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -17,13 +22,24 @@ import numpy as np
 
 from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
+from mission.client.action import ActionFailed
+from mission.client.mission_upload import DwellPoint, build_items
+from mission.executive import MissionExecutive
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from radseek import topics
+from radseek.coordinates import Home
 from radseek.dataset import Dataset, Frames
 from radseek.frame_record import FrameRecord
-from vehicle_sim.odometry import Odometry, OdometryParams
+from radseek.pose_history import PoseHistory
+from vehicle_sim.mission_protocol import MissionItem
+from vehicle_sim.motion import MotionLimits
+from vehicle_sim.odometry import OdometryParams
+from vehicle_sim.vehicle import VehicleConfig
+from vehicle_sim.world import World
 
 FRAME_S = 0.1
+#: ``radseek run`` starts its vehicle with ``--max-speed 1.0`` (m/s): the leg speed the mission expects
+RUN_MAX_SPEED_M_S = 1.0
 
 
 class EstimateAndError:
@@ -57,116 +73,169 @@ class OfflineResult(EstimateAndError):
     dwell_rates: np.ndarray
     true_path: np.ndarray  # (N, 4) true poses at frame mid-times
     log: list[str] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)  # the mission's summary, as the mission process writes it
 
 
-class _Flight:
-    """Frame-by-frame flight: true pose, drifting estimate, emulator counts, recorded rows."""
+def _f32(v: float) -> float:
+    """A value as a MAVLink float field carries it."""
+    return float(np.float32(v))
 
-    def __init__(self, scene: Scene, start: np.ndarray, seed: int, speed: float, yaw_rate_max: float,
-                 odometry: OdometryParams | None):
-        self.channel_edges_keV = scene.scenario().channel_edges_keV
-        self.emulator = DetectorEmulator(scene, seed=seed)
-        self.odo = Odometry(odometry, seed=seed + 1)
-        self.est = np.asarray(start, dtype=float).copy()  # (4,) estimated pose: what the vehicle flies on
+
+def wire_items(points: list[DwellPoint], home: Home) -> list[MissionItem]:
+    """The mission items the vehicle holds after the mission uploads ``points`` (``build_items``) over
+    MAVLink: MISSION_ITEM_INT's float32 parameters and altitude, degE7 latitude and longitude."""
+    return [MissionItem(i.seq, i.frame, i.command, _f32(i.param1), _f32(i.param2), _f32(i.param3), _f32(i.param4),
+                        int(i.x), int(i.y), _f32(i.z), int(i.autocontinue), int(i.mission_type))
+            for i in build_items(points, home)]
+
+
+class InProcessVehicle:
+    """The executive's ``VehicleLink`` to the world's vehicle: each command does to the navigator what the
+    vehicle process does on the MAVLink message MAVSDK sends for it."""
+
+    def __init__(self, world: World):
+        self.world = world
+        self.nav = world.vehicle.nav
+        self.abort_reason: str | None = None
+        self.airborne = False
+
+    @property
+    def battery(self) -> float:
+        return self.world.vehicle.battery
+
+    def heard(self, events) -> None:
+        """The vehicle's events since the last frame, as MAVSDK's telemetry reports them to the mission."""
+        for ev in events:
+            if ev.kind == "text" and ev.data[0].lower().startswith("failsafe") and self.abort_reason is None:
+                self.abort_reason = f"vehicle failsafe: {ev.data[0]}"
+        flying = self.nav.in_air
+        if self.airborne and not flying and self.abort_reason is None:
+            self.abort_reason = "vehicle landed"
+        self.airborne = self.airborne or flying
+
+    async def arm(self) -> None:
+        if not self.nav.arm():
+            raise ActionFailed("arm", "COMMAND_DENIED")
+
+    async def takeoff(self, altitude_m: float) -> None:
+        # MAVSDK: PARAM_SET MIS_TAKEOFF_ALT (float32), then NAV_TAKEOFF without an altitude
+        self.nav.p = dataclasses.replace(self.nav.p, takeoff_alt=_f32(altitude_m))
+        if not self.nav.takeoff(None):
+            raise ActionFailed("takeoff", "COMMAND_DENIED")
+
+    async def fly(self, points: list[DwellPoint]) -> None:
+        self.nav.replace_mission(wire_items(points, self.world.vehicle.home))
+        if not self.nav.set_mode(self.nav.mode.MISSION):
+            raise ActionFailed("start_mission", "ERROR")
+
+    async def end_dwell(self) -> None:
+        seq, total = min(self.nav.seq, max(len(self.nav.items) - 1, 0)), len(self.nav.items)
+        if seq + 1 < total:
+            self.nav.set_current(seq + 1)
+
+    async def return_to_launch(self) -> None:
+        if not self.nav.rtl():
+            raise ActionFailed("return_to_launch", "COMMAND_DENIED")
+
+    async def land(self) -> None:
+        if not self.nav.land():
+            raise ActionFailed("land", "COMMAND_DENIED")
+
+    async def in_air(self) -> bool:
+        return self.nav.in_air
+
+
+class InProcessFrames:
+    """The executive's ``FrameSource`` from the world: each ``tick`` is lockstep's ack (the world steps one
+    frame on) and the frame that follows, recorded with the estimated pose at its mid-time."""
+
+    def __init__(self, world: World, vehicle: InProcessVehicle, channel_edges_keV: np.ndarray):
+        self.world, self.vehicle = world, vehicle
+        self.channel_edges_keV = channel_edges_keV
+        self.poses: PoseHistory[topics.Pose] = PoseHistory(keep_s=120.0)  # as the mission process keeps them
         self.t = 0.0
-        self.speed = speed
-        self.yaw_rate_max = yaw_rate_max
+        self.frame_s = FRAME_S
+        self.dwell_index = -1
         self.records: list[FrameRecord] = []
+        self.flagged: list[FrameRecord] = []
         self.true_path: list[np.ndarray] = []
-        self.seq = 0
+        self.frames_lost = 0
 
-    def true_pose(self) -> np.ndarray:
-        pos, yaw = self.odo.truth_from_estimate(self.est[:3], self.est[3])
-        return np.r_[pos, yaw]
-
-    def frame(self, dwell: int) -> topics.Histogram:
-        mid = self.true_pose()
-        counts = self.emulator.draw(mid, self.t + FRAME_S / 2, FRAME_S)
-        self.t += FRAME_S
-        var = self.odo.var
-        self.seq += 1
-        hist = topics.Histogram(seq=self.seq, board_time=self.t, t=self.t, duration=FRAME_S,
-                                counts=[int(c) for c in counts])
-        pose = topics.Pose(t=self.t, x=float(self.est[0]), y=float(self.est[1]), z=float(self.est[2]),
-                           yaw=float(self.est[3]), var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]))
-        self.records.append(FrameRecord.from_histogram(hist, pose, dwell, self.channel_edges_keV))
-        self.true_path.append(mid)
+    async def tick(self, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
+        t_next = self.t + self.frame_s
+        self.world.step_to(t_next)
+        for p in self.world.take_poses():
+            self.poses.add(p)
+        self.vehicle.heard(self.world.take_events())
+        hist = self.world.frame()
+        if hist is None:  # the driver rejected it: lost
+            self.frames_lost += 1
+            self.t = t_next
+            return None
+        record = FrameRecord.from_histogram(hist, self.poses.at(hist.t - hist.duration / 2), self.dwell_index,
+                                            self.channel_edges_keV)
+        (self.records if record.usable else self.flagged).append(record)
+        self.true_path.append(self.world.last_true_pose)
+        if hist.t > self.t + 1e-6:
+            self.t, self.frame_s = hist.t, hist.duration
         return hist
 
-    def fly_to(self, target: np.ndarray) -> np.ndarray:
-        """Fly (estimated frame) to target (x, y, z, yaw), recording transit frames; returns visited xyz."""
-        visited = []
-        while self.step(target) is not None:
-            visited.append(self.est[:3].copy())
-        return np.array(visited).reshape(-1, 3)
+    def pose_at(self, t: float) -> topics.Pose | None:
+        return self.poses.at(t)
 
-    def step(self, target: np.ndarray) -> float | None:
-        """One transit frame toward target (x, y, z, yaw) at most speed and yaw rate; the distance it moved,
-        None once there (no frame is recorded then)."""
-        d = target[:3] - self.est[:3]
-        dist = float(np.linalg.norm(d))
-        dyaw = math.remainder(target[3] - self.est[3], 2 * math.pi)
-        if dist < 1e-6 and abs(dyaw) < 1e-6:
-            return None
-        step = min(dist, self.speed * FRAME_S)
-        turn = float(np.clip(dyaw, -self.yaw_rate_max * FRAME_S, self.yaw_rate_max * FRAME_S))
-        # the mid-frame pose is what the frame integrates: move half, record, move the other half
-        self.est[:3] += d / max(dist, 1e-12) * step / 2
-        self.est[3] += turn / 2
-        self.odo.advance(step / 2)
-        self.frame(dwell=-1)
-        self.est[:3] += d / max(dist, 1e-12) * step / 2
-        self.est[3] = math.remainder(self.est[3] + turn / 2, 2 * math.pi)
-        self.odo.advance(step / 2)
-        return step
+    def pose(self) -> topics.Pose | None:
+        return self.poses.latest()
+
+    def set_dwell(self, index: int) -> None:
+        self.dwell_index = index
 
     def frames(self) -> Frames:
         return Frames.from_records(self.records)
 
 
-def fly_offline(scene: Scene, config: SearchConfig | None = None, seed: int = 0,
-                home: tuple[float, float] | None = None, speed: float = 1.0,
-                yaw_rate_max: float = math.radians(45), odometry: OdometryParams | None = None,
-                verbose: bool = False) -> OfflineResult:
-    """Fly a whole search; returns the recorded dataset (with truth), the brain and the mission time.
+def vehicle_config(seed: int, home: tuple[float, float] | None = None, speed: float = RUN_MAX_SPEED_M_S,
+                   yaw_rate_max: float | None = None, odometry: OdometryParams | None = None) -> VehicleConfig:
+    """The vehicle ``radseek run --seed seed`` starts (``radseek vehicle --max-speed 1.0``, its defaults else)."""
+    limits = MotionLimits(max_speed_xy=speed)
+    if yaw_rate_max is not None:
+        limits = dataclasses.replace(limits, max_yaw_rate=yaw_rate_max)
+    return VehicleConfig(seed=seed, limits=limits, odometry=odometry or OdometryParams(), zenoh=False,
+                         lockstep=True, start_xy=tuple(home) if home is not None else (0.0, 0.0))
 
-    Reproducible as `radseek run` with lockstep is: the planning trees are bounded by node count, not wall
-    time (``mission.search.reproducible``), and OMPL follows the seed, so a loaded machine or the flights
-    flown before in the same process do not change the flight."""
+
+def fly_offline(scene: Scene, config: SearchConfig | None = None, seed: int = 0,
+                home: tuple[float, float] | None = None, speed: float = RUN_MAX_SPEED_M_S,
+                yaw_rate_max: float | None = None, odometry: OdometryParams | None = None,
+                verbose: bool = False) -> OfflineResult:
+    """Fly a whole mission (takeoff, search, return, landing) as ``radseek run SCENE --seed seed`` flies it;
+    returns the recorded dataset (with truth), the brain, its decisions and the mission time.
+
+    ``home`` is the launch point (default the origin, as ``radseek run``), ``speed`` the vehicle's cruise speed
+    (m/s), ``yaw_rate_max`` its yaw-rate limit (rad/s, default the vehicle's), ``odometry`` its drift.
+    Reproducible as ``radseek run`` with lockstep is: the planning trees are bounded by node count, not wall
+    time (``mission.search.reproducible``), and OMPL follows the seed."""
     from planner.dwell_tree import seed_ompl
 
     config = reproducible(config or SearchConfig())
     seed_ompl(seed + 1)  # as run_mission: OMPL refuses seed 0
     scenario = scene.scenario()
+    world = World(vehicle_config(seed, home, speed, yaw_rate_max, odometry), DetectorEmulator(scene, seed=seed))
+    vehicle = InProcessVehicle(world)
+    frames = InProcessFrames(world, vehicle, scenario.channel_edges_keV)
     brain = SearchBrain(scenario, config, seed=seed)
-    lo = scenario.bounds_min
-    home_xy = np.array(home if home is not None else (lo[0] + 0.5, lo[1] + 0.5))
-    flight = _Flight(scene, np.r_[home_xy, config.altitude_m, 0.0], seed, speed, yaw_rate_max, odometry)
-    log: list[str] = []
-    decision = brain.start(flight.est)
-    decisions = [decision]
-    while decision.plan is not None:
-        visited = [flight.fly_to(p) for p in decision.plan.path[1:]]
-        flight.fly_to(decision.plan.dwell_points[0])
-        dwell_index = len(brain.history)
-        brain.begin_dwell()
-        while True:
-            status = brain.on_frame(flight.frame(dwell=dwell_index))
-            if status.done:
-                break
-        decision = brain.end_dwell(flight.est[:3].copy(), status, flight.frames(), flight.est.copy(),
-                                   np.concatenate(visited) if visited else None)
-        decisions.append(decision)
-        msg = (f"t={flight.t:7.1f}s dwell {dwell_index} at ({flight.est[0]:.2f}, {flight.est[1]:.2f}) "
-               f"{status.mean_rate:8.1f} cps for {status.live_time:4.1f}s -> {decision.phase}: {decision.reason}")
-        log.append(msg)
-        if verbose:
-            print(msg, flush=True)
-    ds = Dataset(frames=flight.frames(), scenario=scenario, truth=scene.truth())
+    executive = MissionExecutive(scenario, config, brain, leg_speed_m_s=1.0)
+    summary = asyncio.run(executive.fly(vehicle, frames))
+    summary.update(frames_received=len(frames.records) + len(frames.flagged), frames_recorded=len(frames.records),
+                   frames_flagged=len(frames.flagged), frames_lost=frames.frames_lost)
+    log = [f"t={e['t']:7.1f}s {e['event']}: " + ", ".join(f"{k}={v}" for k, v in e.items() if k not in ("t", "event"))
+           for e in executive.log]
+    if verbose:
+        print("\n".join(log), flush=True)
+    ds = Dataset(frames=frames.frames(), scenario=scenario, truth=scene.truth())
     return OfflineResult(
-        dataset=ds, brain=brain, decisions=decisions, mission_time_s=flight.t,
+        dataset=ds, brain=brain, decisions=executive.decisions, mission_time_s=summary["mission_time_s"],
         dwell_positions=brain.history.positions, dwell_rates=brain.history.rates,
-        true_path=np.array(flight.true_path), log=log,
+        true_path=np.array(frames.true_path).reshape(-1, 4), log=log, summary=summary,
     )
 
 

@@ -15,14 +15,86 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
-from launch.offline import FRAME_S, EstimateAndError, _Flight
+from launch.offline import FRAME_S, EstimateAndError
 from mission.search import SearchConfig, reproducible
 from mission.team import TeamBrain, TeamConfig, TeamDecision, home_positions, team_frames
 from planner.allocation import Reservation, pairwise_min_distance
 from planner.belief import drift_density_from_poses
-from radseek.dataset import Dataset
-from vehicle_sim.odometry import OdometryParams
+from radseek import topics
+from radseek.dataset import Dataset, Frames
+from radseek.frame_record import FrameRecord
+from vehicle_sim.odometry import Odometry, OdometryParams
+
+
+class _Flight:
+    """Frame-by-frame flight of the earlier in-process model: constant speed with a yaw-rate limit, the
+    emulator's counts without the board. Only the team driver still flies it: the team's missions have not
+    moved onto the one executive and world (``mission.executive``, ``vehicle_sim.world``) yet, so team
+    figures come from this simpler world (issue 31)."""
+
+    def __init__(self, scene: Scene, start: np.ndarray, seed: int, speed: float, yaw_rate_max: float,
+                 odometry: OdometryParams | None):
+        self.channel_edges_keV = scene.scenario().channel_edges_keV
+        self.emulator = DetectorEmulator(scene, seed=seed)
+        self.odo = Odometry(odometry, seed=seed + 1)
+        self.est = np.asarray(start, dtype=float).copy()  # (4,) estimated pose: what the vehicle flies on
+        self.t = 0.0
+        self.speed = speed
+        self.yaw_rate_max = yaw_rate_max
+        self.records: list[FrameRecord] = []
+        self.true_path: list[np.ndarray] = []
+        self.seq = 0
+
+    def true_pose(self) -> np.ndarray:
+        pos, yaw = self.odo.truth_from_estimate(self.est[:3], self.est[3])
+        return np.r_[pos, yaw]
+
+    def frame(self, dwell: int) -> topics.Histogram:
+        mid = self.true_pose()
+        counts = self.emulator.draw(mid, self.t + FRAME_S / 2, FRAME_S)
+        self.t += FRAME_S
+        var = self.odo.var
+        self.seq += 1
+        hist = topics.Histogram(seq=self.seq, board_time=self.t, t=self.t, duration=FRAME_S,
+                                counts=[int(c) for c in counts])
+        pose = topics.Pose(t=self.t, x=float(self.est[0]), y=float(self.est[1]), z=float(self.est[2]),
+                           yaw=float(self.est[3]), var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]))
+        self.records.append(FrameRecord.from_histogram(hist, pose, dwell, self.channel_edges_keV))
+        self.true_path.append(mid)
+        return hist
+
+    def fly_to(self, target: np.ndarray) -> np.ndarray:
+        """Fly (estimated frame) to target (x, y, z, yaw), recording transit frames; returns visited xyz."""
+        visited = []
+        while self.step(target) is not None:
+            visited.append(self.est[:3].copy())
+        return np.array(visited).reshape(-1, 3)
+
+    def step(self, target: np.ndarray) -> float | None:
+        """One transit frame toward target (x, y, z, yaw) at most speed and yaw rate; the distance it moved,
+        None once there (no frame is recorded then)."""
+        d = target[:3] - self.est[:3]
+        dist = float(np.linalg.norm(d))
+        dyaw = math.remainder(target[3] - self.est[3], 2 * math.pi)
+        if dist < 1e-6 and abs(dyaw) < 1e-6:
+            return None
+        step = min(dist, self.speed * FRAME_S)
+        turn = float(np.clip(dyaw, -self.yaw_rate_max * FRAME_S, self.yaw_rate_max * FRAME_S))
+        # the mid-frame pose is what the frame integrates: move half, record, move the other half
+        self.est[:3] += d / max(dist, 1e-12) * step / 2
+        self.est[3] += turn / 2
+        self.odo.advance(step / 2)
+        self.frame(dwell=-1)
+        self.est[:3] += d / max(dist, 1e-12) * step / 2
+        self.est[3] = math.remainder(self.est[3] + turn / 2, 2 * math.pi)
+        self.odo.advance(step / 2)
+        return step
+
+    def frames(self) -> Frames:
+        return Frames.from_records(self.records)
+
 
 #: a team flight stops after this much sim time whatever the brain says (a stuck allocation is a bug)
 MAX_SIM_S = 3600.0

@@ -46,6 +46,7 @@ class World:
         self._pose_every = max(1, round(0.1 / vehicle.dt))
         self._last_pose_t = -1.0
         self.k = 0  # the next frame to measure
+        self.last_true_pose: np.ndarray | None = None  # the true pose the last frame was measured at
         self.poses: list[topics.Pose] = []  # estimated poses as the vehicle publishes them (unread ones)
         self.events: list[SimEvent] = []  # the vehicle's events not yet read
         self._emit(hold_until=0.0)  # at t = 0 the vehicle holds and publishes its pose
@@ -67,10 +68,11 @@ class World:
                                           var_x=float(var[0]), var_y=float(var[1]), var_z=float(var[2]),
                                           var_yaw=float(var[3])))
 
-    def step_to(self, until: float) -> None:
-        """Step the vehicle to sim time ``until`` (lockstep's limit), as ``Vehicle.run`` does."""
+    def step_to(self, until: float, link_age: float | None = 0.0) -> None:
+        """Step the vehicle to sim time ``until`` (lockstep's limit), as ``Vehicle.run`` does; ``link_age``:
+        wall s since the ground link last spoke (0: the mission's link is alive, as in the stack)."""
         while self.vehicle.t + self.dt <= until + 1e-9:
-            self.events += self.vehicle.step(self.dt, None)
+            self.events += self.vehicle.step(self.dt, link_age)
             self._emit(until)
 
     def frame(self) -> topics.Histogram | None:
@@ -82,6 +84,7 @@ class World:
         pose = true_pose_for(self.truth_poses.latest(), self.truth_poses.at, t0, t1, self.stale_after_s)
         got = read_out(self.board, self.emulator, k, pose)
         self.k += 1
+        self.last_true_pose = pose
         accepted = self._driver.accept(encode_frame(got.frame))
         if accepted is None:
             return None
