@@ -1,0 +1,53 @@
+"""One simulated world: ``radseek run SCENE --seed S`` (each part its own process over zenoh and MAVLink, with
+lockstep) and the in-process driver the campaigns and benchmarks use (``launch.offline.fly_offline``) fly
+the same flight: the same frames.csv row for row (times, estimated poses, counts, dwell indices), the same
+dwell points, mission time and error. Two scenes, a short honest configuration (3 dwells) at 50x."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from detector_fw_sim.scene import load_scene
+from launch.offline import fly_offline
+from mission.search import SearchConfig
+from tests.conftest import free_port
+from vehicle_sim.harness import free_udp_port
+
+RUN_TIMEOUT_S = 600
+MAX_DWELLS = 3
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.timeout(RUN_TIMEOUT_S + 120)]
+
+
+def _run(scene: str, seed: int, out) -> dict:
+    cmd = [sys.executable, "-m", "radseek.cli", "run", scene, "--out", str(out), "--quiet", "--speedup", "50",
+           "--max-dwells", str(MAX_DWELLS), "--seed", str(seed), "--no-mcap", "--zenoh-port", str(free_port()),
+           "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
+           "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 60)
+    assert p.returncode in (0, 3), p.stderr[-3000:]  # 3: searched to the end of the dwell budget
+    summary = json.loads((out / "dataset" / "mission_summary.json").read_text())
+    return {**summary, "error_m": json.loads((out / "summary.json").read_text())["error_m"]}
+
+
+@pytest.mark.parametrize(("scene", "seed"), [("default", 2), ("lattice-wall", 1)])
+def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path, scene, seed):
+    stack = _run(scene, seed, tmp_path)
+    config = SearchConfig(max_dwells=MAX_DWELLS, max_search_dwells=MAX_DWELLS)  # as radseek mission sets them
+    r = fly_offline(load_scene(scene), config, seed=seed)
+    for key in ("reason", "dwell_points", "search_dwell_points", "mission_time_s", "flight_time_s",
+                "frames_recorded", "frames_lost"):
+        assert r.summary[key] == stack[key], key
+    assert r.summary["estimate"]["x"] == stack["estimate"]["x"]
+    assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
+    with open(tmp_path / "dataset" / "frames.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    f = r.dataset.frames
+    assert len(rows) == len(f) > 100
+    for i, row in enumerate(rows):
+        got = (f.t[i], *f.positions[i], int(f.dwell[i]), *(int(c) for c in f.counts[i]))
+        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]), int(row["dwell"]),
+                *(int(row[f"c{k:02d}"]) for k in range(32)))
+        assert got == want, f"frame {i} differs"
