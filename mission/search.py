@@ -188,6 +188,9 @@ class SearchBrain:
         c = np.asarray(current, dtype=float).copy()
         c[2] = float(np.clip(self.config.altitude_m, self.occ.bounds_min[2], self.occ.bounds_max[2]))
         c[:2] = np.clip(c[:2], self.occ.free_min[:2], self.occ.free_max[:2])
+        free = self.occ.nearest_valid(c[:3])  # arrived within the acceptance radius of a clearance edge
+        if free is not None:
+            c[:3] = free
         return c
 
     def _explore(self, current: np.ndarray, reason: str) -> Decision:

@@ -105,6 +105,24 @@ class OccupancyMap:
             ok &= ~segment_hits_walls(a, b, self.grown)
         return ok
 
+    def nearest_valid(self, point: Sequence[float], max_shift: float = 0.5, step: float = 0.01) -> np.ndarray | None:
+        """``point`` (x, y, z) itself if valid, else the closest valid point at the same height within
+        ``max_shift`` m in x-y (rings ``step`` apart, 64 bearings each), None if there is none. A vehicle that
+        arrived within its acceptance radius of a point on the clearance's edge may sit just inside a grown
+        wall: it plans from here."""
+        p = np.asarray(point, dtype=float).reshape(3)
+        if self.point_valid(*p):
+            return p.copy()
+        radii = np.arange(step, max_shift + step / 2, step)
+        bearings = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+        r, b = np.meshgrid(radii, bearings, indexing="ij")
+        cand = np.stack([p[0] + r * np.cos(b), p[1] + r * np.sin(b), np.full_like(r, p[2])], axis=-1)
+        ok = self.points_valid(cand)
+        if not ok.any():
+            return None
+        ring = int(np.argmax(ok.any(axis=1)))
+        return cand[ring, int(np.argmax(ok[ring]))]
+
     def point_valid(self, x: float, y: float, z: float) -> bool:
         """Scalar ``points_valid`` without numpy overhead (for OMPL's per-state callback)."""
         x0_, y0_, z0_, x1_, y1_, z1_ = self._box

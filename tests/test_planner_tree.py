@@ -69,6 +69,19 @@ def test_a_segment_clipping_a_grown_corner_by_1_cm_is_invalid():
     assert occ.points_valid(pts).all()
 
 
+def test_a_start_just_inside_the_clearance_moves_to_its_edge():
+    # a wall along y = 2 (0.2 m thick, so its face at y = 2.1); grown by 0.3 m its clearance ends at y = 2.4
+    occ = OccupancyMap(np.zeros(3), np.array([5.0, 5.0, 3.0]), (Wall((0.5, 2.0), (4.5, 2.0), 0.2, 3.0),), 0.3)
+    inside = np.array([2.5, 2.35, 1.5])
+    assert not occ.point_valid(*inside)
+    free = occ.nearest_valid(inside, step=0.005)
+    assert occ.point_valid(*free) and free[2] == 1.5
+    # the edge is 0.05 m away: the first ring of candidates (0.005 m apart, 64 bearings) to clear it is within 0.06 m
+    assert free[1] >= 2.4 and np.linalg.norm(free[:2] - inside[:2]) <= 0.06
+    assert np.array_equal(occ.nearest_valid(free), free)  # a valid point stays
+    assert occ.nearest_valid(np.array([2.5, 2.0, 1.5]), max_shift=0.2) is None  # deep inside: none near
+
+
 def test_flying_over_a_low_wall_is_valid_but_not_through_it():
     occ = OccupancyMap(np.zeros(3), np.array([5.0, 5.0, 3.0]), (Wall((2.5, 0.0), (2.5, 5.0), 0.2, 1.0),), 0.3)
     assert occ.segment_valid((1.0, 2.5, 1.5), (4.0, 2.5, 1.5))  # 1.5 > 1.0 + 0.3
