@@ -41,10 +41,10 @@ from mission.client.vehicle_link import MavsdkVehicle
 from mission.executive import MissionExecutive
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
-from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
-from mission.team import TeamBrain, TeamConfig, TeamDecision, team_frames
+from mission.search import Phase, SearchBrain, SearchConfig, reproducible
+from mission.team import TeamBrain, TeamConfig, team_frames
+from mission.team_executive import TeamExecutive
 from planner.allocation import Reservation, path_clear
-from planner.belief import drift_density_from_poses
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
@@ -65,7 +65,6 @@ MATE_LAG_SIM_S = 5.0
 TEAM_HEARTBEAT_WALL_S = 1.0  # wall s between team/status repeats ...
 TEAM_HEARTBEAT_SIM_S = 1.0  # ... and sim s
 CLAIM_WALL_S = 0.3  # wall s a claimed reservation waits for a crossing claim made at the same time
-CLAIM_ATTEMPTS = 5  # claims yielded in a row before the vehicle holds instead
 TEAM_START_WALL_S = 180.0  # wall s to wait for every teammate to be airborne before the first plan
 
 
@@ -142,7 +141,7 @@ class _Stream(_PosedHistograms):
         self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
         self.dwell_index = -1
         self.latest_pose: topics.Pose | None = None
-        # the lost-frame rule (MissionRunner._tick): the latest histogram time received, the latest
+        # the lost-frame rule (ZenohFrames.tick): the latest histogram time received, the latest
         # detector/status time (every frame ending by then is handled), the wall time it last spoke
         self.hist_t = -1.0
         self.detector_t = -1.0
@@ -335,8 +334,22 @@ class _Team:
                          self.t - self._sent_t >= TEAM_HEARTBEAT_SIM_S):
             self._put()
 
-    def publish_estimate(self, payload: bytes) -> None:
-        self._est_pub.put(payload)
+    def publish_estimate(self, msg: topics.Estimate) -> None:
+        self._est_pub.put(msg.to_bytes())
+
+    async def settle(self, t: float) -> None:
+        """Wait ``CLAIM_WALL_S`` of wall time (lockstep holds sim time) for a teammate's claim made at the same
+        time: the claims' stamps are wall clock, so of two crossing claims the later one yields."""
+        await asyncio.sleep(CLAIM_WALL_S)
+
+    async def wait_start(self, t: float) -> list[str]:
+        """Wait (wall time, while lockstep holds sim time, so it costs no flight time) until every teammate has
+        said where it is, for at most ``TEAM_START_WALL_S``; returns the teammates given up on."""
+        waited = time.monotonic()
+        while len(self.reserved()) < len(self.mates) and time.monotonic() - waited < TEAM_START_WALL_S:
+            self.heartbeat(t)
+            await asyncio.sleep(0.05)
+        return [n for n in self.mates if self.names.index(n) not in self.reserved()]
 
     # -- what the teammates say
     def _statuses(self) -> dict[str, topics.TeamStatus]:
@@ -510,57 +523,35 @@ class ZenohFrames:
                 return None
 
 
-class MissionRunner(MissionExecutive):
-    """The mission process: the executive over MAVSDK (``MavsdkVehicle``) and zenoh (``ZenohFrames``), plus the
-    team's search (``mission.team``) when it flies in a team."""
+class MissionRunner:
+    """The mission process: the executive (``mission.executive``, or ``mission.team_executive`` in a team) over
+    MAVSDK (``MavsdkVehicle``) and zenoh (``ZenohFrames``, and ``_Team`` for the teammates)."""
 
     def __init__(self, session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig,
                  settings: MissionSettings):
         v = settings.vehicle
         self.session = session
+        self.scenario = scenario
         self.out = Path(out)
         self.settings = settings
         self.team: _Team | None = None
-        if len(settings.team) > 1:
-            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
-            brain: SearchBrain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)),
-                                           seed=settings.seed)
-        else:
-            brain = SearchBrain(scenario, config, seed=settings.seed)
         self._pubs = {topic: topics.declare_publisher(session, topic, v)
                       for topic in (topics.MISSION_STATE, topics.ESTIMATE, topics.PLAN)}
-        super().__init__(scenario, config, brain, leg_speed_m_s=settings.leg_speed_m_s,
-                         log_path=self.out / "mission_log.jsonl",
-                         put=lambda topic, payload: self._pubs[topic].put(payload.to_bytes()))
+        kw = dict(leg_speed_m_s=settings.leg_speed_m_s, log_path=self.out / "mission_log.jsonl",
+                  put=lambda topic, payload: self._pubs[topic].put(payload.to_bytes()))
+        self.executive: MissionExecutive
+        if len(settings.team) > 1:
+            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
+            brain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)), seed=settings.seed)
+            self.executive = TeamExecutive(scenario, config, brain, self.team, **kw)
+        else:
+            self.executive = MissionExecutive(scenario, config, SearchBrain(scenario, config, seed=settings.seed),
+                                              **kw)
         self.lockstep: LockstepAck | None = None
 
-    # ------------------------------------------------------------------------------ team hooks
-    def search_over(self) -> str | None:
-        """Why the team's search is over (a teammate's estimate ended it), else None; always None alone."""
-        return None if self.team is None else self.team.over()
-
-    def on_tick(self) -> None:
-        if self.team is not None:
-            self.team.heartbeat(self.t)
-            for name, why in self.team.newly_silent():
-                self.event("teammate_lost", vehicle=name, why=why)
-
-    def publish_estimate(self) -> None:
-        loc = self.brain.localizer
-        if loc is not None:
-            msg = loc.to_estimate(self.t)
-            self.publish(msg)
-            if self.team is not None:  # the joint estimate, on the team's one key
-                self.team.publish_estimate(msg.to_bytes())
-
-    async def search(self) -> Decision:
-        if self.team is None:
-            return await super().search()
-        return await self._fly_team()  # decided jointly, flown here
-
-    # ------------------------------------------------------------------------------ the process
     async def run(self) -> dict:
         loop = asyncio.get_running_loop()
+        ex = self.executive
         recorder = FlightRecorder(self.out, self.scenario)
         stream = _Stream(loop, recorder)
         v = self.settings.vehicle
@@ -572,19 +563,19 @@ class MissionRunner(MissionExecutive):
         wall0 = time.monotonic()
         # attached from here: a vehicle run with --lockstep holds at t = 0 until the first ack
         self.lockstep = LockstepAck(self.session, v)
-        frames = ZenohFrames(stream, self.lockstep, v, self.event)
-        self.frames = frames
+        frames = ZenohFrames(stream, self.lockstep, v, ex.event)
+        ex.frames = frames
         try:
-            self.publish_state("connect", f"waiting for an autopilot on {self.settings.url}")
+            ex.publish_state("connect", f"waiting for an autopilot on {self.settings.url}")
             conn = await connect(self.settings.url, self.settings.connect_timeout_s)
             home = await wait_healthy(conn, self.settings.connect_timeout_s)
-            vehicle = MavsdkVehicle(conn, on_text=lambda severity, text: self.event("statustext", severity=severity,
-                                                                                   text=text))
-            self.vehicle = vehicle
+            vehicle = MavsdkVehicle(conn, on_text=lambda severity, text: ex.event("statustext", severity=severity,
+                                                                                 text=text))
+            ex.vehicle = vehicle
             watcher = asyncio.create_task(vehicle.watch())
-            self.event("connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
-            summary = await self.fly(vehicle, frames, land_in_place=self.team is not None,
-                                     first_timeout_wall_s=self.settings.connect_timeout_s)
+            ex.event("connected", home=[home.lat_deg, home.lon_deg, home.alt_m])
+            summary = await ex.fly(vehicle, frames, land_in_place=self.team is not None,
+                                   first_timeout_wall_s=self.settings.connect_timeout_s)
             for sub in subs:  # stop recording before counting, so the summary matches the files
                 sub.undeclare()
             subs = []
@@ -602,8 +593,8 @@ class MissionRunner(MissionExecutive):
                 "frames_lost": frames.frames_lost,
             })
             if self.team is not None:
-                summary.update(self.team.summary(self.brain, stream.frames()))
-            self.publish_state("done", summary["reason"])
+                summary.update(self.team.summary(ex.brain, stream.frames()))
+            ex.publish_state("done", summary["reason"])
             return summary
         finally:
             for s in subs:
@@ -612,119 +603,6 @@ class MissionRunner(MissionExecutive):
                 self.team.close()
             self.lockstep.detach()
             recorder.close()
-
-    def _ingest_team(self) -> None:
-        """Hand the teammates' newly announced dwells to the team brain."""
-        assert self.team is not None and isinstance(self.brain, TeamBrain)
-        for index, dwell, flown in self.team.new_dwells():
-            self.brain.add_dwell(index, np.array([dwell["x"], dwell["y"], dwell["z"]]), dwell["mean_rate"], flown)
-
-    async def _claim(self, decide, first: TeamDecision | None = None) -> TeamDecision:
-        """Decide (``decide()`` -> TeamDecision) and claim the plan's reservation: publish it, wait
-        ``CLAIM_WALL_S`` of wall time (lockstep holds sim time) for a teammate's claim made at the same time,
-        and plan again if an earlier claim crosses this one (``mission.team``'s allocation rule, made safe
-        between processes: of two crossing claims the later one yields)."""
-        assert self.team is not None
-        team = self.team
-        for attempt in range(CLAIM_ATTEMPTS):
-            self._ingest_team()
-            self._own_pose_variance()
-            decision = first if attempt == 0 and first is not None else decide()
-            if decision.plan is None:
-                return decision
-            path = decision.plan.path[:, :3]
-            var_end = self.brain.var_at_end(team.index, path)
-            stamp = team.claim(self.t, path, var_end)
-            await asyncio.sleep(CLAIM_WALL_S)
-            crossing = team.earlier_crossing(path, stamp, self.brain.team.separation_m, var_end)
-            if crossing is None:
-                return decision
-            self.event("yield", to=crossing, attempt=attempt)
-            team.set(self.t, "hold", self.current()[None, :3])
-        return TeamDecision(self.team.index, self.brain.phase, None, "hold: claims kept crossing",
-                            self.brain.team.hold_s)
-
-    def _own_pose_variance(self) -> tuple[float, float]:
-        """This vehicle's reported x-y pose variance now and its growth per metre flown (from its frames),
-        handed to the team brain for the drift margin of its next path."""
-        assert self.team is not None and isinstance(self.brain, TeamBrain)
-        p = self.frames.pose_at(self.t) or self.frames.pose()
-        f = self.frames.frames()
-        var = float(p.var_x) if p is not None and math.isfinite(p.var_x) else 0.0
-        density = float(drift_density_from_poses(f.positions, f.pose_variances, f.dwell)[0]) if len(f) > 1 else 0.0
-        self.brain.set_pose_variance(self.team.index, var, density)
-        return var, density
-
-    async def _fly_team(self) -> Decision:
-        """The team's search from this vehicle: plans from the team brain (every vehicle's dwells and frames),
-        reservations claimed on ``team/status``; returns the final decision (the plan None)."""
-        assert self.team is not None and isinstance(self.brain, TeamBrain)
-        team, brain, me = self.team, self.brain, self.team.index
-        current = self.current()
-        team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :],
-                 self._own_pose_variance()[0])
-        # no plan before every teammate has said where it is (airborne at its launch point), or is given up
-        # on: the wait is in wall time, while lockstep holds sim time, so it costs no flight time
-        waited = time.monotonic()
-        while len(team.reserved()) < len(team.mates) and time.monotonic() - waited < TEAM_START_WALL_S:
-            team.heartbeat(self.t)
-            await asyncio.sleep(0.05)
-        missing = [n for n in team.mates if self.team.names.index(n) not in team.reserved()]
-        if missing:
-            self.event("teammates_missing_at_start", vehicles=missing)
-        decision = await self._claim(lambda: brain.start(self.current(), me, team.reserved()))
-        own_dwells = 0
-        while self.abort_reason is None:
-            over = team.over()
-            if over is not None:
-                return Decision(Phase.DONE, None, over)
-            if decision.done:
-                team.finish(self.t, decision.reason, decided=True)
-                return decision.as_decision()
-            if decision.retire:  # boxed in by the teammates for long: this vehicle leaves, the team goes on
-                team.finish(self.t, decision.reason, decided=False)
-                return decision.as_decision()
-            if decision.plan is None:  # hold where it is, then ask again
-                here = self.current()
-                team.set(self.t, "hold", here[None, :3])
-                self.publish_state("hold", decision.reason)
-                t_end = self.t + decision.hold_s
-                while self.t < t_end - 1e-6 and self.abort_reason is None and team.over() is None:
-                    await self.tick()
-                decision = await self._claim(lambda: brain.replan(me, self.current(), team.reserved()))
-                continue
-            self.publish_plan(decision.as_decision())
-            plan = decision.plan
-            d = await self.upload(plan)
-            self.publish_state(decision.phase.value, f"flying to dwell point {own_dwells}: {decision.reason}")
-            first_frame = len(self.frames.records)
-            if not await self.arrive(d, plan.path_length() + 0.5):
-                if self.abort_reason is not None or team.over() is not None:
-                    continue
-                self.event("leg_timeout", target=d.tolist())
-            self.set_dwell(own_dwells)
-            team.set(self.t, "dwell", d[None, :3])
-            self.publish_state("dwell", f"dwelling at ({d[0]:.2f}, {d[1]:.2f})")
-            status = await self.dwell()
-            if status is None:
-                continue
-            position = self.dwelt(d, own_dwells, status)
-            records = list(self.frames.records)
-            times = [r.t for r in records if r.dwell == own_dwells]
-            flown = np.array([(r.x, r.y, r.z) for r in records[first_frame:] if r.dwell < 0]).reshape(-1, 3)
-            team.add_dwell(own_dwells, position, status.mean_rate, min(times, default=self.t),
-                           max(times, default=self.t), flown)
-            self._ingest_team()
-            frames = team.frames(self.frames.frames())
-            self._own_pose_variance()
-            decision = brain.end_dwell(position, status, frames, self.current(), flown, me, team.reserved())
-            if decision.plan is not None:  # claim it (and plan again if an earlier claim crosses it)
-                decision = await self._claim(lambda: brain.replan(me, self.current(), team.reserved()),
-                                             first=decision)
-            await self.end_dwell(decision)
-            own_dwells += 1
-        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
-        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")
 
 
 def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,
