@@ -42,9 +42,9 @@ from mission.executive import MissionExecutive
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Phase, SearchBrain, SearchConfig, reproducible
-from mission.team import TeamBrain, TeamConfig, team_frames
+from mission.team import TeamBrain, TeamConfig
 from mission.team_executive import TeamExecutive
-from planner.allocation import Reservation, path_clear
+from mission.team_link import TeamLinkBase, label_dwells
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
@@ -250,23 +250,14 @@ class _MateStream(_PosedHistograms):
         with self.lock:
             records = list(self.records)
             dwells = list(self.status.dwells) if self.status is not None else []
-        if not records:
-            return None
-        f = Frames.from_records(records)
-        dwell = np.full(len(f), -1)
-        for d in dwells:
-            dwell[(f.t >= d["t_first"] - 1e-6) & (f.t <= d["t_last"] + 1e-6)] = int(d["index"])
-        f.dwell[:] = dwell
-        return f
+        return label_dwells(Frames.from_records(records), dwells) if records else None
 
 
-class _Team:
+class _Team(TeamLinkBase):
     """This vehicle's side of the team's zenoh traffic (``team/status`` and the joint ``estimate``)."""
 
     def __init__(self, session: zenoh.Session, me: str, names: tuple[str, ...], channel_edges_keV: np.ndarray):
-        if me not in names:
-            raise ValueError(f"vehicle {me!r} is not one of the team {names}")
-        self.me, self.names, self.index = me, names, names.index(me)
+        super().__init__(me, names)
         self.mates = {n: _MateStream(n, channel_edges_keV) for n in names if n != me}
         self._subs = []
         for n, m in self.mates.items():
@@ -275,61 +266,35 @@ class _Team:
                            session.declare_subscriber(topics.key(topics.TEAM_STATUS, n), m.on_status)]
         self._pub = topics.declare_publisher(session, topics.TEAM_STATUS, me)
         self._est_pub = topics.declare_publisher(session, topics.ESTIMATE, topics.TEAM)
-        self.seq = 0
-        self.state = "start"
-        self.reservation = np.zeros((1, 3))
-        self.var_xy = 0.0
-        self.stamp = 0.0
-        self.dwells: list[dict[str, float]] = []
-        self.flown = np.zeros((0, 3))
-        self.reason = ""
-        self.decided = False
-        self.t = 0.0
         self._sent_wall = -math.inf
         self._sent_t = -math.inf
-        self._taken = {n: 0 for n in self.mates}  # teammates' dwells already handed to the brain
-        self._flown_taken = {n: 0 for n in self.mates}
 
-    # -- publishing
-    def _put(self) -> None:
-        msg = topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
-                                reservation=self.reservation.tolist(), dwells=self.dwells,
-                                flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
-                                stamp=self.stamp, var_xy=self.var_xy)
-        self.seq += 1
+    # -- the carrier: zenoh
+    def _send(self, msg: topics.TeamStatus) -> None:
         self._pub.put(msg.to_bytes())
         self._sent_wall, self._sent_t = time.monotonic(), self.t
 
-    def set(self, t: float, state: str, reservation: np.ndarray, var_xy: float | None = None) -> None:
-        self.t, self.state = float(t), state
-        self.reservation = np.asarray(reservation, dtype=float).reshape(-1, 3)
-        if var_xy is not None:
-            self.var_xy = max(float(var_xy), 0.0)
-        self._put()
+    def _statuses(self) -> dict[str, topics.TeamStatus]:
+        out = {}
+        for n, m in self.mates.items():
+            with m.lock:
+                if m.status is not None:
+                    out[n] = m.status
+        return out
 
-    def claim(self, t: float, path: np.ndarray, var_xy: float) -> float:
-        """Announce the plan's path as this vehicle's reservation; returns the claim's stamp."""
-        self.stamp = time.time()
-        self.set(t, "fly", path, var_xy)
-        return self.stamp
+    def _mate_frames(self, name: str) -> Frames | None:
+        return self.mates[name].frames()
 
-    def add_dwell(self, index: int, position: np.ndarray, mean_rate: float, t_first: float, t_last: float,
-                  flown: np.ndarray) -> None:
-        rate = float(mean_rate) if math.isfinite(mean_rate) else 0.0
-        self.dwells.append({"index": int(index), "x": float(position[0]), "y": float(position[1]),
-                            "z": float(position[2]), "mean_rate": rate, "t_first": float(t_first),
-                            "t_last": float(t_last)})
-        if len(flown):
-            self.flown = np.vstack([self.flown, flown])
+    def _stamp(self, t: float) -> float:
+        return time.time()  # wall clock: the processes' sim clocks are not one clock
 
-    def finish(self, t: float, reason: str, decided: bool) -> None:
-        self.reason, self.decided = reason, decided
-        self.set(t, "done", self.reservation[-1:])
+    def lost(self) -> list[str]:
+        return [n for n, m in self.mates.items() if m.silent]
 
     def heartbeat(self, t: float) -> None:
         """Repeat the status every TEAM_HEARTBEAT_WALL_S wall and TEAM_HEARTBEAT_SIM_S sim seconds (once it has
         said where it is)."""
-        self.t = max(self.t, float(t))
+        super().heartbeat(t)
         if self.seq and (time.monotonic() - self._sent_wall > TEAM_HEARTBEAT_WALL_S or
                          self.t - self._sent_t >= TEAM_HEARTBEAT_SIM_S):
             self._put()
@@ -351,36 +316,6 @@ class _Team:
             await asyncio.sleep(0.05)
         return [n for n in self.mates if self.names.index(n) not in self.reserved()]
 
-    # -- what the teammates say
-    def _statuses(self) -> dict[str, topics.TeamStatus]:
-        out = {}
-        for n, m in self.mates.items():
-            with m.lock:
-                if m.status is not None:
-                    out[n] = m.status
-        return out
-
-    def reserved(self) -> dict[int, Reservation]:
-        """Every teammate's last reservation by team index (a failed teammate's stays: where it was last)."""
-        return {self.names.index(n): Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
-                for n, st in self._statuses().items()}
-
-    def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float, var_xy: float) -> str | None:
-        """A teammate whose reservation crosses ``path`` and was claimed before ``stamp`` (this claim yields)."""
-        for n, st in self._statuses().items():
-            mate = Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
-            if st.state == "fly" and (st.stamp, self.names.index(n)) < (stamp, self.index) and \
-                    not path_clear(path, [mate], separation, var_xy):
-                return n
-        return None
-
-    def over(self) -> str | None:
-        """The reason the team's search ended, when a teammate's estimate ended it."""
-        for n, st in self._statuses().items():
-            if st.state == "done" and st.decided:
-                return f"{st.reason} (decided by {n})"
-        return None
-
     def newly_silent(self) -> list[tuple[str, str]]:
         """Teammates whose mission is gone (once each, with why): its vehicle flew ``MATE_LAG_SIM_S`` of its sim
         time past the mission's last status (lockstep released), or nothing came for ``TEAM_SILENT_WALL_S``."""
@@ -398,32 +333,6 @@ class _Team:
                     m.silent = True
                     out.append((n, why))
         return out
-
-    def new_dwells(self) -> list[tuple[int, dict, np.ndarray | None]]:
-        """Teammates' dwells not yet handed to the brain, with the path each flew since its last."""
-        out = []
-        for n, st in self._statuses().items():
-            new = st.dwells[self._taken[n]:]
-            if not new:
-                continue
-            self._taken[n] = len(st.dwells)
-            flown = np.asarray(st.flown, dtype=float).reshape(-1, 3)
-            path, self._flown_taken[n] = flown[self._flown_taken[n]:], len(flown)
-            for k, d in enumerate(new):
-                out.append((self.names.index(n), d, path if k == 0 else None))
-        return out
-
-    def frames(self, own: Frames) -> Frames:
-        """The team's frames (``mission.team.team_frames``): this vehicle's and every teammate's so far."""
-        per = [own if n == self.me else self.mates[n].frames() for n in self.names]
-        return team_frames(per)
-
-    def summary(self, brain: SearchBrain, own: Frames) -> dict:
-        step = np.linalg.norm(np.diff(own.positions, axis=0), axis=1) if len(own) > 1 else np.zeros(0)
-        moving = own.dwell[1:] < 0 if len(own) > 1 else np.zeros(0, dtype=bool)
-        return {"vehicle": self.me, "team": list(self.names), "decided": self.decided,
-                "distance_m": float(step[moving].sum()), "own_dwell_points": len(self.dwells),
-                "teammates_lost": [n for n, m in self.mates.items() if m.silent]}
 
     def close(self) -> None:
         for s in self._subs:
