@@ -57,3 +57,13 @@ def test_team_ellipse_coverage_is_honest():
         covered.append(bool(coverage(r.estimate, (src.x, src.y))[1]))
     assert stats.binom.cdf(5, n, 0.95) < 0.01
     assert sum(covered) >= 6, covered
+
+
+def test_the_same_seed_flies_the_same_team_flight():
+    """The vehicles step on one sim clock and claims are stamped with sim time: nothing depends on wall time."""
+    a, b = (fly_team_offline(SCENE, 2, seed=4) for _ in range(2))
+    assert [d.reason for d in a.decisions] == [d.reason for d in b.decisions]
+    fa, fb = a.dataset.frames, b.dataset.frames
+    assert len(fa) == len(fb) > 100
+    assert (fa.t == fb.t).all() and (fa.positions == fb.positions).all() and (fa.counts == fb.counts).all()
+    assert a.error_m == b.error_m
