@@ -20,6 +20,7 @@ from detector_fw_sim.scene import Scene
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from radseek import topics
 from radseek.dataset import Dataset, Frames
+from radseek.estimate import SourceEstimate
 from radseek.frame_record import FrameRecord
 from vehicle_sim.odometry import Odometry, OdometryParams
 
@@ -34,7 +35,7 @@ class EstimateAndError:
     dataset: Dataset
 
     @property
-    def estimate(self) -> dict | None:
+    def estimate(self) -> SourceEstimate | None:
         return self.brain.estimate
 
     @property
@@ -44,7 +45,7 @@ class EstimateAndError:
         if est is None or truth is None:
             return math.inf
         s = truth.sources[0]
-        return float(math.hypot(est["x"] - s.x, est["y"] - s.y))
+        return float(math.hypot(est.x - s.x, est.y - s.y))
 
 
 @dataclass

@@ -49,7 +49,9 @@ from planner.allocation import Reservation, path_clear
 from planner.belief import drift_density_from_poses
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.estimate import SourceEstimate
 from radseek.frame_record import FrameRecord
+from radseek.outcome import Outcome, parse_outcome
 from radseek.outdir import atomic_write_json
 from radseek.payload_drops import DropCounter
 
@@ -295,6 +297,7 @@ class _Team:
         self.dwells: list[dict[str, float]] = []
         self.flown = np.zeros((0, 3))
         self.reason = ""
+        self.outcome: Outcome | None = None
         self.decided = False
         self.t = 0.0
         self._sent_wall = -math.inf
@@ -307,7 +310,7 @@ class _Team:
         msg = topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
                                 reservation=self.reservation.tolist(), dwells=self.dwells,
                                 flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
-                                stamp=self.stamp, var_xy=self.var_xy)
+                                stamp=self.stamp, var_xy=self.var_xy, outcome=self.outcome or "")
         self.seq += 1
         self._pub.put(msg.to_bytes())
         self._sent_wall, self._sent_t = time.monotonic(), self.t
@@ -334,8 +337,8 @@ class _Team:
         if len(flown):
             self.flown = np.vstack([self.flown, flown])
 
-    def finish(self, t: float, reason: str, decided: bool) -> None:
-        self.reason, self.decided = reason, decided
+    def finish(self, t: float, reason: str, decided: bool, outcome: Outcome | None = None) -> None:
+        self.reason, self.decided, self.outcome = reason, decided, outcome
         self.set(t, "done", self.reservation[-1:])
 
     def heartbeat(self, t: float) -> None:
@@ -372,11 +375,11 @@ class _Team:
                 return n
         return None
 
-    def over(self) -> str | None:
-        """The reason the team's search ended, when a teammate's estimate ended it."""
+    def over(self) -> Decision | None:
+        """The team's search's end (the teammate's reason and outcome), when a teammate's estimate ended it."""
         for n, st in self._statuses().items():
             if st.state == "done" and st.decided:
-                return f"{st.reason} (decided by {n})"
+                return Decision(Phase.DONE, None, f"{st.reason} (decided by {n})", parse_outcome(st.outcome))
         return None
 
     def newly_silent(self) -> list[tuple[str, str]]:
@@ -678,6 +681,7 @@ class MissionRunner:
                 decision = self.brain.end_dwell(position, status, stream.frames(), self._current(stream))
                 await self._end_dwell(stream, mission, decision)
             reason = decision.reason if self.abort_reason is None else f"search aborted: {self.abort_reason}"
+            outcome = decision.outcome if self.abort_reason is None else Outcome.ABORTED
             if self.abort_reason is not None:
                 self._event(stream, "abort", reason=self.abort_reason)
             self.publish_state(stream, "rtl", f"search done: {reason}")
@@ -704,13 +708,14 @@ class MissionRunner:
             recorder.close()
             summary = {
                 "reason": reason,
+                "outcome": outcome,
                 "dwell_points": len(self.brain.history),
                 "search_dwell_points": self.brain.search_dwells,
                 "mission_time_s": t_done - (self.t_start or 0.0),
                 "flight_time_s": t_landed,
                 "wall_time_s": time.monotonic() - wall0,
-                "estimate": self.brain.estimate,
-                "estimates": self.brain.estimates,
+                "estimate": _json(self.brain.estimate),
+                "estimates": [e.to_json() for e in self.brain.estimates],
                 "frames_received": recorder.received,
                 "frames_recorded": recorder.recorded,
                 "frames_flagged": recorder.flagged,
@@ -757,7 +762,7 @@ class MissionRunner:
         if self.brain.estimate is not None:
             self._publish_estimate(stream)
         self._event(stream, "decision", phase=decision.phase.value, reason=decision.reason,
-                    estimate=self.brain.estimate)
+                    outcome=decision.outcome, estimate=_json(self.brain.estimate))
 
     def _current(self, stream: _Stream) -> np.ndarray:
         p = stream.pose_at(self.t)
@@ -779,7 +784,7 @@ class MissionRunner:
 
     # ------------------------------------------------------------------------------ team (mission.team)
 
-    def _team_over(self) -> str | None:
+    def _team_over(self) -> Decision | None:
         """Why the team's search is over (a teammate's estimate ended it), else None; always None alone."""
         return None if self.team is None else self.team.over()
 
@@ -853,12 +858,12 @@ class MissionRunner:
         while self.abort_reason is None:
             over = team.over()
             if over is not None:
-                return Decision(Phase.DONE, None, over)
+                return over
             if decision.done:
-                team.finish(self.t, decision.reason, decided=True)
+                team.finish(self.t, decision.reason, decided=True, outcome=decision.outcome)
                 return decision.as_decision()
             if decision.retire:  # boxed in by the teammates for long: this vehicle leaves, the team goes on
-                team.finish(self.t, decision.reason, decided=False)
+                team.finish(self.t, decision.reason, decided=False, outcome=decision.outcome)
                 return decision.as_decision()
             if decision.plan is None:  # hold where it is, then ask again
                 here = self._current(stream)
@@ -901,8 +906,13 @@ class MissionRunner:
                                              first=decision)
             await self._end_dwell(stream, mission, decision)
             own_dwells += 1
-        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
-        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")
+        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False, outcome=Outcome.ABORTED)
+        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}", Outcome.ABORTED)
+
+
+def _json(estimate: SourceEstimate | None) -> dict | None:
+    """An estimate as the summary and log write it (``SourceEstimate.to_json``)."""
+    return None if estimate is None else estimate.to_json()
 
 
 def run_mission(session: zenoh.Session, scenario: Scenario, out: Path, config: SearchConfig | None = None,
