@@ -6,7 +6,7 @@ vehicle's odometry drift its own). Same scene, same seeds, same search settings.
 
 * ``median_found_s``: median simulated seconds from take-off to the "source found" decision; a flight that
   ended otherwise (dwell budget, no frontier) counts as never found (+inf), so the median is honest;
-* ``found``: share of flights that ended "source found";
+* ``found``: share of flights that ended "source found" (``Outcome.found``: ``found`` or ``drift_limited``);
 * ``median_error_m``, ``p90_error_m``: x-y distance of the final estimate from the truth;
 * ``coverage_95``: share of flights whose reported 95 % ellipse holds the truth (``launch.campaign.coverage``;
   ``covered`` of ``judged`` flights);
