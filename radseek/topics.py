@@ -427,7 +427,8 @@ class TeamStatus(_Payload):
     every dwell the vehicle has ended, cumulative so that a lost message loses nothing: each {index, x, y,
     z, mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in
     cps, the sim times of its first and last frames). ``flown`` samples the path it has flown (x, y, z),
-    for the team's explored area. ``reason`` says why the search ended (state ``done``), ``decided``
+    for the team's explored area. ``reason`` says why the search ended (state ``done``; ``outcome`` as a
+    ``radseek.outcome.Outcome`` value), ``decided``
     whether this vehicle's estimate ended it (the whole team then ends its search). ``var_xy`` is the drift
     the vehicle expects by its reservation's end (its reported pose variance plus its growth over the path):
     teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (wall
