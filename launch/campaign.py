@@ -296,7 +296,7 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
         # the drift-aware bound (rms horizontal error reachable with the pose drift), when the estimate has it
         "bound_m": float(est.bound_m) if est and est.bound_m is not None else math.nan,
         "stop_reason": r.decisions[-1].reason,
-        "outcome": outcome.value if (outcome := r.decisions[-1].outcome) is not None else None,
+        "outcome": None if r.decisions[-1].outcome is None else r.decisions[-1].outcome.value,  # a plain str
     }
     # whatever else the in-flight estimate reports rides along: numbers (e.g. a drift-aware bound) and the
     # numbers of nested records (e.g. an ellipse) as est.<key>[.<sub>]; another position covariance (e.g.
