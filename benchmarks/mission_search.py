@@ -29,7 +29,10 @@ import tempfile
 import numpy as np
 
 from launch.campaign import Sweep, run_campaign
-from mission.search import STRATEGIES
+from mission.search import STRATEGIES, Outcome
+
+#: the campaign rows' ``outcome`` values of a found source
+FOUND = {o.value for o in Outcome if o.found}
 
 
 def summarize(rows: list[dict], scene_name: str, strategy: str) -> dict:
@@ -47,7 +50,7 @@ def summarize(rows: list[dict], scene_name: str, strategy: str) -> dict:
         "coverage_95": float(np.mean(cov)) if cov else float("nan"),
         "median_bound_m": float(np.median(bounds)) if bounds else float("nan"),
         "median_cpu_s": float(np.median([r["cpu_s"] for r in rows])) if rows else float("nan"),
-        "found": float(np.mean([str(r["stop_reason"]).startswith("source found") for r in rows])) if rows
+        "found": float(np.mean([r.get("outcome") in FOUND for r in rows])) if rows
         else float("nan"),
     }
 

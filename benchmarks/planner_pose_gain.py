@@ -43,13 +43,13 @@ def fly(scene_name: str, gain_kind: str, seed: int, stop_sigma_m: float = Search
     est, truth = r.estimate, r.dataset.truth.sources[0]
     covered, sigma = False, math.inf
     if est is not None:
-        d = np.array([est["x"] - truth.x, est["y"] - truth.y])
-        cov = np.asarray(est["covariance"], dtype=float)[:2, :2]
+        d = np.array([est.x - truth.x, est.y - truth.y])
+        cov = est.covariance[:2, :2]
         try:
             covered = bool(d @ np.linalg.solve(cov, d) <= CHI2_2D_95)
         except np.linalg.LinAlgError:
             covered = False
-        sigma = float(est["sigma_m"])
+        sigma = float(est.sigma_m)
     flown = float(np.linalg.norm(np.diff(r.true_path[:, :3], axis=0), axis=1).sum())
     search_m = sum(d.plan.path_length() for d in r.decisions if d.phase is Phase.SEARCH and d.plan is not None)
     var = r.dataset.frames.pose_variances[-1]

@@ -6,7 +6,7 @@ vehicle's odometry drift its own). Same scene, same seeds, same search settings.
 
 * ``median_found_s``: median simulated seconds from take-off to the "source found" decision; a flight that
   ended otherwise (dwell budget, no frontier) counts as never found (+inf), so the median is honest;
-* ``found``: share of flights that ended "source found";
+* ``found``: share of flights that ended "source found" (``Outcome.found``: ``found`` or ``drift_limited``);
 * ``median_error_m``, ``p90_error_m``: x-y distance of the final estimate from the truth;
 * ``coverage_95``: share of flights whose reported 95 % ellipse holds the truth (``launch.campaign.coverage``;
   ``covered`` of ``judged`` flights);
@@ -39,19 +39,22 @@ def fly(spec: tuple[str, int, int]) -> dict:
         from launch.offline import fly_offline
 
         r = fly_offline(scene, seed=seed)
-        reason, min_sep, dwells = r.decisions[-1].reason, math.inf, len(r.dwell_rates)
+        reason, outcome = r.decisions[-1].reason, r.decisions[-1].outcome
+        min_sep, dwells = math.inf, len(r.dwell_rates)
     else:
         from launch.offline_team import fly_team_offline
 
         r = fly_team_offline(scene, n, seed=seed)
-        reason, min_sep = (r.brain.final.reason if r.brain.final else "stopped"), r.min_separation_m
+        reason = r.brain.final.reason if r.brain.final else "stopped"
+        outcome = r.brain.final.outcome if r.brain.final else None
+        min_sep = r.min_separation_m
         dwells = len(r.brain.history)
     est = r.estimate
     src = r.dataset.truth.sources[0]
     _, covered = coverage(est, (src.x, src.y))
     return {"scene": scene_name, "vehicles": n, "seed": seed, "error_m": r.error_m,
-            "mission_time_s": r.mission_time_s, "found": reason.startswith("source found"), "covered_95": covered,
-            "sigma_m": est["sigma_m"] if est else math.inf, "min_separation_m": min_sep, "reason": reason,
+            "mission_time_s": r.mission_time_s, "found": outcome is not None and outcome.found, "covered_95": covered,
+            "sigma_m": est.sigma_m if est else math.inf, "min_separation_m": min_sep, "reason": reason,
             "dwell_points": dwells}
 
 

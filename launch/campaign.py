@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from radseek import __version__
+from radseek.estimate import SourceEstimate
 from radseek.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
 
 __all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "Sweep", "fly_one", "load_rows",
@@ -226,17 +227,16 @@ def _scene(name: str, effect: str, data: Mapping[str, Any] | None = None):
     return _SCENES[key]
 
 
-def coverage(estimate: Mapping[str, Any] | None, truth_xy: Sequence[float]) -> tuple[float, bool | None]:
+def coverage(estimate: SourceEstimate | None, truth_xy: Sequence[float]) -> tuple[float, bool | None]:
     """Mahalanobis distance^2 of the true source from the estimate under its x-y position covariance, and
     whether the 95 % ellipse covers the truth (d^2 <= chi2_2(0.95)); (nan, None) without an estimate or
-    covariance. A singular covariance (a collapsed ellipse) covers nothing off its line: d^2 = inf."""
-    if estimate is None or estimate.get("covariance") is None:
+    a finite covariance. A singular covariance (a collapsed ellipse) covers nothing off its line: d^2 = inf."""
+    if estimate is None:
         return math.nan, None
-    cov = np.asarray(estimate["covariance"], dtype=float)
-    if cov.ndim != 2 or min(cov.shape) < 2 or not np.isfinite(cov[:2, :2]).all():
+    c = estimate.covariance[:2, :2]
+    if not np.isfinite(c).all():
         return math.nan, None
-    c = cov[:2, :2]
-    r = np.array([truth_xy[0] - estimate["x"], truth_xy[1] - estimate["y"]], dtype=float)
+    r = np.array([truth_xy[0] - estimate.x, truth_xy[1] - estimate.y], dtype=float)
     w, v = np.linalg.eigh(0.5 * (c + c.T))
     proj = v.T @ r
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -286,29 +286,30 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
     d2, covered = coverage(est, (src.x, src.y))
     out: dict[str, Any] = {
         "error_m": float(r.error_m),
-        "sigma_m": float(est["sigma_m"]) if est else math.inf,
+        "sigma_m": float(est.sigma_m) if est else math.inf,
         "covered_95": covered, "mahalanobis2": d2,
         "dwell_points": len(r.dwell_rates), "search_dwells": int(r.brain.search_dwells),
         "mission_time_s": float(r.mission_time_s),
-        "est_x": float(est["x"]) if est else math.nan, "est_y": float(est["y"]) if est else math.nan,
+        "est_x": float(est.x) if est else math.nan, "est_y": float(est.y) if est else math.nan,
         "true_x": float(src.x), "true_y": float(src.y),
-        "converged": bool(est.get("converged", True)) if est else None,
+        "converged": est.converged if est else None,
         # the drift-aware bound (rms horizontal error reachable with the pose drift), when the estimate has it
-        "bound_m": float(est.get("bound_m", math.nan)) if est else math.nan,
+        "bound_m": float(est.bound_m) if est and est.bound_m is not None else math.nan,
         "stop_reason": r.decisions[-1].reason,
+        "outcome": None if r.decisions[-1].outcome is None else r.decisions[-1].outcome.value,  # a plain str
     }
     # whatever else the in-flight estimate reports rides along: numbers (e.g. a drift-aware bound) and the
     # numbers of nested records (e.g. an ellipse) as est.<key>[.<sub>]; another position covariance (e.g.
     # with the pose drift) gets its own coverage, covered_95.<suffix>
-    for k, v in (est or {}).items():
+    for k, v in (est.to_json() if est else {}).items():
         if k in _ESTIMATE_SKIP:
             continue
         if _number(v):
             out[f"est.{k}"] = float(v)
         elif isinstance(v, Mapping):
             out.update({f"est.{k}.{kk}": float(vv) for kk, vv in v.items() if _number(vv)})
-        elif k.startswith("covariance") and np.ndim(v) == 2:
-            _, cov_k = coverage({**est, "covariance": v}, (src.x, src.y))
+        elif k.startswith("covariance") and np.shape(v) == (3, 3):
+            _, cov_k = coverage(est.replace(covariance=v), (src.x, src.y))
             out[f"covered_95.{k.removeprefix('covariance').strip('_') or k}"] = cov_k
     return out
 

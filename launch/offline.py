@@ -29,6 +29,7 @@ from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproduci
 from radseek import topics
 from radseek.coordinates import Home
 from radseek.dataset import Dataset, Frames
+from radseek.estimate import SourceEstimate
 from radseek.frame_record import FrameRecord
 from radseek.pose_history import PoseHistory
 from vehicle_sim.mission_protocol import MissionItem
@@ -50,7 +51,7 @@ class EstimateAndError:
     dataset: Dataset
 
     @property
-    def estimate(self) -> dict | None:
+    def estimate(self) -> SourceEstimate | None:
         return self.brain.estimate
 
     @property
@@ -60,7 +61,7 @@ class EstimateAndError:
         if est is None or truth is None:
             return math.inf
         s = truth.sources[0]
-        return float(math.hypot(est["x"] - s.x, est["y"] - s.y))
+        return float(math.hypot(est.x - s.x, est.y - s.y))
 
 
 @dataclass

@@ -17,7 +17,8 @@ over time.
 (1-sigma semi-major axis, m; inf if not trustworthy), ``ellipse_95`` (``a_m``, ``b_m`` semi-axes, m, and
 ``angle_deg`` of the major axis from east), ``bound_m`` (drift-aware Cramér-Rao bound, rms horizontal, m),
 ``p_value`` (goodness of fit), ``warnings``, ``estimate`` (the whole record), ``estimate_source``
-(``in-flight`` or ``post-flight``), ``stop_sigma_m``, the mission's counts and times, ``truth``.
+(``in-flight`` or ``post-flight``), ``stop_sigma_m``, the mission's counts and times, ``truth``, ``stop_reason``
+(for people) and ``outcome`` (``radseek.outcome.Outcome``'s value, for programs).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from radseek.dataset import Dataset, DatasetError, read_dataset  # noqa: E402
+from radseek.estimate import SourceEstimate  # noqa: E402
 from radseek.geometry import semi_major_axis  # noqa: E402
 from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
 
@@ -69,32 +71,36 @@ def _wall_polygon(w) -> np.ndarray:
     return np.array([s + n, e + n, e - n, s - n])
 
 
-def flown_estimate(ds: Dataset, mission: dict[str, Any]) -> tuple[dict[str, Any], str]:
+def flown_estimate(ds: Dataset, mission: dict[str, Any]) -> tuple[SourceEstimate, str]:
     """The estimate the mission flew with (its last in-flight record) with ``bound_m`` and ``ellipse_95``,
     and where it came from: ``in-flight``, or ``post-flight`` (the in-flight policy on the whole recording)
     when the mission never had one. ValueError if no estimate can be made."""
-    from estimator.inflight import InflightEstimator, ellipse, flown_bound
+    from estimator.inflight import InflightEstimator, flown_bound
     from estimator.mle import pooled
 
-    est = mission.get("estimate")
-    source = "in-flight"
-    if not est:
+    if not mission.get("estimate"):
         inflight = InflightEstimator(ds.scenario)
-        est = inflight.update(ds.frames, dwell=int(mission.get("dwell_points", 0)))
-        if est is None:
+        if inflight.update(ds.frames, dwell=int(mission.get("dwell_points", 0))) is None:
             raise ValueError("no in-flight estimate and too few frames for one")
-        inflight.finalize()
-        return inflight.estimate, "post-flight"
-    est = dict(est)
-    if "ellipse_95" not in est:  # as InflightEstimator.finalize: none for an estimate that is not trustworthy
-        est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
-    if "bound_m" not in est:  # the flight ended before the mission added it: the frames up to that estimate
+        return SourceEstimate.from_json(inflight.finalize()), "post-flight"
+    est = _with_ellipse(SourceEstimate.from_json(mission["estimate"]))
+    if est.bound_m is None:  # the flight ended before the mission added it: the frames up to that estimate
         f = ds.frames
-        flown = [d for d in dict.fromkeys(f.dwell[f.dwell >= 0].tolist())][: int(est.get("dwell", 0)) or None]
+        flown = [d for d in dict.fromkeys(f.dwell[f.dwell >= 0].tolist())][: est.dwell or None]
         end = max((int(np.flatnonzero(f.dwell == d).max()) for d in flown), default=len(f) - 1)
         upto = pooled(f.select(np.arange(len(f)) <= end), 10, dwells_only=True)
-        est["bound_m"] = flown_bound(ds.scenario, upto, est)
-    return est, source
+        est = est.replace(bound_m=flown_bound(ds.scenario, upto, est.to_json()))
+    return est, "in-flight"
+
+
+def _with_ellipse(est: SourceEstimate) -> SourceEstimate:
+    """``est`` with its ``ellipse_95`` (as ``InflightEstimator.finalize``: none, infinite, for an estimate that
+    is not trustworthy) if it lacks one."""
+    from estimator.inflight import ellipse
+
+    if est.ellipse_95 is not None:
+        return est
+    return est.replace(ellipse_95=ellipse(est.covariance if math.isfinite(est.sigma_m) else np.full((2, 2), np.nan)))
 
 
 def _map_frame(ax, scenario) -> None:
@@ -133,7 +139,7 @@ def _emptiest_corner(ax, frames, src: dict[str, float]) -> list[float]:
     return [x0, y0, INSET_SIZE, INSET_SIZE]
 
 
-def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: dict[str, Any], truth) -> None:
+def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: SourceEstimate, truth) -> None:
     """An inset zoomed on the estimate: its 1-sigma and 95 % ellipses (centimetres, invisible at map
     scale under the marker) and the truth if it is near."""
     w = np.clip(np.linalg.eigvalsh(cov), 0, None) if np.isfinite(cov).all() else np.array([0.0, 0.0])
@@ -159,7 +165,7 @@ def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: di
     ins.xaxis.set_major_locator(MaxNLocator(3))
     ins.yaxis.set_major_locator(MaxNLocator(3))
     ins.set_facecolor("white")
-    sig = est.get("sigma_m", math.inf)
+    sig = est.sigma_m
     ins.set_title(f"zoom: 1-sigma {sig:.3f} m, 95 % (dashed)", fontsize=7)
     ax.indicate_inset_zoom(ins, edgecolor="0.3")
 
@@ -172,8 +178,8 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     ds = read_dataset(out / "dataset")
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
     est, est_source = flown_estimate(ds, mission)
-    src = {k: float(est[k]) for k in ("x", "y", "z", "cps_at_1m")}
-    cov = np.asarray(est["covariance"], dtype=float)[:2, :2]
+    src = {"x": est.x, "y": est.y, "z": est.z, "cps_at_1m": est.cps_at_1m}
+    cov = est.covariance[:2, :2]
     truth = ds.truth
     err = math.hypot(src["x"] - truth.sources[0].x, src["y"] - truth.sources[0].y) if truth else math.nan
     stop_sigma = float(mission.get("stop_sigma_m", SearchConfig().stop_sigma_m))
@@ -192,7 +198,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         ax.scatter(f.x[m].mean(), f.y[m].mean(), s=20 + 200 * math.sqrt(rates[-1] / max(1.0, max(rates))),
                    color="tab:orange", edgecolor="k", zorder=3)
         ax.annotate(str(k), (f.x[m].mean(), f.y[m].mean()), xytext=(4, 4), textcoords="offset points", fontsize=8)
-    walled = " with walls" if "wall_attenuation" in est.get("effects", ()) else ""
+    walled = " with walls" if "wall_attenuation" in est.effects else ""
     ax.plot(src["x"], src["y"], "b+", ms=14, mew=2,
             label=f"{est_source} estimate{walled} ({src['x']:.2f}, {src['y']:.2f})")
     if truth:
@@ -204,21 +210,21 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     _zoom_inset(ax, ds, src, cov, est, truth)
 
     ax = axes[0, 1]
-    history = mission.get("estimates", [])
+    history = [SourceEstimate.from_json(e) for e in mission.get("estimates", [])]
     if history and truth:
-        k = [e["dwell"] for e in history]
-        e_err = [math.hypot(e["x"] - truth.sources[0].x, e["y"] - truth.sources[0].y) for e in history]
-        sig = [e["sigma_m"] for e in history]
+        k = [e.dwell for e in history]
+        e_err = [math.hypot(e.x - truth.sources[0].x, e.y - truth.sources[0].y) for e in history]
+        sig = [e.sigma_m for e in history]
         ax.semilogy(k, e_err, "o-", label="position error (m)")
         ax.semilogy(k, sig, "s--", label="1-sigma semi-major axis (m)")
         # an estimate not trustworthy yet (sigma inf: unconverged or collapsed) shows its ellipse's size hollow
-        untrusted = [(kk, semi_major_axis(np.asarray(e["covariance"])[:2, :2]))
+        untrusted = [(kk, semi_major_axis(e.covariance[:2, :2]))
                      for kk, e, s_ in zip(k, history, sig, strict=True) if not math.isfinite(s_)]
         if untrusted:
             ax.semilogy(*zip(*untrusted, strict=True), "s", mfc="none", color="tab:orange",
                         label="its size, not trustworthy yet")
         ax.axhline(stop_sigma, color="0.5", lw=0.8, ls=":", label=f"stop rule: 1-sigma < {stop_sigma:g} m")
-        bound = est.get("bound_m", math.nan)
+        bound = est.bound_m
         if bound is not None and math.isfinite(bound) and bound > 0:
             ax.plot([k[-1]], [bound], "D", color="tab:purple", label=f"drift-aware bound {bound:.3f} m")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -261,17 +267,16 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
-    p_value = est.get("p_value", math.nan)
-    warning = gof_warning(p_value, out / "dataset")
+    warning = gof_warning(est.p_value, out / "dataset")
     summary = {
         "error_m": err,
-        "sigma_m": float(est["sigma_m"]),
-        "ellipse_95": est["ellipse_95"],
-        "bound_m": float(est["bound_m"]),
-        "p_value": float(p_value),
+        "sigma_m": float(est.sigma_m),
+        "ellipse_95": dict(est.ellipse_95 or {}),
+        "bound_m": float(est.bound_m if est.bound_m is not None else math.nan),
+        "p_value": float(est.p_value),
         "warnings": [warning] if warning else [],
         "estimate_source": est_source,
-        "estimate": {**est, "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
+        "estimate": {**est.to_json(), "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
         "stop_sigma_m": stop_sigma,
         "dwell_points": int(mission["dwell_points"]),
         "search_dwell_points": int(mission.get("search_dwell_points", 0)),
@@ -279,6 +284,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         "flight_time_s": float(mission.get("flight_time_s", math.nan)),
         "truth": truth.to_dict() if truth else None,
         "stop_reason": mission.get("reason"),
+        "outcome": mission.get("outcome"),
         "frames_received": mission.get("frames_received"),
         "frames_recorded": mission.get("frames_recorded"),
         "frames_flagged": mission.get("frames_flagged"),
@@ -341,18 +347,13 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
         except (OSError, ValueError):
             continue
     mission = missions.get(decider or "", {})
-    est = mission.get("estimate")
-    if not est:
+    if not mission.get("estimate"):
         raise ValueError("the team's search ended without an estimate")
-    from estimator.inflight import ellipse
-
-    est = dict(est)
-    if "ellipse_95" not in est:
-        est["ellipse_95"] = ellipse(est["covariance"] if math.isfinite(est["sigma_m"]) else np.full((2, 2), np.nan))
+    est = _with_ellipse(SourceEstimate.from_json(mission["estimate"]))
     any_ds = next(iter(data.values()))
     truth = any_ds.truth
-    err = math.hypot(est["x"] - truth.sources[0].x, est["y"] - truth.sources[0].y) if truth else math.nan
-    cov = np.asarray(est["covariance"], dtype=float)[:2, :2]
+    err = math.hypot(est.x - truth.sources[0].x, est.y - truth.sources[0].y) if truth else math.nan
+    cov = est.covariance[:2, :2]
 
     fig, ax = plt.subplots(figsize=(9, 8))
     for w in any_ds.scenario.walls:
@@ -384,9 +385,9 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
                 ax.annotate(f"{n[-1]}.{k}", (f.x[m].mean(), f.y[m].mean()), xytext=(4, 4), textcoords="offset points",
                             fontsize=8)
         per_vehicle.append(row)
-    ax.plot(est["x"], est["y"], "k+", ms=14, mew=2, label=f"joint estimate ({est['x']:.2f}, {est['y']:.2f})")
-    if math.isfinite(est.get("sigma_m", math.inf)):
-        _ellipse(ax, (est["x"], est["y"]), cov, N_SIGMA_95, color="k", lw=1.0, ls="--")
+    ax.plot(est.x, est.y, "k+", ms=14, mew=2, label=f"joint estimate ({est.x:.2f}, {est.y:.2f})")
+    if math.isfinite(est.sigma_m):
+        _ellipse(ax, (est.x, est.y), cov, N_SIGMA_95, color="k", lw=1.0, ls="--")
     if truth:
         ax.plot(truth.sources[0].x, truth.sources[0].y, "r*", ms=14, label="truth")
     _map_frame(ax, any_ds.scenario)
@@ -398,19 +399,20 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
     plt.close(fig)
     summary = {
         "error_m": err,
-        "sigma_m": float(est["sigma_m"]),
-        "ellipse_95": est["ellipse_95"],
-        "bound_m": float(est.get("bound_m", math.nan)),
-        "p_value": float(est.get("p_value", math.nan)),
+        "sigma_m": float(est.sigma_m),
+        "ellipse_95": dict(est.ellipse_95 or {}),
+        "bound_m": float(est.bound_m if est.bound_m is not None else math.nan),
+        "p_value": float(est.p_value),
         "warnings": [],
         "estimate_source": "in-flight (joint)",
-        "estimate": est,
+        "estimate": est.to_json(),
         "decided_by": decider,
         "dwell_points": sum(r["dwell_points"] for r in per_vehicle),
         "mission_time_s": float(mission.get("mission_time_s", math.nan)),
         "per_vehicle": per_vehicle,
         "truth": truth.to_dict() if truth else None,
         "stop_reason": mission.get("reason"),
+        "outcome": mission.get("outcome"),
         "wall_time_s": wall_time_s,
         "speedup": speedup,
     }

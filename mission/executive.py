@@ -29,7 +29,9 @@ from mission.client.mission_upload import DwellPoint
 from mission.search import Decision, SearchBrain, SearchConfig
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.estimate import SourceEstimate
 from radseek.frame_record import FrameRecord
+from radseek.outcome import Outcome
 
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
@@ -102,8 +104,9 @@ class MissionExecutive:
     def abort_reason(self) -> str | None:
         return self.vehicle.abort_reason if self.vehicle is not None else None
 
-    def search_over(self) -> str | None:
-        """Why the search must stop early besides the vehicle (a teammate's estimate ended it), else None."""
+    def search_over(self) -> Decision | None:
+        """The search's end when something besides the brain and the vehicle ended it (a teammate's estimate),
+        else None."""
         return None
 
     def on_tick(self) -> None:
@@ -227,7 +230,8 @@ class MissionExecutive:
         self.set_dwell(-1)
         if self.brain.estimate is not None:
             self.publish_estimate()
-        self.event("decision", phase=decision.phase.value, reason=decision.reason, estimate=self.brain.estimate)
+        self.event("decision", phase=decision.phase.value, reason=decision.reason, outcome=decision.outcome,
+                   estimate=_json(self.brain.estimate))
 
     def publish_plan(self, decision: Decision) -> None:
         assert decision.plan is not None
@@ -276,6 +280,7 @@ class MissionExecutive:
         self.t_start = self.t
         decision = await self.search()
         reason = decision.reason if self.abort_reason is None else f"search aborted: {self.abort_reason}"
+        outcome = decision.outcome if self.abort_reason is None else Outcome.ABORTED
         if self.abort_reason is not None:
             self.event("abort", reason=self.abort_reason)
         self.publish_state("rtl", f"search done: {reason}")
@@ -292,10 +297,16 @@ class MissionExecutive:
         await self.landed()
         return {
             "reason": reason,
+            "outcome": outcome,
             "dwell_points": len(self.brain.history),
             "search_dwell_points": self.brain.search_dwells,
             "mission_time_s": t_done - (self.t_start or 0.0),
             "flight_time_s": self.t,
-            "estimate": self.brain.estimate,
-            "estimates": self.brain.estimates,
+            "estimate": _json(self.brain.estimate),
+            "estimates": [e.to_json() for e in self.brain.estimates],
         }
+
+
+def _json(estimate: SourceEstimate | None) -> dict | None:
+    """An estimate as the summary and log write it (``SourceEstimate.to_json``)."""
+    return None if estimate is None else estimate.to_json()

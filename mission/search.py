@@ -37,7 +37,9 @@ from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.estimate import SourceEstimate
 from radseek.geometry import semi_major_axis
+from radseek.outcome import Outcome, parse_outcome
 
 
 class Phase(StrEnum):
@@ -85,11 +87,14 @@ class SearchConfig:
 
 @dataclass(frozen=True)
 class Decision:
-    """What to do next: fly ``plan`` (path, then dwell at its dwell point) or stop (``plan`` None)."""
+    """What to do next: fly ``plan`` (path, then dwell at its dwell point) or stop (``plan`` None). ``reason``
+    is for people; a stop's ``outcome`` (:class:`radseek.outcome.Outcome`) is for programs (None while the
+    search goes on)."""
 
     phase: Phase
     plan: DwellPlan | None
     reason: str
+    outcome: Outcome | None = None
 
 
 class SearchBrain:
@@ -146,28 +151,30 @@ class SearchBrain:
         if self.phase is Phase.PATTERN:
             _, sigma = self._estimate(frames)
             if not self.pattern or n_dwells >= self.config.max_dwells:
-                return self._done(f"{self.config.strategy} pattern flown (1-sigma {sigma:.3f} m)")
+                return self._done(f"{self.config.strategy} pattern flown (1-sigma {sigma:.3f} m)",
+                                  Outcome.PATTERN_FLOWN)
             return self._next_pattern_point(current)
         if self.phase is Phase.EXPLORE:
             if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
                 self.phase = Phase.SEARCH
             elif n_dwells >= self.config.max_dwells:
-                return self._done("dwell budget spent during exploration")
+                return self._done("dwell budget spent during exploration", Outcome.BUDGET_SPENT)
             else:
                 return self._explore(current, f"explore: {self._above()} of 3 readings above background")
         belief, sigma = self._estimate(frames)
         misfit = self._misfit()
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
                 sigma < self.config.stop_sigma_m and self._stable() and not misfit:
-            return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
+            return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND)
         floor = self._drift_limited()
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and floor and \
                 self._stable() and not misfit:
             return self._done(f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the "
                               f"odometry-drift floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is "
-                              "below what this flight's drift allows)")
+                              "below what this flight's drift allows)", Outcome.DRIFT_LIMITED)
         if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
-            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})")
+            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})",
+                              Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT)
         if belief is None:
             return self._explore(current, "no estimate yet: keep exploring")
         plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.next_best,
@@ -197,13 +204,13 @@ class SearchBrain:
         plan = plan_exploration(self._at_altitude(current), self.history, self.occ, self.visited,
                                 self.config.frontier, rng=self.rng)
         if not plan.ok:
-            return self._done("exploration found no frontier left")
+            return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)
 
     def _misfit(self) -> str:
         """A note when the last estimate's goodness of fit fails (p < ``GOOD_FIT_P``: the model misses
         something, so its small ellipse is no found source), else ''."""
-        p = self.estimate["p_value"] if self.estimate else math.nan
+        p = self.estimate.p_value if self.estimate else math.nan
         return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
 
     def _drift_limited(self) -> float:
@@ -217,18 +224,18 @@ class SearchBrain:
         budget because each dwell compared only with a worse or a better neighbour)."""
         last = self.estimates[-3:]
         now = last[-1] if last else None
-        before = [e for e in last[:-1] if now["dwell"] - e["dwell"] <= 2] if now else []
-        if not before or before[-1]["dwell"] != now["dwell"] - 1:
+        before = [e for e in last[:-1] if now.dwell - e.dwell <= 2] if now else []
+        if not before or before[-1].dwell != now.dwell - 1:
             return 0.0
-        s_before = min(e["sigma_m"] for e in before)
-        floor = float(now.get("drift_floor_m", math.nan))
-        if not (np.isfinite([s_before, now["sigma_m"]]).all() and math.isfinite(floor) and floor > 0):
+        s_before = min(e.sigma_m for e in before)
+        floor = now.drift_floor_m
+        if not (np.isfinite([s_before, now.sigma_m]).all() and math.isfinite(floor) and floor > 0):
             return 0.0
         # a floor far above the drift itself is the geometry's (few counts, one side), not the drift's: no
         # stop there (outdoor: "found, drift-limited" at 1-sigma 1-20 m in 8 of 200 searches without this)
-        if not floor <= AT_FLOOR * float(now.get("pose_sd_m", math.nan)):
+        if not floor <= AT_FLOOR * now.pose_sd_m:
             return 0.0
-        return floor if now["sigma_m"] >= PLATEAU * s_before and now["sigma_m"] <= AT_FLOOR * floor else 0.0
+        return floor if now.sigma_m >= PLATEAU * s_before and now.sigma_m <= AT_FLOOR * floor else 0.0
 
     def _stable(self) -> bool:
         """The last two estimates agree within 2 combined x-y ellipse sizes: a small ellipse around an
@@ -238,8 +245,8 @@ class SearchBrain:
         if len(self.estimates) < 2:
             return False
         a, b = self.estimates[-2], self.estimates[-1]
-        sa, sb = (semi_major_axis(np.asarray(e["covariance"])[:2, :2]) for e in (a, b))
-        return math.hypot(a["x"] - b["x"], a["y"] - b["y"]) < 2 * math.hypot(sa, sb)
+        sa, sb = (semi_major_axis(e.covariance[:2, :2]) for e in (a, b))
+        return math.hypot(a.x - b.x, a.y - b.y) < 2 * math.hypot(sa, sb)
 
     def _pattern_points(self) -> np.ndarray:
         lo, hi = self.occ.free_min, self.occ.free_max
@@ -260,7 +267,7 @@ class SearchBrain:
                 yaw = np.full((len(path), 1), start[3])
                 plan = DwellPlan(np.r_[target, start[3]][None, :], np.hstack([path, yaw]), self.config.strategy)
                 return Decision(Phase.PATTERN, plan, f"{self.config.strategy}: {len(self.pattern)} points left")
-        return self._done(f"{self.config.strategy} pattern flown")
+        return self._done(f"{self.config.strategy} pattern flown", Outcome.PATTERN_FLOWN)
 
     def _route(self, start: np.ndarray, target: np.ndarray) -> np.ndarray | None:
         """Collision-free polyline (k, 3) from start to target: straight if possible, else along a tree."""
@@ -274,26 +281,26 @@ class SearchBrain:
                 return np.vstack([shortcut_path(tree.path_to(int(node)), self.occ), target])
         return None
 
-    def _done(self, reason: str) -> Decision:
+    def _done(self, reason: str, outcome: Outcome) -> Decision:
         self.phase = Phase.DONE
         self.estimator.finalize()  # the final estimate gets its drift-aware bound and 95 % ellipse, once
-        return Decision(Phase.DONE, None, reason)
+        return Decision(Phase.DONE, None, reason, outcome)
 
     def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
         """The in-flight estimate from every frame recorded so far (``estimator.inflight``) as the
         planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy)."""
-        est = self.estimator.update(frames, dwell=len(self.history))
-        if est is None:
+        if self.estimator.update(frames, dwell=len(self.history)) is None:
             return None, math.inf
-        belief = SourceBelief(np.array([est["x"], est["y"], est["z"]]), np.array(est["covariance"]),
-                              max(est["cps_at_1m"], 1e-3), max(est["background_cps"], 0.0),
-                              drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell))
-        return belief, est["sigma_m"]
+        est = self.estimate
+        assert est is not None
+        dens = drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell)
+        return belief_of(est, dens), est.sigma_m
 
     @property
-    def estimates(self) -> list[dict]:
-        """The in-flight estimate records, one per dwell from the first search estimate on."""
-        return self.estimator.estimates
+    def estimates(self) -> list[SourceEstimate]:
+        """The in-flight estimate records (``estimator.inflight``, typed), one per dwell from the first search
+        estimate on."""
+        return [SourceEstimate.from_json(e) for e in self.estimator.estimates]
 
     @property
     def localizer(self) -> Localizer | None:
@@ -301,18 +308,29 @@ class SearchBrain:
         return self.estimator.localizer
 
     @property
-    def estimate(self) -> dict | None:
-        return self.estimates[-1] if self.estimates else None
+    def estimate(self) -> SourceEstimate | None:
+        """The last in-flight estimate (with ``bound_m`` and ``ellipse_95`` once the search is done)."""
+        last = self.estimator.estimate
+        return None if last is None else SourceEstimate.from_json(last)
+
+
+def belief_of(est: SourceEstimate, drift_density: np.ndarray | float = 0.0) -> SourceBelief:
+    """The planner's belief (paper 003 sec. IV-B-3) of an in-flight estimate: strength and background
+    clipped to the belief's domain (> 0, >= 0)."""
+    return SourceBelief(est.position, est.covariance, max(est.cps_at_1m, 1e-3), max(est.background_cps, 0.0),
+                        drift_density)
 
 
 def search_failure(mission_summary: dict) -> str | None:
-    """Why the search failed, from the mission's summary; None when it located the source."""
+    """Why the search failed, from the mission's summary (its ``outcome``); None when it located the source.
+    A summary without a known ``outcome`` counts as not located."""
     reason = str(mission_summary.get("reason", ""))
-    if reason.startswith("search aborted"):
+    outcome = parse_outcome(mission_summary.get("outcome"))
+    if outcome is not None and outcome.aborted:
         return reason
     if mission_summary.get("estimate") is None:
         return f"no source estimate ({reason})"
-    if reason.startswith("source found") or " pattern flown" in reason:
+    if outcome is not None and outcome.located:
         return None
     return f"no source found: {reason}"
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator.mle import walk_starts
-from mission.search import Decision, Phase, SearchBrain, SearchConfig
+from mission.search import Decision, Phase, SearchBrain, SearchConfig, belief_of
 from planner.allocation import Reservation, as_reservation, clearance, path_clear, required_clearance, sample_polyline
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
 from planner.dwell_controller import DwellController, DwellStatus
@@ -42,6 +42,7 @@ from planner.next_best import finish_path, score_nodes
 from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.outcome import Outcome
 
 MAX_VEHICLES = 4
 #: candidate dwell points tried, best gain first, before a vehicle holds
@@ -116,6 +117,7 @@ class TeamDecision:
     reason: str
     hold_s: float = 0.0
     retire: bool = False  # this vehicle leaves the search (no free path for long); the team's goes on
+    outcome: Outcome | None = None  # the team's search's end (``retired``: this vehicle's), else None
 
     @property
     def done(self) -> bool:
@@ -123,7 +125,7 @@ class TeamDecision:
         return self.plan is None and self.hold_s <= 0 and not self.retire
 
     def as_decision(self) -> Decision:
-        return Decision(self.phase, self.plan, self.reason)
+        return Decision(self.phase, self.plan, self.reason, self.outcome)
 
 
 class TeamBrain(SearchBrain):
@@ -173,7 +175,7 @@ class TeamBrain(SearchBrain):
         n_dwells = len(self.history)
         if self.phase is Phase.EXPLORE:
             if n_dwells >= self.config.max_dwells:
-                return self._team_done(vehicle, "dwell budget spent during exploration")
+                return self._team_done(vehicle, "dwell budget spent during exploration", Outcome.BUDGET_SPENT)
             else:
                 return self._team_explore(vehicle, current, reserved,
                                           f"explore: {self._above()} of 3 readings above background")
@@ -182,14 +184,16 @@ class TeamBrain(SearchBrain):
         misfit = self._misfit()
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
                 sigma < self.config.stop_sigma_m and self._stable() and not misfit:
-            return self._team_done(vehicle, f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m")
+            return self._team_done(vehicle, f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m",
+                                   Outcome.FOUND)
         floor = self._drift_limited()
         if belief is not None and self.search_dwells >= self.config.min_search_dwells and floor and \
                 self._stable() and not misfit:
             return self._team_done(vehicle, f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling "
-                                            f"at the odometry-drift floor {floor:.3f} m)")
+                                            f"at the odometry-drift floor {floor:.3f} m)", Outcome.DRIFT_LIMITED)
         if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
-            return self._team_done(vehicle, f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})")
+            return self._team_done(vehicle, f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})",
+                                   Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT)
         if belief is None:
             return self._team_explore(vehicle, current, reserved, "no estimate yet: keep exploring")
         return self._team_next(vehicle, current, reserved, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
@@ -247,7 +251,8 @@ class TeamBrain(SearchBrain):
         self._in_row[vehicle] += 1
         if self._in_row[vehicle] > MAX_HOLDS_IN_ROW:
             return TeamDecision(vehicle, self.phase, None, f"search aborted: no free path for {MAX_HOLDS_IN_ROW} "
-                                                           f"holds in a row ({reason})", retire=True)
+                                                           f"holds in a row ({reason})", retire=True,
+                                outcome=Outcome.RETIRED)
         return TeamDecision(vehicle, self.phase, None, f"hold {self.team.hold_s:g} s: {reason}", self.team.hold_s)
 
     def _team_explore(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None,
@@ -267,7 +272,7 @@ class TeamBrain(SearchBrain):
             # that frontier's way is taken by a teammate: prune it too and take the next one
             pruned = np.vstack([pruned, plan.dwell_points[:, :3]])
         if not others and not plan.ok:
-            return self._team_done(vehicle, "exploration found no frontier left")
+            return self._team_done(vehicle, "exploration found no frontier left", Outcome.NO_FRONTIER)
         if self._belief is not None and self.phase is Phase.SEARCH:
             return self._team_next(vehicle, current, reserved, reason)
         return self._hold(vehicle, "no frontier with a free path")
@@ -307,26 +312,24 @@ class TeamBrain(SearchBrain):
                 return TeamDecision(vehicle, Phase.SEARCH, plan, reason)
         return self._hold(vehicle, "every good dwell point's path crosses a teammate's reservation")
 
-    def _team_done(self, vehicle: int, reason: str) -> TeamDecision:
-        self._done(reason)
-        self.final = TeamDecision(vehicle, Phase.DONE, None, reason)
+    def _team_done(self, vehicle: int, reason: str, outcome: Outcome) -> TeamDecision:
+        self._done(reason, outcome)
+        self.final = TeamDecision(vehicle, Phase.DONE, None, reason, outcome=outcome)
         return self.final
 
     def _again(self, vehicle: int) -> TeamDecision:
         assert self.final is not None
-        return TeamDecision(vehicle, Phase.DONE, None, self.final.reason)
+        return TeamDecision(vehicle, Phase.DONE, None, self.final.reason, outcome=self.final.outcome)
 
     def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
         """The joint estimate from all vehicles' frames; the belief's drift density is the vehicles'
         mean (each vehicle's walk measured on its own frames)."""
-        est = self.estimator.update(frames, dwell=len(self.history))
-        if est is None:
+        if self.estimator.update(frames, dwell=len(self.history)) is None:
             return None, math.inf
+        est = self.estimate
+        assert est is not None
         dens = [drift_density_from_poses(f.positions, f.pose_variances, f.dwell) for f in split_walks(frames)]
-        belief = SourceBelief(np.array([est["x"], est["y"], est["z"]]), np.array(est["covariance"]),
-                              max(est["cps_at_1m"], 1e-3), max(est["background_cps"], 0.0),
-                              np.mean(dens, axis=0) if dens else 0.0)
-        return belief, est["sigma_m"]
+        return belief_of(est, np.mean(dens, axis=0) if dens else 0.0), est.sigma_m
 
 
 __all__ = ["MAX_VEHICLES", "TeamBrain", "TeamConfig", "TeamDecision", "home_positions", "split_walks",

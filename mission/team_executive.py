@@ -22,6 +22,7 @@ from planner.allocation import Reservation
 from planner.belief import drift_density_from_poses
 from radseek import topics
 from radseek.dataset import Frames, Scenario
+from radseek.outcome import Outcome
 
 CLAIM_ATTEMPTS = 5  # claims yielded in a row before the vehicle holds instead
 
@@ -49,7 +50,7 @@ class TeamLink(Protocol):
     def add_dwell(self, index: int, position: np.ndarray, mean_rate: float, t_first: float, t_last: float,
                   flown: np.ndarray) -> None: ...
 
-    def finish(self, t: float, reason: str, decided: bool) -> None: ...
+    def finish(self, t: float, reason: str, decided: bool, outcome: Outcome | None = None) -> None: ...
 
     def heartbeat(self, t: float) -> None: ...
 
@@ -57,7 +58,7 @@ class TeamLink(Protocol):
 
     def reserved(self) -> dict[int, Reservation]: ...
 
-    def over(self) -> str | None: ...
+    def over(self) -> Decision | None: ...
 
     def newly_silent(self) -> list[tuple[str, str]]: ...
 
@@ -75,8 +76,8 @@ class TeamExecutive(MissionExecutive):
         super().__init__(scenario, config, brain, **kw)
         self.team = team
 
-    def search_over(self) -> str | None:
-        """Why the team's search is over (a teammate's estimate ended it), else None."""
+    def search_over(self) -> Decision | None:
+        """The team's search's end when a teammate's estimate ended it, else None."""
         return self.team.over()
 
     def on_tick(self) -> None:
@@ -152,12 +153,12 @@ class TeamExecutive(MissionExecutive):
         while self.abort_reason is None:
             over = team.over()
             if over is not None:
-                return Decision(Phase.DONE, None, over)
+                return over
             if decision.done:
-                team.finish(self.t, decision.reason, decided=True)
+                team.finish(self.t, decision.reason, decided=True, outcome=decision.outcome)
                 return decision.as_decision()
             if decision.retire:  # boxed in by the teammates for long: this vehicle leaves, the team goes on
-                team.finish(self.t, decision.reason, decided=False)
+                team.finish(self.t, decision.reason, decided=False, outcome=decision.outcome)
                 return decision.as_decision()
             if decision.plan is None:  # hold where it is, then ask again
                 here = self.current()
@@ -200,5 +201,5 @@ class TeamExecutive(MissionExecutive):
                 self.decisions.append(decision)
             await self.end_dwell(decision)
             own_dwells += 1
-        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False)
-        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}")
+        team.finish(self.t, f"search aborted: {self.abort_reason}", decided=False, outcome=Outcome.ABORTED)
+        return Decision(Phase.DONE, None, f"search aborted: {self.abort_reason}", Outcome.ABORTED)

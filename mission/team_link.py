@@ -14,11 +14,12 @@ import math
 
 import numpy as np
 
-from mission.search import SearchBrain
+from mission.search import Decision, Phase, SearchBrain
 from mission.team import team_frames
 from planner.allocation import Reservation, path_clear
 from radseek import topics
 from radseek.dataset import Frames
+from radseek.outcome import Outcome, parse_outcome
 
 
 def label_dwells(frames: Frames, dwells: list[dict]) -> Frames:
@@ -47,6 +48,7 @@ class TeamLinkBase:
         self.dwells: list[dict[str, float]] = []
         self.flown = np.zeros((0, 3))
         self.reason = ""
+        self.outcome: Outcome | None = None
         self.decided = False
         self.t = 0.0
         self._taken = {n: 0 for n in self.mates}  # teammates' dwells already handed to the brain
@@ -76,7 +78,7 @@ class TeamLinkBase:
         return topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
                                  reservation=self.reservation.tolist(), dwells=self.dwells,
                                  flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
-                                 stamp=self.stamp, var_xy=self.var_xy)
+                                 stamp=self.stamp, var_xy=self.var_xy, outcome=self.outcome or "")
 
     def _put(self) -> None:
         msg = self.status()
@@ -105,8 +107,8 @@ class TeamLinkBase:
         if len(flown):
             self.flown = np.vstack([self.flown, flown])
 
-    def finish(self, t: float, reason: str, decided: bool) -> None:
-        self.reason, self.decided = reason, decided
+    def finish(self, t: float, reason: str, decided: bool, outcome: Outcome | None = None) -> None:
+        self.reason, self.decided, self.outcome = reason, decided, outcome
         self.set(t, "done", self.reservation[-1:])
 
     def heartbeat(self, t: float) -> None:
@@ -127,11 +129,11 @@ class TeamLinkBase:
                 return n
         return None
 
-    def over(self) -> str | None:
-        """The reason the team's search ended, when a teammate's estimate ended it."""
+    def over(self) -> Decision | None:
+        """The team's search's end (the teammate's reason and outcome), when a teammate's estimate ended it."""
         for n, st in self._statuses().items():
             if st.state == "done" and st.decided:
-                return f"{st.reason} (decided by {n})"
+                return Decision(Phase.DONE, None, f"{st.reason} (decided by {n})", parse_outcome(st.outcome))
         return None
 
     def new_dwells(self) -> list[tuple[int, dict, np.ndarray | None]]:

@@ -14,6 +14,7 @@ import numpy as np
 from radseek import topics
 from radseek.count_model import expected_rate
 from radseek.dataset import Wall
+from radseek.estimate import SourceEstimate
 from radseek.geometry import path_lengths, semi_major_axis
 
 
@@ -55,11 +56,8 @@ class SourceBelief:
         """The belief of one source of an ``estimate`` message: its position block of
         ``msg.covariance_block(source)`` (the layout ``radseek.topics.Estimate`` declares). A message
         that breaks the layout raises ``topics.PayloadError``."""
-        msg.validate()
-        s = msg.sources[source]
-        full = np.asarray(msg.covariance_block(source), dtype=float)
-        cov = (full[:3, :3] + full[:3, :3].T) / 2
-        return cls(np.array([s["x"], s["y"], s["z"]]), cov, float(s["cps_at_1m"]), float(msg.background_cps))
+        est = SourceEstimate.from_topic(msg, source)  # the one reader of the topic's layout
+        return cls(est.position, est.covariance, est.cps_at_1m, est.background_cps)
 
     def semi_major_axis(self, extra_covariance: np.ndarray | None = None) -> float:
         """Largest semi-axis (m) of the 1-sigma ellipsoid of covariance (+ extra, e.g. the pose's): the

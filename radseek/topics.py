@@ -23,6 +23,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, ClassVar, Self
 
+from radseek.outcome import Outcome
+
 PREFIX = "radseek"
 DEFAULT_VEHICLE = "uav0"
 N_CHANNELS = 32
@@ -425,7 +427,8 @@ class TeamStatus(_Payload):
     every dwell the vehicle has ended, cumulative so that a lost message loses nothing: each {index, x, y,
     z, mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in
     cps, the sim times of its first and last frames). ``flown`` samples the path it has flown (x, y, z),
-    for the team's explored area. ``reason`` says why the search ended (state ``done``), ``decided``
+    for the team's explored area. ``reason`` says why the search ended (state ``done``; ``outcome`` as a
+    ``radseek.outcome.Outcome`` value), ``decided``
     whether this vehicle's estimate ended it (the whole team then ends its search). ``var_xy`` is the drift
     the vehicle expects by its reservation's end (its reported pose variance plus its growth over the path):
     teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (wall
@@ -444,6 +447,7 @@ class TeamStatus(_Payload):
     decided: bool = False
     stamp: float = 0.0  # wall s since the epoch when this reservation was claimed
     var_xy: float = 0.0  # m^2, >= 0: the x-y pose variance (per axis) the vehicle expects at its reservation's end
+    outcome: str = ""  # with state done: the ``radseek.outcome.Outcome`` value of ``reason`` ("" before then)
 
     def validate(self) -> None:
         super().validate()
@@ -453,6 +457,9 @@ class TeamStatus(_Payload):
         _check_range(self.TOPIC, "var_xy", self.var_xy, 0.0, 1e6)
         if not isinstance(self.decided, bool):
             raise PayloadError(f"{self.TOPIC}: field 'decided' must be true or false, got {_short(self.decided)}")
+        if not isinstance(self.outcome, str) or self.outcome not in {"", *(o.value for o in Outcome)}:
+            raise PayloadError(f"{self.TOPIC}: field 'outcome' must be empty or one of "
+                               f"{tuple(o.value for o in Outcome)}, got {_short(self.outcome)}")
         for name in ("reservation", "flown"):
             rows = getattr(self, name)
             if not isinstance(rows, list) or not all(isinstance(r, list) and len(r) == 3 for r in rows):

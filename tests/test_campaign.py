@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_one, open_campaign, parse_effect, summarize
+from radseek.estimate import SourceEstimate
 from radseek.outdir import OutputDirError
 
 BIN = Path(sys.executable).parent
@@ -65,12 +66,12 @@ def test_sweep_is_the_product_with_stable_keys_and_a_seedless_fingerprint(tmp_pa
 
 
 def test_coverage_is_the_95_percent_ellipse_of_the_xy_covariance():
-    est = {"x": 0.0, "y": 0.0, "covariance": [[0.04, 0, 0], [0, 0.01, 0], [0, 0, 1.0]]}  # sigmas 0.2, 0.1
+    est = SourceEstimate(0.0, 0.0, 0.0, 1000.0, 30.0, [[0.04, 0, 0], [0, 0.01, 0], [0, 0, 1.0]])  # sigmas 0.2, 0.1
     d2, covered = coverage(est, (0.2, 0.0))
     assert d2 == pytest.approx(1.0) and covered
     r = math.sqrt(CHI2_95_2D)  # on the 95 % ellipse along each axis
     assert coverage(est, (0.0, 0.1 * r * 0.999))[1] and not coverage(est, (0.0, 0.1 * r * 1.001))[1]
-    assert not coverage({**est, "covariance": np.zeros((3, 3)).tolist()}, (0.01, 0))[1]  # collapsed ellipse
+    assert not coverage(est.replace(covariance=np.zeros((3, 3))), (0.01, 0))[1]  # collapsed ellipse
     assert coverage(None, (0, 0)) == (pytest.approx(math.nan, nan_ok=True), None)
 
 

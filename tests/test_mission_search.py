@@ -7,7 +7,7 @@ import pytest
 
 from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
-from mission.search import Phase, SearchConfig
+from mission.search import Outcome, Phase, SearchConfig
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -21,14 +21,15 @@ def test_search_finds_the_default_source(seed):
     # bound: the stop rule asks 1-sigma < 0.1 m; odometry drift (0.03 m/sqrt(m) over ~30 m, about 0.16 m)
     # adds an error the estimator cannot see, so 0.5 m is ~3 sigma of the two combined
     assert r.error_m < 0.5, (est, r.log)
-    assert est["cps_at_1m"] == pytest.approx(1600, rel=0.25)
+    assert est.cps_at_1m == pytest.approx(1600, rel=0.25)
     # one sigma: the stop rule's is the estimate record's (estimator.inflight.sigma_m), which replay reproduces
-    reason = r.decisions[-1].reason
-    if reason.startswith("source found"):
+    last = r.decisions[-1]
+    if last.outcome.found:
         # below the stop rule, or drift-limited: within 25 % of the floor the odometry drift allows
-        limit = 1.25 * est["drift_floor_m"] if "drift-limited" in reason else SearchConfig().stop_sigma_m
-        assert est["sigma_m"] < limit
-        assert f"1-sigma {est['sigma_m']:.3f} m" in reason
+        limit = 1.25 * est.drift_floor_m if last.outcome is Outcome.DRIFT_LIMITED else SearchConfig().stop_sigma_m
+        assert est.sigma_m < limit
+        assert f"1-sigma {est.sigma_m:.3f} m" in last.reason
+        assert last.reason.startswith("source found")  # the text for people says it too
     # the recorded flight is a valid dataset whose dwell frames sit at the reported dwell positions
     f = r.dataset.frames
     for k, pos in enumerate(r.dwell_positions):
@@ -69,11 +70,11 @@ def test_a_fit_that_misses_the_counts_is_no_found_source(monkeypatch):
     goodness of fit the search flies on to its budget and says why."""
     config = SearchConfig()
     honest = fly_offline(load_scene(), config, seed=1)
-    assert honest.decisions[-1].reason.startswith("source found")
+    assert honest.decisions[-1].outcome.found
     _misfit_everywhere(monkeypatch)
     r = fly_offline(load_scene(), config, seed=1)
-    reasons = [d.reason for d in r.decisions]
-    assert not any(x.startswith("source found") for x in reasons)
+    assert [d.outcome for d in r.decisions[:-1]] == [None] * (len(r.decisions) - 1)
+    assert r.decisions[-1].outcome is Outcome.MISFIT
     assert r.decisions[-1].reason.startswith("dwell budget spent")
     assert "the model misses something, fit p = 0" in r.decisions[-1].reason
     assert r.brain.search_dwells > honest.brain.search_dwells
@@ -124,6 +125,8 @@ def test_drift_limited_rule(sigmas, floor, dwells, limited, pose_sd):
 
     brain = SearchBrain(load_scene("outdoor").scenario())
     brain.estimator = InflightEstimator(brain.scenario)
-    brain.estimator.estimates = [{"dwell": d, "sigma_m": s, "drift_floor_m": floor, "pose_sd_m": pose_sd}
+    brain.estimator.estimates = [{"dwell": d, "x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 1000.0,
+                                  "background_cps": 30.0, "covariance": np.eye(3).tolist(), "sigma_m": s,
+                                  "drift_floor_m": floor, "pose_sd_m": pose_sd}
                                  for d, s in zip(dwells, sigmas, strict=True)]
     assert brain._drift_limited() == (floor if limited else 0.0)

@@ -84,7 +84,7 @@ def test_mission_survives_injected_faults(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     # the search ends on its own criterion, within budget, near the source (bound as in
     # test_mission_search: estimator sigma < 0.1 m plus odometry drift of ~0.16 m)
-    assert summary["stop_reason"].startswith("source found"), summary["stop_reason"]
+    assert summary["outcome"] in ("found", "drift_limited"), summary["stop_reason"]
     assert summary["error_m"] < 0.5
     assert summary["frames_received"] == summary["frames_recorded"] + summary["frames_flagged"]
 

@@ -40,7 +40,7 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path, scene, seed):
     for key in ("reason", "dwell_points", "search_dwell_points", "mission_time_s", "flight_time_s",
                 "frames_recorded", "frames_lost"):
         assert r.summary[key] == stack[key], key
-    assert r.summary["estimate"]["x"] == stack["estimate"]["x"]
+    assert r.summary["estimate"]["x"] == stack["estimate"]["x"] and r.summary["outcome"] == stack["outcome"]
     assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
     with open(tmp_path / "dataset" / "frames.csv") as fh:
         rows = list(csv.DictReader(fh))

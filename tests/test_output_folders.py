@@ -86,12 +86,21 @@ def test_recorder_never_truncates_a_recorded_flight(tmp_path):
 
 def test_search_failure_reads_the_mission_verdict():
     est = {"x": 1.0, "y": 2.0}
-    assert search_failure({"reason": "source found: 1-sigma 0.080 m < 0.1 m", "estimate": est}) is None
-    assert search_failure({"reason": "lattice pattern flown (1-sigma 0.2 m)", "estimate": est}) is None
-    assert search_failure({"reason": "search aborted: vehicle landed", "estimate": est}) == \
+    assert search_failure({"reason": "source found: 1-sigma 0.080 m < 0.1 m", "outcome": "found", "estimate": est}) \
+        is None
+    assert search_failure({"reason": "source found: 1-sigma 0.15 m, drift-limited", "outcome": "drift_limited",
+                           "estimate": est}) is None
+    assert search_failure({"reason": "lattice pattern flown (1-sigma 0.2 m)", "outcome": "pattern_flown",
+                           "estimate": est}) is None
+    assert search_failure({"reason": "search aborted: vehicle landed", "outcome": "aborted", "estimate": est}) == \
         "search aborted: vehicle landed"
-    assert "no source found" in search_failure({"reason": "dwell budget spent (1-sigma 0.4 m)", "estimate": est})
-    assert "no source estimate" in search_failure({"reason": "source found", "estimate": None})
+    assert "no source found" in search_failure({"reason": "dwell budget spent (1-sigma 0.4 m)",
+                                                "outcome": "budget_spent", "estimate": est})
+    misfit = "dwell budget spent (1-sigma 0.04 m; the model misses something, fit p = 0)"
+    assert "no source found" in search_failure({"reason": misfit, "outcome": "misfit", "estimate": est})
+    assert "no source estimate" in search_failure({"reason": "source found", "outcome": "found", "estimate": None})
+    # the verdict is the outcome, never the text: a summary without one did not locate the source
+    assert "no source found" in search_failure({"reason": "source found: 1-sigma 0.080 m", "estimate": est})
 
 
 # ------------------------------------------------------------------------------------------ CLIs
@@ -247,9 +256,10 @@ def test_failed_search_exits_non_zero(tmp_path):
     assert proc.returncode == EXIT_SEARCH_FAILED, proc.stderr[-3000:]
     assert "search failed: search aborted" in proc.stderr
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
-    assert mission["reason"].startswith("search aborted")
+    assert mission["outcome"] == "aborted" and mission["reason"].startswith("search aborted")
     if (out / "summary.json").exists():  # the report is written when the flight allows a fit
-        assert json.loads((out / "summary.json").read_text())["stop_reason"] == mission["reason"]
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["stop_reason"] == mission["reason"] and summary["outcome"] == "aborted"
     assert _no_temporaries(out)
 
 

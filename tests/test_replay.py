@@ -24,12 +24,12 @@ def test_replay_reproduces_the_flown_estimates():
     flown = r.brain.estimates
     assert len(flown) >= 2, r.log
     # the mission estimates from the end of exploration on; its mission_log.jsonl records that dwell
-    rows = replay(r.dataset, first_dwell=flown[0]["dwell"])
-    assert [row["dwells"] for row in rows] == [e["dwell"] for e in flown]
+    rows = replay(r.dataset, first_dwell=flown[0].dwell)
+    assert [row["dwells"] for row in rows] == [e.dwell for e in flown]
     for row, est in zip(rows, flown, strict=True):
-        assert row["effects"] == est["effects"] and row["converged"] == est["converged"]
+        assert row["effects"] == list(est.effects) and row["converged"] == est.converged
         for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m"):
-            assert row[key] == pytest.approx(est[key], rel=1e-9, abs=1e-12), (row["dwells"], key)
+            assert row[key] == pytest.approx(getattr(est, key), rel=1e-9, abs=1e-12), (row["dwells"], key)
 
 
 def test_sigma_is_the_xy_semi_major_axis_of_a_trustworthy_estimate():

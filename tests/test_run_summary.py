@@ -29,21 +29,23 @@ SUMMARY_KEYS = {"error_m", "sigma_m", "ellipse_95", "bound_m", "p_value", "warni
 def _as_run_output(r, out):
     """What `radseek run` leaves before the report: the recorded dataset with truth and the mission summary."""
     write_dataset(out / "dataset", r.dataset.frames, r.dataset.scenario, r.dataset.truth)
-    mission = {"reason": r.decisions[-1].reason, "dwell_points": len(r.dwell_rates),
+    mission = {"reason": r.decisions[-1].reason, "outcome": r.decisions[-1].outcome, "dwell_points": len(r.dwell_rates),
                "search_dwell_points": r.brain.search_dwells, "mission_time_s": r.mission_time_s,
-               "estimate": r.estimate, "estimates": r.brain.estimates}
+               "estimate": r.estimate.to_json(), "estimates": [e.to_json() for e in r.brain.estimates]}
     (out / "dataset" / "mission_summary.json").write_text(json.dumps(mission, default=float))
 
 
 def test_summary_is_the_flown_estimate_with_bound_and_ellipse(tmp_path):
     r = fly_offline(load_scene(), SearchConfig(), seed=3)
-    flown = r.estimate
-    assert flown is not None and {"bound_m", "ellipse_95"} <= set(flown), "the brain finalizes its last estimate"
+    assert r.estimate is not None
+    flown = r.estimate.to_json()
+    assert {"bound_m", "ellipse_95"} <= set(flown), "the brain finalizes its last estimate"
     _as_run_output(r, tmp_path)
     summary = write_report(tmp_path, wall_time_s=1.0, speedup=20.0)
     assert SUMMARY_KEYS <= set(summary)
     assert json.loads((tmp_path / "summary.json").read_text())["bound_m"] == pytest.approx(summary["bound_m"])
     assert summary["estimate_source"] == "in-flight"
+    assert summary["outcome"] == r.decisions[-1].outcome and summary["stop_reason"] == r.decisions[-1].reason
     for key in ("x", "y", "sigma_m", "bound_m"):  # the same numbers the mission flew with, not a refit
         assert summary["estimate"][key] == pytest.approx(flown[key], rel=1e-12)
     assert summary["error_m"] == pytest.approx(r.error_m, rel=1e-12)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from detector_fw_sim.scene import load_scene
-from mission.search import Phase, SearchConfig, reproducible
+from mission.search import Outcome, Phase, SearchConfig, reproducible
 from mission.team import MAX_VEHICLES, TeamBrain, TeamConfig, home_positions
 from planner.allocation import clearance, pairwise_min_distance, path_clear, point_segment_distance, reservation
 from planner.belief import SourceBelief
@@ -136,5 +136,5 @@ def test_a_vehicle_boxed_in_for_long_retires_and_the_search_goes_on():
         d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), ring)
         assert d.hold_s > 0
     d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), ring)
-    assert d.retire and not d.done and d.reason.startswith("search aborted")
+    assert d.retire and not d.done and d.outcome is Outcome.RETIRED and d.reason.startswith("search aborted")
     assert brain.final is None  # the team's search is not over

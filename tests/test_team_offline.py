@@ -17,7 +17,7 @@ SCENE = load_scene("default")
 
 def test_two_vehicles_find_the_source_apart():
     r = fly_team_offline(SCENE, 2, seed=0)
-    assert r.brain.final is not None and r.brain.final.reason.startswith("source found"), r.log
+    assert r.brain.final is not None and r.brain.final.outcome.found, r.log
     assert r.error_m < 0.3
     assert all(p["dwell_points"] >= 1 and p["distance_m"] > 0 for p in r.per_vehicle)
     assert sum(p["dwell_points"] for p in r.per_vehicle) == len(r.brain.history)
@@ -33,7 +33,7 @@ def test_two_vehicles_find_the_source_apart():
 def test_the_others_finish_when_one_vehicle_fails():
     r = fly_team_offline(SCENE, 2, seed=1, fail={1: 12.0})
     assert r.per_vehicle[1]["failed_at"] == 12.0
-    assert r.brain.final is not None and r.brain.final.reason.startswith("source found"), r.log
+    assert r.brain.final is not None and r.brain.final.outcome.found, r.log
     assert r.brain.dwelled_by[-1] == 0  # vehicle 0 ended the search
     assert r.per_vehicle[0]["dwell_points"] > r.per_vehicle[1]["dwell_points"]
     assert r.error_m < 0.3
@@ -41,7 +41,7 @@ def test_the_others_finish_when_one_vehicle_fails():
 
 def test_one_vehicle_team_flies_like_a_single_search():
     r = fly_team_offline(SCENE, 1, seed=2)
-    assert r.brain.final is not None and r.brain.final.reason.startswith("source found")
+    assert r.brain.final is not None and r.brain.final.outcome.found
     assert math.isinf(r.min_separation_m)
 
 

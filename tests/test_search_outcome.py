@@ -1,0 +1,122 @@
+"""Every ``radseek.outcome.Outcome`` of ``mission.search`` comes from the stop rule that makes it (issue 31 item 3):
+the brain driven one dwell at a time with the in-flight fit stubbed (no fits, no planning trees)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import mission.search as ms
+from detector_fw_sim.scene import load_scene
+from mission.search import Outcome, Phase, SearchBrain, SearchConfig, search_failure
+from planner.belief import DwellHistory
+from planner.plan import DwellPlan
+from radseek import topics
+from radseek.outcome import parse_outcome
+
+SCENARIO = load_scene("default").scenario()
+FRAMES = SimpleNamespace(positions=None, pose_variances=None, dwell=None)  # only the stubbed fit sees them
+STATUS = SimpleNamespace(mean_rate=40.0)
+HERE = np.array([1.0, 1.0, 1.5, 0.0])
+
+
+def _record(dwell: int, sigma: float, p_value: float = 0.5, floor: float = math.nan, x: float = 4.3) -> dict:
+    return {"dwell": dwell, "x": x, "y": 3.7, "z": 0.0, "cps_at_1m": 1600.0, "background_cps": 30.0,
+            "covariance": np.diag([sigma**2, sigma**2, 0.01]).tolist(), "sigma_m": sigma, "effects": [], "params": {},
+            "converged": True, "p_value": p_value, "drift_floor_m": floor, "pose_sd_m": 0.15}
+
+
+def _brain(monkeypatch, fits: list[dict | None], strategy: str = "active", search_dwells: int = 3) -> SearchBrain:
+    """A brain in its search phase whose in-flight fit returns ``fits`` in turn (after the estimates of
+    ``fits[:-1]``, already made)."""
+    monkeypatch.setattr(ms, "drift_density_from_poses", lambda *a: 0.0)
+    brain = SearchBrain(SCENARIO, SearchConfig(strategy=strategy))
+    brain.phase, brain.search_dwells = Phase.SEARCH, search_dwells
+    brain.estimator.estimates = [f for f in fits[:-1] if f is not None]
+
+    def update(frames, dwell):
+        if fits[-1] is not None:
+            brain.estimator.estimates.append(fits[-1])
+        return fits[-1]
+
+    monkeypatch.setattr(brain.estimator, "update", update)
+    return brain
+
+
+def _stop(brain: SearchBrain) -> ms.Decision:
+    d = brain.end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE)
+    assert d.phase is Phase.DONE and d.plan is None, d.reason
+    return d
+
+
+def test_found(monkeypatch):
+    d = _stop(_brain(monkeypatch, [_record(5, 0.06), _record(6, 0.05)]))
+    assert d.outcome is Outcome.FOUND and d.outcome.found and d.reason.startswith("source found")
+
+
+def test_drift_limited(monkeypatch):
+    d = _stop(_brain(monkeypatch, [_record(8, 0.137, floor=0.137), _record(9, 0.137, floor=0.137)]))
+    assert d.outcome is Outcome.DRIFT_LIMITED and d.outcome.found and "drift-limited" in d.reason
+
+
+def test_budget_spent_and_misfit(monkeypatch):
+    cfg = SearchConfig()
+    d = _stop(_brain(monkeypatch, [_record(8, 0.5)], search_dwells=cfg.max_search_dwells))
+    assert d.outcome is Outcome.BUDGET_SPENT and not d.outcome.found
+    # the same small ellipse that would be found, but the model misses the counts: spent, and why
+    d = _stop(_brain(monkeypatch, [_record(5, 0.06, p_value=0.0), _record(6, 0.05, p_value=0.0)],
+                     search_dwells=cfg.max_search_dwells))
+    assert d.outcome is Outcome.MISFIT and "the model misses something" in d.reason
+
+
+def test_budget_spent_during_exploration(monkeypatch):
+    brain = _brain(monkeypatch, [None])
+    n = brain.config.max_dwells - 1
+    brain.phase, brain.history = Phase.EXPLORE, DwellHistory(np.zeros((n, 3)), np.zeros(n))
+    d = _stop(brain)
+    assert d.outcome is Outcome.BUDGET_SPENT and d.reason == "dwell budget spent during exploration"
+
+
+def test_no_frontier(monkeypatch):
+    monkeypatch.setattr(ms, "plan_exploration", lambda *a, **k: DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), "x"))
+    d = SearchBrain(SCENARIO).start(HERE)
+    assert d.phase is Phase.DONE and d.outcome is Outcome.NO_FRONTIER
+
+
+def test_pattern_flown(monkeypatch):
+    brain = _brain(monkeypatch, [None], strategy="lattice")
+    brain.phase, brain.pattern = Phase.PATTERN, []
+    d = _stop(brain)
+    assert d.outcome is Outcome.PATTERN_FLOWN and d.outcome.located and not d.outcome.found
+
+
+def test_a_search_that_goes_on_has_no_outcome(monkeypatch):
+    d = SearchBrain(SCENARIO).start(HERE)
+    assert d.phase is Phase.EXPLORE and d.outcome is None
+
+
+@pytest.mark.parametrize(("outcome", "failed"), [
+    (Outcome.FOUND, False), (Outcome.DRIFT_LIMITED, False), (Outcome.PATTERN_FLOWN, False),
+    (Outcome.BUDGET_SPENT, True), (Outcome.MISFIT, True), (Outcome.NO_FRONTIER, True), (Outcome.ABORTED, True),
+    (Outcome.RETIRED, True), (None, True),
+])
+def test_search_failure_is_the_outcome(outcome, failed):
+    summary = {"reason": "some text", "outcome": outcome, "estimate": {"x": 0.0}}
+    assert (search_failure(summary) is not None) == failed
+    if outcome is not None and outcome.aborted:
+        assert search_failure(summary) == "some text"
+
+
+def test_parse_outcome_and_the_team_status_field():
+    assert parse_outcome("found") is Outcome.FOUND and parse_outcome("") is None and parse_outcome(None) is None
+    assert parse_outcome("source found") is None  # the text is never read back
+    st = topics.TeamStatus(t=1.0, vehicle="uav0", seq=0, state="done", reservation=[[0.0, 0.0, 1.5]],
+                           reason="source found: 1-sigma 0.05 m < 0.1 m", decided=True, outcome=Outcome.FOUND)
+    back = topics.TeamStatus.from_bytes(st.to_bytes())
+    assert parse_outcome(back.outcome) is Outcome.FOUND
+    assert topics.TeamStatus.from_dict({k: v for k, v in st.to_dict().items() if k != "outcome"}).outcome == ""
+    with pytest.raises(topics.PayloadError, match="outcome"):
+        topics.TeamStatus.from_dict({**st.to_dict(), "outcome": "source found"})
