@@ -30,7 +30,7 @@ from radseek import topics
 from radseek.coordinates import Home
 from radseek.dataset import Dataset, Frames
 from radseek.estimate import SourceEstimate
-from radseek.frame_record import FrameRecord
+from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
 from radseek.pose_history import PoseHistory
 from vehicle_sim.mission_protocol import MissionItem
 from vehicle_sim.motion import MotionLimits
@@ -153,7 +153,7 @@ class InProcessFrames:
     def __init__(self, world: World, vehicle: InProcessVehicle, channel_edges_keV: np.ndarray):
         self.world, self.vehicle = world, vehicle
         self.channel_edges_keV = channel_edges_keV
-        self.poses: PoseHistory[topics.Pose] = PoseHistory(keep_s=120.0)  # as the mission process keeps them
+        self.poses: PoseHistory[topics.Pose] = PoseHistory(keep_s=POSE_KEEP_S)  # as the mission process keeps them
         self.t = 0.0
         self.frame_s = FRAME_S
         self.dwell_index = -1
@@ -173,8 +173,7 @@ class InProcessFrames:
             self.frames_lost += 1
             self.t = t_next
             return None
-        record = FrameRecord.from_histogram(hist, self.poses.at(hist.t - hist.duration / 2), self.dwell_index,
-                                            self.channel_edges_keV)
+        record = FrameRecord.from_histogram(hist, pose_for(hist, self.poses), self.dwell_index, self.channel_edges_keV)
         (self.records if record.usable else self.flagged).append(record)
         self.true_path.append(self.world.last_true_pose)
         if hist.t > self.t + 1e-6:

@@ -47,7 +47,7 @@ from mission.team_executive import TeamExecutive
 from mission.team_link import TeamLinkBase, label_dwells
 from radseek import topics
 from radseek.dataset import Frames, Scenario
-from radseek.frame_record import FrameRecord
+from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
 from radseek.outdir import atomic_write_json
 from radseek.payload_drops import DropCounter
 
@@ -85,7 +85,7 @@ class _PosedHistograms:
     becomes of a released one is the subclass's ``_record``."""
 
     def __init__(self, drops: DropCounter):
-        self.poses = PoseHistory(keep_s=120.0)
+        self.poses = PoseHistory(keep_s=POSE_KEEP_S)
         self.lock = threading.Lock()
         self.records: list[FrameRecord] = []
         # histograms waiting for the pose at their end time (the pose is published before the clock that
@@ -124,7 +124,7 @@ class _PosedHistograms:
         """Record the pending histograms, in order, up to the first that is not ``ready``."""
         while self._pending and ready(*self._pending[0]):
             hist, _ = self._pending.pop(0)
-            self._record(hist, self.poses.at(hist.t - hist.duration / 2))
+            self._record(hist, pose_for(hist, self.poses))
 
     def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
         raise NotImplementedError

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from radseek import topics
+from radseek.pose_history import PoseHistory
 from radseek.topics import N_CHANNELS
 
 #: the one integer type of a frame's counts, from the histogram to ``Frames.counts``
@@ -56,6 +57,17 @@ def usable(flags: int) -> bool:
 def usable_rate(flags: int) -> bool:
     """A usable frame whose count rate is unbiased (not saturated): only these run the dwell clock."""
     return usable(flags) and not flags & topics.FLAG_SATURATED
+
+
+#: s of estimated poses a recorder keeps to join frames with (the mission's and an MCAP replay's history)
+POSE_KEEP_S = 120.0
+
+
+def pose_for(hist: topics.Histogram, poses: PoseHistory) -> topics.Pose | None:
+    """The one pose-join rule: a frame's estimated pose is the pose interpolated at its mid-time
+    (``t - duration / 2``) from the estimated poses received (None: none near it). The mission's recorder, the
+    in-process driver and the MCAP replay all join frames with it."""
+    return poses.at(hist.t - hist.duration / 2)
 
 
 def as_counts(counts: Any) -> np.ndarray:

@@ -3,8 +3,8 @@ records the mission's recorder made in the air, rebuilt from the recorded topics
 
 The rebuild is the recorder's own rule (``mission/recorder.py``, ``mission/mission_process.py``):
 
-- each ``detector/histogram``, in the order it was received, is joined with the estimated ``pose``
-  interpolated at the frame's mid-time (``t - duration/2``) by ``radseek.pose_history.PoseHistory``, fed
+- each ``detector/histogram``, in the order it was received, is joined with the estimated ``pose`` by the
+  one pose-join rule (``radseek.frame_record.pose_for``: interpolated at the frame's mid-time), fed
   with the poses received up to the one at the frame's end time (the mission records a histogram once that
   pose is in) and ``radseek.frame_record.FrameRecord.from_histogram`` makes the record;
 - the dwell index is the ``dwell_index`` of the last ``mission/state`` published for an *earlier* frame
@@ -39,15 +39,13 @@ import numpy as np
 
 from radseek import topics
 from radseek.dataset import Dataset, Frames, Scenario, Truth
-from radseek.frame_record import FrameRecord
+from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
 from radseek.pose_history import PoseHistory
 
 #: the first and last bytes of every MCAP file (the specification's magic)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: topics the rebuild reads (flight software only: never sim/)
 READ_TOPICS = (topics.HISTOGRAM, topics.POSE, topics.MISSION_STATE, topics.ESTIMATE)
-#: what the mission's stream keeps (``mission_process._Stream``: ``PoseHistory(keep_s=120.0)``)
-POSE_KEEP_S = 120.0
 EPS_T = 1e-6  # s: the mission's tolerance on "the pose at the frame's end has arrived"
 #: ``MissionState.phase`` of the mission's last state: landed, recording stopped
 DONE_PHASE = "done"
@@ -151,7 +149,7 @@ def rebuild_records(histograms: list[topics.Histogram], poses: list[topics.Pose]
         while s < len(states) and states[s].t < hist.t - EPS_T:  # states announced for earlier frames
             dwell = states[s].dwell_index
             s += 1
-        records.append(FrameRecord.from_histogram(hist, history.at(hist.t - hist.duration / 2), dwell,
+        records.append(FrameRecord.from_histogram(hist, pose_for(hist, history), dwell,
                                                    channel_edges_keV))
     return records
 
