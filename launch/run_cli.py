@@ -8,7 +8,7 @@ recorded flight in the dataset format, plus ``truth.json``), ``flight.mcap``, ``
 ``summary.json`` and the processes' logs. Only this launcher and the detector see the scene's truth; the
 mission process is given the operator's ``scenario.json``.
 
-``flight.mcap`` is the MCAP log of the whole flight (``radseek record``, ``radseek/mcap_log.py``, run as
+``flight.mcap`` is the MCAP log of the whole flight (``radseek record``, ``radseek_io/mcap_log.py``, run as
 one more process of the stack from before the mission starts until it has landed): every zenoh topic of
 the run and the vehicle's MAVLink telemetry, which the recorder receives as the GCS on ``--gcs-port``.
 Open it in Foxglove or with the ``mcap`` reader; ``radseek replay OUT/flight.mcap`` replays the estimate
@@ -72,7 +72,7 @@ def print_summary(summary: dict, out: Path, stdout=None, stderr=None) -> None:
 
 
 def _radseek(*args: str) -> list[str]:
-    return [PY, "-m", "radseek.cli", *args]
+    return [PY, "-m", "radseek_cli", *args]
 
 
 #: libc loaded in the parent: the child only makes one foreign call between fork and exec
@@ -364,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from detector_fw_sim.scene import SceneError, load_scene
     from launch.ports import PortError, choose
-    from radseek.outdir import OutputDirError, prepare_output
+    from radseek_io.outdir import OutputDirError, prepare_output
 
     try:
         scene = load_scene(args.scene)
@@ -408,9 +408,9 @@ def start_router(stack: Stack, ports) -> None:
 
 
 def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
-    from radseek.dataset import write_json
-    from radseek.outdir import atomic_write_json
     from radseek.zenoh_session import open_session
+    from radseek_io.dataset import write_json
+    from radseek_io.outdir import atomic_write_json
 
     scenario_file = out / "scenario.json"
     write_json(scenario_file, scene.scenario().to_dict())

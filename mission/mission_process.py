@@ -50,8 +50,8 @@ from planner.belief import drift_density_from_poses
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import FrameRecord
-from radseek.outdir import atomic_write_json
 from radseek.payload_drops import DropCounter
+from radseek_io.outdir import atomic_write_json
 
 log = logging.getLogger("radseek.mission")
 

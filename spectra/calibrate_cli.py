@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.detector_file import DetectorFile, DetectorFileError, first_non_finite, read_detector_file
-from radseek.outdir import OutputDirError, check_output_file
 from radseek.photon_lines import NATURAL_CHAINS
-from radseek.spectrum_files import SpectrumFileError, read_spectrum
+from radseek_io.detector_file import DetectorFile, DetectorFileError, first_non_finite, read_detector_file
+from radseek_io.outdir import OutputDirError, check_output_file
+from radseek_io.spectrum_io import SpectrumFileError, read_spectrum
 
 TEMPLATE_NUCLIDES = ("Cs-137", "Co-60", "Ba-133", "Am-241")
 TEMPLATE_GRID = np.arange(0.0, 3000.0 + 1e-9, 4.0)

@@ -26,7 +26,7 @@ import numpy as np
 from iminuit import Minuit
 from scipy import stats
 
-from radseek.spectrum_files import Spectrum
+from radseek_io.spectrum_io import Spectrum
 from spectra import model as M
 
 TV_MIN_KEV = 60.0

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from radseek.spectrum_io import Spectrum, format_of, read_spectra
-from radseek.spectrum_io.ndjson import _iso, scan, spectra_of
+from radseek_io.spectrum_io import Spectrum, format_of, read_spectra
+from radseek_io.spectrum_io.ndjson import _iso, scan, spectra_of
 
 
 def strict(obj: Any) -> Any:

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek import dataset
-from radseek.dataset import COUNT_DTYPE, DatasetError, Wall, read_dataset, read_frames
-from radseek.frame_record import CHANNEL_COLUMNS, COLUMNS
+from radseek.dataset import DatasetError, Wall
+from radseek.frame_record import CHANNEL_COLUMNS, COLUMNS, COUNT_DTYPE
 from radseek.geometry import path_lengths, segment_hits_walls
+from radseek_io import dataset
+from radseek_io.dataset import read_dataset, read_frames
 from tests.conftest import shared_dataset_names
 
 BASE = "lattice-clean"

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from radseek import topics
-from radseek.dataset import COLUMNS, Frames, FrameWriter, read_frames
-from radseek.frame_record import COUNT_DTYPE, FrameRecord, Spectrum, usable, usable_rate
+from radseek.dataset import Frames
+from radseek.frame_record import COLUMNS, COUNT_DTYPE, FrameRecord, Spectrum, usable, usable_rate
+from radseek_io.dataset import FrameWriter, read_frames
 
 EDGES = np.linspace(40, 1640, 33)
 

@@ -65,7 +65,7 @@ def scattered() -> Response:
 
 
 def measured(name: str) -> Response:
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
 
     sp, bg = read_spectrum(REAL / name), read_spectrum(REAL / "bg.xml")
     e = sp.edges_keV()

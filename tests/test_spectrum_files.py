@@ -1,4 +1,4 @@
-"""Spectrum file readers and the N42 writer (radseek.spectrum_files), on the real RadiaCode-102 files."""
+"""Spectrum file readers and the N42 writer (radseek_io.spectrum_io), on the real RadiaCode-102 files."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from radseek import spectrum_files as sf
+from radseek_io import spectrum_io as sf
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 

@@ -1,4 +1,4 @@
-"""The readers added for issue 32 (radseek.spectrum_io), on real public files: RadiaCode .rcspg, radiacode-tools
+"""The readers added for issue 32 (radseek_io.spectrum_io), on real public files: RadiaCode .rcspg, radiacode-tools
 NDJSON logs, RadiaCode XML with an embedded background, RadiaCode JSON; the CSV variants; bad input; the
 ``radseek spectra show`` and NDJSON ``import-flight`` commands (sources and licences: tests/data/real-spectra)."""
 
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek import spectrum_io as sio
-from radseek.dataset import read_dataset
-from radseek.spectrum_io import ndjson, rcspg
+from radseek_io import spectrum_io as sio
+from radseek_io.dataset import read_dataset
+from radseek_io.spectrum_io import ndjson, rcspg
 from spectra import flight_cli
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
@@ -256,7 +256,7 @@ def test_file_size_limit(tmp_path):
 
 
 def _run(*args):
-    return subprocess.run([sys.executable, "-m", "radseek.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "radseek_cli", *map(str, args)], capture_output=True, text=True,
                           cwd=REPO, timeout=300)
 
 

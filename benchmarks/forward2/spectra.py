@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.spectrum_files import read_spectrum
+from radseek_io.spectrum_io import read_spectrum
 
 REAL_SPECTRA = Path(__file__).resolve().parents[3] / "shared" / "real-spectra"
 #: comparator edges of the shared datasets (keV), channel 31 is the overflow

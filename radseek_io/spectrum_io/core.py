@@ -1,5 +1,5 @@
 """Shared pieces of the spectrum readers: :class:`Spectrum`, :class:`SpectrumFileError`, number, duration, XML and
-energy-calibration helpers (conventions in :mod:`radseek.spectrum_io`)."""
+energy-calibration helpers (conventions in :mod:`radseek_io.spectrum_io`)."""
 
 from __future__ import annotations
 
