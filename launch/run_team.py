@@ -33,7 +33,7 @@ import threading
 import time
 from pathlib import Path
 
-from launch.run_cli import (
+from launch.stack import (
     EXIT_FOUND,
     EXIT_SEARCH_FAILED,
     EXIT_STACK,

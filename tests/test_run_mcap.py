@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from launch.run_cli import Stack, recorder_ready, start_recorder, stop_recorder
+from launch.stack import Stack, recorder_ready, start_recorder, stop_recorder
 from radseek import topics
 from radseek.board_wire import decode_frame
 from radseek.zenoh_session import open_session

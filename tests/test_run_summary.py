@@ -18,7 +18,7 @@ from detector_fw_sim.scene import load_scene
 from estimator.inflight import GOOD_FIT_P, ellipse, gof_warning
 from launch.offline import fly_offline
 from launch.report import write_report
-from launch.run_cli import print_summary
+from launch.stack import print_summary
 from mission.search import SearchConfig
 from radseek_io.dataset import write_dataset
 
