@@ -14,7 +14,7 @@ from estimator.inflight import MIN_SIGMA_M, sigma_m
 from launch.offline import fly_offline
 from mission.search import SearchConfig
 from radseek_cli.replay_cli import flown_first_dwell, replay
-from radseek_io.dataset import read_dataset
+from radseek_io.truth import read_dataset_with_truth
 
 
 def test_replay_reproduces_the_flown_estimates():
@@ -62,7 +62,7 @@ def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
 
 
 def test_replay_converges_on_the_reference_lattice(shared_datasets):
-    rows = replay(read_dataset(shared_datasets / "lattice-clean"), "mle", {"n_starts": 2})
+    rows = replay(read_dataset_with_truth(shared_datasets / "lattice-clean"), "mle", {"n_starts": 2})
     assert [r["dwells"] for r in rows] == list(range(1, 10))
     # more dwells, more information: the final ellipse is tighter than after four dwells, and the final
     # error lies within 4 of its own sigmas (plus the ~4 cm per-dwell pose offset of the reference data)
