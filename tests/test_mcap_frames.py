@@ -14,9 +14,9 @@ import pytest
 from radseek import topics
 from radseek.frame_record import FrameRecord
 from radseek_cli.replay_cli import replay
-from radseek_io.dataset import read_dataset
 from radseek_io.mcap_frames import McapFrameError, beside, read_flight
 from radseek_io.mcap_log import McapLog
+from radseek_io.truth import read_dataset_with_truth
 
 WALL0 = 1_700_000_000_000_000_000  # ns: log times only order the file
 
@@ -109,7 +109,7 @@ def _as_messages(ds):
 def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, tmp_path):
     """A reference flight written as topics and read back: the same frames column for column, and `radseek
     replay FILE.mcap` (scenario and truth found beside it in dataset/) gives the dataset's replay."""
-    ds = read_dataset(shared_datasets / "lattice-clean")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-clean")  # replay reports the error vs truth
     run = tmp_path / "run"
     (run / "dataset").mkdir(parents=True)
     for name in ("scenario.json", "truth.json"):
