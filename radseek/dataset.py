@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from radseek.frame_record import COLUMNS, COUNT_DTYPE, POSE_COLUMNS, FrameRecord, Spectrum
+from radseek.frame_record import COLUMNS, COUNT_DTYPE, POSE_COLUMNS, FrameRecord, as_counts
+from radseek.spectrum import Spectrum
 from radseek.topics import N_CHANNELS
 
 if TYPE_CHECKING:  # the type only: flight software imports this module and never the truth
@@ -154,7 +155,8 @@ class Frames:
     def record(self, i: int, channel_edges_keV: np.ndarray | None = None) -> FrameRecord:
         """Frame ``i`` as a record (no board sequence number or flags: frames.csv keeps them apart)."""
         pose = {name: float(getattr(self, name)[i]) for name in POSE_COLUMNS if name not in ("duration", "dwell")}
-        spectrum = Spectrum(self.counts[i], float(self.duration[i]), None, channel_edges_keV)
+        spectrum = Spectrum(as_counts(self.counts[i]), realtime=float(self.duration[i]),
+                            bin_edges_kev=channel_edges_keV)
         return FrameRecord(spectrum=spectrum, dwell=int(self.dwell[i]), **pose)
 
 

@@ -54,7 +54,7 @@ def dwell_spectra(frames: Frames, edges_keV: np.ndarray, transit: bool = False) 
         title = (f"dwell {d}" if d >= 0 else "transit") + f" at x={x:.2f} y={y:.2f} z={z:.2f} m, "
         title += f"{int(sel.sum())} frames"
         start = (EPOCH + dt.timedelta(seconds=max(t0, 0.0))).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-        out.append(Spectrum(counts, live, live, boundaries_keV=np.asarray(edges_keV, dtype=float), start_time=start,
+        out.append(Spectrum(counts, live, live, bin_edges_kev=np.asarray(edges_keV, dtype=float), start_time=start,
                             title=title, kind="foreground", source=f"dwell {d}",
                             meta={"dwell": d, "x": x, "y": y, "z": z}))
     return out

@@ -216,6 +216,12 @@ def test_flight_software_never_reads_the_truth(package):
     assert truth_reads(package) == []
 
 
+def test_the_contracts_hold_one_spectrum_class():
+    defs = [f"{p.relative_to(REPO)}" for pkg in ALLOWED for p in modules(pkg)
+            if any(isinstance(n, ast.ClassDef) and n.name == "Spectrum" for n in ast.walk(ast.parse(p.read_text())))]
+    assert defs == ["radseek/spectrum.py"]
+
+
 # ------------------------------------------------------------------------------------------------ the checker
 
 

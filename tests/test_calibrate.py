@@ -269,8 +269,8 @@ def test_n42_export_of_dwells_and_flight_import(tmp_path):
     for sp, dw in zip(spectra, dwells, strict=True):
         sel = ds.frames.dwell == dw
         np.testing.assert_array_equal(sp.counts, ds.frames.counts[sel].sum(axis=0))
-        assert sp.live_time_s == pytest.approx(ds.frames.duration[sel].sum(), rel=1e-9)
-        np.testing.assert_allclose(sp.boundaries_keV, ds.scenario.channel_edges_keV)
+        assert sp.livetime == pytest.approx(ds.frames.duration[sel].sum(), rel=1e-9)
+        np.testing.assert_allclose(sp.bin_edges_kev, ds.scenario.channel_edges_keV)
     # a flight in another tool's format: native 1024-channel spectrogram + pose track
     real = sf.read_spectrum(DATA / "Cs137_b.xml")
     rng = np.random.default_rng(0)

@@ -181,7 +181,7 @@ def test_overflow_channel_is_out_of_the_fit_and_the_distances():
     from spectra import fit as F
 
     sp = read_spectrum(DATA / "K40.rcspg")
-    assert sp.kind == "foreground" and sp.live_time_s == pytest.approx(43510.0) and sp.counts[-1] > 1000
+    assert sp.kind == "foreground" and sp.livetime == pytest.approx(43510.0) and sp.counts[-1] > 1000
     pr = F.Problem(sp, ("K-40",), read_spectrum(DATA / "bg.xml"))
     assert not pr.mask[-1] and pr.net()[-1] == 0
     assert pr.shape(F.M.baseline_params())[-1] == 0

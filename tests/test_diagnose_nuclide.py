@@ -48,7 +48,7 @@ def measured(name: str) -> np.ndarray:
         c = read_spectrum(Path(REAL_SPECTRA) / "data_am241.n42").rebin(EDGES)
     else:
         s = read_spectrum(Path(REAL_SPECTRA) / FILES[name])
-        c = np.clip(s.rebin(EDGES) - bg.rebin(EDGES) * s.live_time_s / bg.live_time_s, 0.0, None)
+        c = np.clip(s.rebin(EDGES) - bg.rebin(EDGES) * s.livetime / bg.livetime, 0.0, None)
     return c / c.sum()
 
 

@@ -334,7 +334,7 @@ def test_fuzz_spectrum_readers(case):
             return
     for sp in spectra:
         assert np.all(np.isfinite(sp.counts)) and np.all(sp.counts >= 0) and np.all(sp.counts <= 1e12)
-        assert 0 < sp.live_time_s <= 1e8 and all(math.isfinite(c) for c in sp.calibration)
+        assert 0 < sp.livetime <= 1e8 and all(math.isfinite(c) for c in sp.calibration)
 
 
 @FUZZ_SPECTRA
