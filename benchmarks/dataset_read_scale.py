@@ -28,7 +28,7 @@ _CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, {repo!r})
 import numpy  # noqa: F401
-from radseek import dataset
+from radseek_io import dataset
 rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t0 = time.perf_counter()
 ds = dataset.read_dataset({path!r})
@@ -38,7 +38,7 @@ out = {{"rows": len(ds.frames), "read_s": t_read, "rss_after_imports_mb": rss0 /
         "peak_rss_read_mb": rss_read / 1024}}
 method = {method!r}
 if method:
-    from estimator import localize_cli
+    from radseek_cli import localize_cli
     del ds
     t0 = time.perf_counter()
     rc = localize_cli.main([{path!r}, "--method", method, "--json"] + {extra!r})

@@ -245,18 +245,19 @@ def offlist_jobs(seeds: int) -> list[dict[str, Any]]:
 
 
 def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
-    from estimator.diagnose.report import json_report
     from estimator.diagnose.runner import diagnose
-    from radseek.dataset import read_dataset
+    from radseek_io.truth import read_dataset_with_truth
+    from reporting.diagnose_report import json_report
+    from reporting.truth_errors import score_diagnosis
 
     if job["kind"] == "shared":
-        ds = read_dataset(SHARED_DIR / job["name"])
+        ds = read_dataset_with_truth(SHARED_DIR / job["name"])
     else:
         from benchmarks.forward2 import FlightSpec, simulate
 
         ds = simulate(FlightSpec(**job["spec"]), seed=job["seed"])
     t0, c0 = time.perf_counter(), time.process_time()
-    d = diagnose(ds, quiet=True, n_starts=n_starts)
+    d = score_diagnosis(diagnose(ds, quiet=True, n_starts=n_starts), ds.truth)
     secs, cpu = time.perf_counter() - t0, time.process_time() - c0
     first = d.selection.first
     chosen = [st.candidates[0] for st in d.selection.steps if st.chosen]

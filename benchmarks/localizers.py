@@ -33,9 +33,9 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from estimator.localize_cli import match_errors  # noqa: E402
 from estimator.localizers import make_localizer  # noqa: E402
-from radseek.dataset import read_dataset  # noqa: E402
+from radseek_io.truth import read_dataset_with_truth  # noqa: E402
+from reporting.truth_errors import match_errors  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "datasets"
 METHODS = ["sphere", "pf", "multi-pf", "gp", "mle"]
@@ -91,8 +91,8 @@ def _run(method: str, ds, settings: dict[str, Any]) -> dict[str, Any]:
 
 def pf_update_time(n_particles: int = 100_000, repeats: int = 200) -> dict[str, float]:
     """Median wall and CPU time of one ParticleFilter.update (1e5 particles), resampling included as it occurs."""
+    from benchmarks.analytic_flights import lattice_flight
     from estimator.localizers.particle_filter import ParticleFilter
-    from estimator.localizers.testing import lattice_flight
 
     ds = lattice_flight(0)
     pf = ParticleFilter(n_particles=n_particles).initialize(ds.scenario)
@@ -153,7 +153,7 @@ def shared_datasets(methods: list[str], settings: dict[str, dict[str, Any]]) -> 
         path = SHARED / name
         if not (path / "frames.csv").exists():
             continue
-        ds = read_dataset(path)
+        ds = read_dataset_with_truth(path)
         res = {}
         runs = [(m, m, settings.get(m, {})) for m in methods]
         if "mle" in methods and effects:

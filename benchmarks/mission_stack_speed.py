@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(tmp) / "run"
         t0 = time.monotonic()
         proc = subprocess.run(
-            [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", str(args.speedup),
+            [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", str(args.speedup),
              "--strategy", strategy, "--max-dwells", "40", "--zenoh-port", "27647", "--mavlink-port", "24740",
              "--gcs-port", "24750", "--vehicle-local-ports", "24780,28770"],
             capture_output=True, text=True)

@@ -52,7 +52,7 @@ QUICK_EFFECTS = ("resolution_law", "multiple_scatter", "pileup", "side_scatter",
 
 def channel_shares(row: dict, nuclides: list[str], params: dict[str, float], n_top: int = 5) -> list[dict]:
     """The 32 board channels (lower edge >= 60 keV) that carry most of TV32: measured and model shares."""
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
     from spectra import fit as F
 
     pr = F.Problem(read_spectrum(row["spectrum"]), tuple(nuclides), read_spectrum(DATA / BG))

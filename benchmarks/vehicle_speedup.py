@@ -43,7 +43,7 @@ def zenoh_router():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-    router = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
+    router = subprocess.Popen([sys.executable, "-m", "radseek_cli", "router", "--listen", endpoint],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         router.stdout.readline()

@@ -24,17 +24,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from detector_fw_sim import response
 from detector_fw_sim.ladder import REFERENCE_EDGES_KEV, ComparatorLadder
-from radseek.dataset import (
-    EFFECTS,
-    MAX_COORD_M,
-    MAX_EXTENT_M,
-    MAX_SOURCES,
-    MAX_WALLS,
-    Scenario,
-    Truth,
-    TruthSource,
-    Wall,
-)
+from radseek.dataset import EFFECTS, Scenario, Wall
+from radseek.truth import Truth, TruthSource
+from radseek_io.dataset import MAX_COORD_M, MAX_EXTENT_M, MAX_SOURCES, MAX_WALLS
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
@@ -180,7 +172,7 @@ class DetectorSpec(_Model):
     escape_scale: float = Field(default=1.0, gt=0)
     #: smallest angle of the side scatter (deg; ``radseek calibrate``'s side_scatter_angle effect)
     side_scatter_min_deg: float = Field(default=response.SIDE_SCATTER_DEG[0], ge=0, le=100)
-    #: a calibrated detector file (``radseek calibrate --out``, radseek.detector_file); its physical parameters
+    #: a calibrated detector file (``radseek calibrate --out``, radseek_io.detector_file); its physical parameters
     #: fill the fields above that the scene does not set. ``detector = "rc102.json"`` is short for this.
     file: str | None = None
 
@@ -190,7 +182,7 @@ class DetectorSpec(_Model):
         if isinstance(data, str):
             data = {"file": data}
         if isinstance(data, dict) and data.get("file"):
-            from radseek.detector_file import read_detector_file
+            from radseek_io.detector_file import read_detector_file
 
             path = Path(data["file"])
             if not path.exists() and (SCENES_DIR / path).exists():

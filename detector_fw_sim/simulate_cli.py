@@ -15,8 +15,9 @@ from pathlib import Path
 from detector_fw_sim.flight_paths import BUILTIN_PATHS, FlightPathError
 from detector_fw_sim.scene import SceneError, bundled_scenes, load_scene
 from detector_fw_sim.simulate import simulate_flight
-from radseek.dataset import EFFECTS, write_dataset
-from radseek.outdir import OutputDirError, atomic_write_json, prepare_output
+from radseek.dataset import EFFECTS
+from radseek_io.dataset import write_dataset
+from radseek_io.outdir import OutputDirError, atomic_write_json, prepare_output
 
 #: what simulate-dataset writes under --out, truth first: --force removes them in this order
 SIMULATE_OUTPUTS = ("truth.json", "frames.csv", "frames_flagged.csv", "scenario.json")

@@ -33,7 +33,7 @@ drift-aware bound ``bound_m`` (``estimator.localizers.mle.pose_aware_crlb`` for 
 model the estimate used) and the 95 % ellipse ``ellipse_95`` (:func:`ellipse`). ``radseek run``'s
 ``summary.json`` and report, ``radseek replay`` and the benchmarks all read this one estimate.
 
-``mission.search.SearchBrain`` calls it and only decides; ``estimator.replay_cli`` calls it dwell by dwell
+``mission.search.SearchBrain`` calls it and only decides; ``radseek_cli.replay_cli`` calls it dwell by dwell
 on a recorded flight and so reproduces the flown estimates.
 """
 

@@ -202,7 +202,7 @@ class SpectralModel:
 
     @classmethod
     def from_detector_file(cls, edges: np.ndarray, detector, nuclide: str, sub: int = SUB_BINS) -> SpectralModel:
-        """The source template from a calibrated detector file (``radseek.detector_file.DetectorFile``): the
+        """The source template from a calibrated detector file (``radseek_io.detector_file.DetectorFile``): the
         crystal's measured-energy spectrum of ``nuclide`` integrated over the template's energy bins, so only the
         background template and the group amplitudes are fitted (KeyError if the file lacks the nuclide)."""
         grid, cdf = detector.template(nuclide)

@@ -42,7 +42,7 @@ import numpy as np
 
 from radseek import __version__
 from radseek.estimate import SourceEstimate
-from radseek.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
+from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
 
 __all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "Sweep", "fly_one", "load_rows",
            "parse_effect", "run_campaign", "summarize", "write_reports"]

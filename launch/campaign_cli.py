@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from detector_fw_sim.scene import SceneError
     from launch.campaign import CampaignStopped, run_campaign
-    from radseek.outdir import OutputDirError
+    from radseek_io.outdir import OutputDirError
 
     try:
         sweep = sweep_from_args(args)

@@ -114,7 +114,7 @@ def export_plan(path: Path, plan: DwellPlan, occ: OccupancyMap, home_text: str, 
 
 def _load_map(args: argparse.Namespace) -> tuple[OccupancyMap, float]:
     if args.dataset is not None:
-        from radseek.dataset import read_scenario
+        from radseek_io.dataset import read_scenario
 
         scenario = read_scenario(args.dataset / "scenario.json")
     else:

@@ -36,10 +36,11 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from radseek.dataset import Dataset, DatasetError, read_dataset  # noqa: E402
+from radseek.dataset import Dataset, DatasetError  # noqa: E402
 from radseek.estimate import SourceEstimate  # noqa: E402
 from radseek.geometry import semi_major_axis  # noqa: E402
-from radseek.outdir import atomic_path, atomic_write_json  # noqa: E402
+from radseek_io.outdir import atomic_path, atomic_write_json  # noqa: E402
+from radseek_io.truth import read_dataset_with_truth  # noqa: E402
 
 
 def gaussian_entropy(cov: np.ndarray) -> float:
@@ -175,7 +176,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     from mission.search import SearchConfig
 
     out = Path(out)
-    ds = read_dataset(out / "dataset")
+    ds = read_dataset_with_truth(out / "dataset")
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
     est, est_source = flown_estimate(ds, mission)
     src = {"x": est.x, "y": est.y, "z": est.z, "cps_at_1m": est.cps_at_1m}
@@ -335,7 +336,7 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
     for n in names:
         if (out / "dataset" / n / "frames.csv").exists():
             try:
-                data[n] = read_dataset(out / "dataset" / n)
+                data[n] = read_dataset_with_truth(out / "dataset" / n)
             except DatasetError as exc:  # a member that recorded nothing (killed early, flooded) loses no one else's
                 unreadable[n] = str(exc)
     if not data:

@@ -33,7 +33,7 @@ import threading
 import time
 from pathlib import Path
 
-from launch.run_cli import (
+from launch.stack import (
     EXIT_FOUND,
     EXIT_SEARCH_FAILED,
     EXIT_STACK,
@@ -88,10 +88,10 @@ def team_verdict(summaries: dict[str, dict]) -> tuple[str | None, dict | None]:
 
 def run_team(args, scene, out: Path, speedup: float, ports) -> int:
     """The team flight on ``ports`` (``launch.ports.Ports``: vehicle v on PX4 instance N + v)."""
-    from radseek.dataset import write_json
-    from radseek.outdir import atomic_write_json
     from radseek.simclock import ZenohClock
     from radseek.zenoh_session import open_session
+    from radseek_io.dataset import write_json
+    from radseek_io.outdir import atomic_write_json
 
     n = int(args.vehicles)
     names = vehicle_names(n)

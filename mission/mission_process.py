@@ -48,8 +48,8 @@ from mission.team_link import TeamLinkBase, label_dwells
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
-from radseek.outdir import atomic_write_json
 from radseek.payload_drops import DropCounter
+from radseek_io.outdir import atomic_write_json
 
 log = logging.getLogger("radseek.mission")
 

@@ -21,9 +21,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from radseek import topics
-from radseek.dataset import FrameWriter, Scenario, write_json
+from radseek.dataset import Scenario
 from radseek.frame_record import FrameRecord
 from radseek.pose_history import PoseHistory
+from radseek_io.dataset import FrameWriter, write_json
 
 __all__ = ["FlightRecorder", "PoseHistory", "flagged_rows"]
 

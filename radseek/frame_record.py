@@ -19,6 +19,7 @@ Which frames are usable is a function of the histogram's flags, defined here onc
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,7 @@ import numpy as np
 
 from radseek import topics
 from radseek.pose_history import PoseHistory
+from radseek.spectrum import Spectrum
 from radseek.topics import N_CHANNELS
 
 #: the one integer type of a frame's counts, from the histogram to ``Frames.counts``
@@ -82,37 +84,6 @@ def as_counts(counts: Any) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Spectrum:
-    """One frame's counts with what they mean: channel edges (keV) and real and live time (s).
-
-    The board reports no live time (dead time loses counts silently); ``livetime`` is the emulator's
-    truth when it is known, for diagnostics only. ``bin_edges_kev`` are the scenario's channel edges.
-    """
-
-    counts: np.ndarray  # (N_CHANNELS,) COUNT_DTYPE
-    realtime: float  # s, time integrated (the frame's duration)
-    livetime: float | None = None  # s, unknown to the board
-    bin_edges_kev: np.ndarray | None = None  # (N_CHANNELS + 1,) ascending
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "counts", as_counts(self.counts))
-        if self.bin_edges_kev is not None:
-            edges = np.asarray(self.bin_edges_kev, dtype=float)
-            if edges.shape != (N_CHANNELS + 1,):
-                raise ValueError(f"bin_edges_kev must list {N_CHANNELS + 1} edges, got shape {edges.shape}")
-            object.__setattr__(self, "bin_edges_kev", edges)
-
-    @property
-    def total(self) -> int:
-        return int(self.counts.sum())
-
-    @property
-    def cps(self) -> np.ndarray:
-        """(N_CHANNELS,) count rate per channel over the real time."""
-        return self.counts / self.realtime
-
-
-@dataclass(frozen=True)
 class FrameRecord:
     """One row of frames.csv: the histogram's spectrum at the estimated pose, in a dwell (or -1 moving).
 
@@ -132,12 +103,18 @@ class FrameRecord:
     seq: int = 0
     flags: int = 0
 
+    def __post_init__(self) -> None:
+        c = self.spectrum.counts  # a frame holds the board's N_CHANNELS whole counts, as COUNT_DTYPE
+        if c.dtype != COUNT_DTYPE or c.shape != (N_CHANNELS,):
+            object.__setattr__(self, "spectrum", dataclasses.replace(self.spectrum, counts=as_counts(c)))
+
     @classmethod
     def from_histogram(cls, hist: topics.Histogram, pose: topics.Pose | None, dwell: int,
                        channel_edges_keV: np.ndarray | None = None) -> FrameRecord:
         """The record of a histogram at an estimated pose (None: no estimate, the pose is NaN)."""
         p = pose or topics.Pose(t=hist.t, x=math.nan, y=math.nan, z=math.nan, yaw=math.nan)
-        spectrum = Spectrum(hist.counts, hist.duration, hist.live_time, channel_edges_keV)
+        spectrum = Spectrum(as_counts(hist.counts), livetime=hist.live_time, realtime=hist.duration,
+                            bin_edges_kev=channel_edges_keV)
         return cls(hist.t, spectrum, p.x, p.y, p.z, p.yaw, p.var_x, p.var_y, p.var_z, int(dwell), hist.seq, hist.flags)
 
     @property

@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.detector_file import DetectorFile, DetectorFileError, first_non_finite, read_detector_file
-from radseek.outdir import OutputDirError, check_output_file
 from radseek.photon_lines import NATURAL_CHAINS
-from radseek.spectrum_files import SpectrumFileError, read_spectrum
+from radseek_io.detector_file import DetectorFile, DetectorFileError, first_non_finite, read_detector_file
+from radseek_io.outdir import OutputDirError, check_output_file
+from radseek_io.spectrum_io import SpectrumFileError, read_spectrum
 
 TEMPLATE_NUCLIDES = ("Cs-137", "Co-60", "Ba-133", "Am-241")
 TEMPLATE_GRID = np.arange(0.0, 3000.0 + 1e-9, 4.0)
@@ -94,7 +94,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
         start.update({k: v for k, v in det.parameters.items() if k in M.PARAMS})
     base = F.evaluate(problem, M.baseline_params())
     base_d = F.shape_distances(problem, base.shape)
-    rate = float(sp.counts.sum()) / sp.live_time_s
+    rate = float(sp.counts.sum()) / sp.livetime
     if det is not None and "pileup_resolving_time_s" in det.parameters:
         # random summing scales with the rate: pileup = 2 r tau, tau the device's resolving time
         start["pileup"] = min(2 * rate * det.parameters["pileup_resolving_time_s"], M.PARAMS["pileup"].hi)
@@ -117,7 +117,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
     params_for_lines = dict(res.params)
     result = {
         "spectrum": str(spectrum), "nuclides": list(nuclides), "background": background,
-        "live_time_s": sp.live_time_s, "no_fit": no_fit,
+        "live_time_s": sp.livetime, "no_fit": no_fit,
         "parameters": {k: round(v, 6) for k, v in res.params.items()},
         "errors": {k: float(f"{v:.3g}") for k, v in res.errors.items()},
         "effects": list(res.effects),
@@ -144,7 +144,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
                           effects=list(res.effects), missing=result["still_missing"],
                           calibrated_on={"spectrum": Path(spectrum).name, "nuclides": list(nuclides),
                                          "background": Path(background).name if background else None,
-                                         "live_time_s": sp.live_time_s},
+                                         "live_time_s": sp.livetime},
                           fit={k: result[k] for k in ("deviance_per_dof", "total_variation_32",
                                                       "total_variation_native", "baseline")},
                           grid_keV=TEMPLATE_GRID, cdf=templates(res.params, tnucs))
@@ -179,7 +179,7 @@ def _spectrum_summary(F, problem, res, base) -> dict:
     d = F.shape_distances(problem, res.shape)
     b = F.shape_distances(problem, base.shape)
     return {"spectrum": problem.name, "nuclides": list(problem.nuclides),
-            "live_time_s": problem.spectrum.live_time_s, "rate_cps": round(problem.rate_cps, 3),
+            "live_time_s": problem.spectrum.livetime, "rate_cps": round(problem.rate_cps, 3),
             "amplitude": float(f"{res.amplitude:.6g}"),
             "deviance": round(res.deviance, 2), "dof": res.dof, "deviance_per_dof": round(res.deviance_per_dof, 4),
             "total_variation_32": round(d["total_variation_32"], 4),
@@ -263,7 +263,7 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
                           errors=errors, effects=list(res.effects),
                           missing=[w for sp in spectra for w in sp["still_missing"]] + NOT_IDENTIFIABLE,
                           calibrated_on={"spectra": [{"spectrum": Path(f).name, "nuclides": list(n),
-                                                      "live_time_s": pr.spectrum.live_time_s}
+                                                      "live_time_s": pr.spectrum.livetime}
                                                      for (f, n), pr in zip(pairs, joint.parts, strict=True)],
                                          "background": Path(background).name if background else None,
                                          "drift": _drift_json(drift)},

@@ -26,7 +26,7 @@ import numpy as np
 from iminuit import Minuit
 from scipy import stats
 
-from radseek.spectrum_files import Spectrum
+from radseek_io.spectrum_io import Spectrum
 from spectra import model as M
 
 TV_MIN_KEV = 60.0
@@ -55,7 +55,7 @@ class Problem:
         self.mask = b[:-1] >= self.fit_min_keV
         self.n = self.spectrum.counts
         if self.background is not None:
-            bg = self.background.rebin(b, overflow=False) * (self.spectrum.live_time_s / self.background.live_time_s)
+            bg = self.background.rebin(b, overflow=False) * (self.spectrum.livetime / self.background.livetime)
             self.bg = np.maximum(bg, 0.0)
         else:
             self.bg = np.zeros_like(self.n)
@@ -80,7 +80,7 @@ class Problem:
 
     @property
     def rate_cps(self) -> float:
-        return float(self.n.sum()) / max(self.spectrum.live_time_s, 1e-300)
+        return float(self.n.sum()) / max(self.spectrum.livetime, 1e-300)
 
 
 #: per-spectrum drift of the energy law in a joint fit (sessions days apart): m_k = offset_k + gain_k m(e)
@@ -208,7 +208,7 @@ def shape_distances(problem: Problem, shape: np.ndarray, edges32: np.ndarray | N
     edges32 = reference_edges() if edges32 is None else edges32
     b = problem.boundaries
     net = problem.net()
-    model_sp = Spectrum(np.maximum(shape, 0), 1.0, calibration=problem.spectrum.calibration, boundaries_keV=b)
+    model_sp = Spectrum(np.maximum(shape, 0), 1.0, calibration=problem.spectrum.calibration, bin_edges_kev=b)
     meas32 = _rebin_signed(net, b, edges32)
     mod32 = model_sp.rebin(edges32)
     keep32 = edges32[:-1] >= TV_MIN_KEV

@@ -32,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.dataset import Frames, Scenario, read_dataset, write_dataset
-from radseek.spectrum_files import Spectrum, SpectrumFileError, read_commented_csv, write_n42
+from radseek.dataset import Frames, Scenario
+from radseek_io.dataset import read_dataset, write_dataset
+from radseek_io.spectrum_io import Spectrum, SpectrumFileError, read_commented_csv, write_n42
 
 EPOCH = dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
 
@@ -53,7 +54,7 @@ def dwell_spectra(frames: Frames, edges_keV: np.ndarray, transit: bool = False) 
         title = (f"dwell {d}" if d >= 0 else "transit") + f" at x={x:.2f} y={y:.2f} z={z:.2f} m, "
         title += f"{int(sel.sum())} frames"
         start = (EPOCH + dt.timedelta(seconds=max(t0, 0.0))).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-        out.append(Spectrum(counts, live, live, boundaries_keV=np.asarray(edges_keV, dtype=float), start_time=start,
+        out.append(Spectrum(counts, live, live, bin_edges_kev=np.asarray(edges_keV, dtype=float), start_time=start,
                             title=title, kind="foreground", source=f"dwell {d}",
                             meta={"dwell": d, "x": x, "y": y, "z": z}))
     return out
@@ -135,14 +136,14 @@ def import_ndjson_flight(log_path: str | Path, out: str | Path, edges_keV: np.nd
                          background_cps: float | None = None, source_z: float | None = None,
                          home: tuple[float, float, float] | None = None, serial: str | None = None,
                          max_bytes: int | None = None) -> tuple[Path, dict]:
-    """A radiacode-tools NDJSON log (:mod:`radseek.spectrum_io.ndjson`) as a dataset: one frame per pair of
+    """A radiacode-tools NDJSON log (:mod:`radseek_io.spectrum_io.ndjson`) as a dataset: one frame per pair of
     consecutive cumulative spectra (their difference, its own duration), rebinned to the board's channels; the
     position is the GNSS track in the local ENU frame (home = the first fix, or ``home``) interpolated at the
     frame's mid-time, its variance from the fixes' stated quality; yaw from the GNSS course (the detector axis
     assumed along the direction of travel; 0 without a course). ``background_cps`` defaults to the median frame
     rate, ``source_z`` to 1 m below the median detector height (a hand-carried detector). Returns the dataset
     path and a summary (frames kept, dropped and why)."""
-    from radseek.spectrum_io.ndjson import scan
+    from radseek_io.spectrum_io.ndjson import scan
 
     edges = np.asarray(edges_keV, dtype=float)
     maps: dict[tuple, np.ndarray] = {}
@@ -328,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
             print(dumps(d) if a.json else human(d))
         else:
             from detector_fw_sim.scene import load_scene
-            from radseek.spectrum_io import format_of
+            from radseek_io.spectrum_io import format_of
 
             edges = load_scene(a.scene).channel_edges_keV
             max_bytes = int(a.max_mb * 1e6) if a.max_mb else None

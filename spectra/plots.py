@@ -20,7 +20,7 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     b = problem.boundaries
     centre = 0.5 * (b[1:] + b[:-1])
     width = np.diff(b)
-    lt = problem.spectrum.live_time_s
+    lt = problem.spectrum.livetime
     net = problem.net()
     m = problem.mask & (centre > 0)
     fig, ax = plt.subplots(3, 1, figsize=(10, 11), gridspec_kw={"height_ratios": [3, 1.3, 2]})

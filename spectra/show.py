@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from radseek.spectrum_io import Spectrum, format_of, read_spectra
-from radseek.spectrum_io.ndjson import _iso, scan, spectra_of
+from radseek_io.spectrum_io import Spectrum, format_of, read_spectra
+from radseek_io.spectrum_io.ndjson import _iso, scan, spectra_of
 
 
 def strict(obj: Any) -> Any:
@@ -41,11 +41,11 @@ def dumps(obj: Any) -> str:
 
 
 def _spectrum(sp: Spectrum) -> dict[str, Any]:
-    return {"kind": sp.kind, "live_time_s": sp.live_time_s, "real_time_s": sp.real_time_s,
+    return {"kind": sp.kind, "live_time_s": sp.livetime, "real_time_s": sp.realtime,
             "total_counts": float(sp.counts.sum()), "channels": sp.n_channels,
-            "calibration_keV": list(sp.calibration) if sp.boundaries_keV is None else None,
-            "boundaries_keV": [float(sp.boundaries_keV[0]), float(sp.boundaries_keV[-1])]
-            if sp.boundaries_keV is not None else None,
+            "calibration_keV": list(sp.calibration) if sp.bin_edges_kev is None else None,
+            "boundaries_keV": [float(sp.bin_edges_kev[0]), float(sp.bin_edges_kev[-1])]
+            if sp.bin_edges_kev is not None else None,
             "start_time": sp.start_time or None, "serial": sp.serial or None, "title": sp.title or None}
 
 
@@ -80,7 +80,7 @@ def describe(path: str | Path, live_time_s: float | None = None, max_bytes: int 
         m = spectra[0].meta
         out["rows"] = {"count": m["rows"], "what": "time rows (differential spectra)",
                        "first_start": m["first_row_start"], "last_end": m["last_row_end"],
-                       "live_time_s": spectra[0].live_time_s, "header_accumulation_time_s":
+                       "live_time_s": spectra[0].livetime, "header_accumulation_time_s":
                        m["header_accumulation_time_s"]}
     return out
 

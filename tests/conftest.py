@@ -179,7 +179,7 @@ def free_port() -> int:
 def router():
     """A real `radseek router` on a free loopback port; yields its endpoint."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
+    proc = subprocess.Popen([sys.executable, "-m", "radseek_cli", "router", "--listen", endpoint],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert "listening" in proc.stdout.readline()

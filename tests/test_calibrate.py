@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek import spectrum_files as sf
-from radseek.detector_file import DetectorFileError, read_detector_file
+from radseek_io import spectrum_io as sf
+from radseek_io.detector_file import DetectorFileError, read_detector_file
 from spectra import fit as F
 from spectra import model as M
 
@@ -193,7 +193,7 @@ def test_thick_scatter_law_carries_the_cs137_scatter_to_co60(monkeypatch):
 
 
 def test_cli_errors_name_the_file(tmp_path, capsys):
-    from radseek.cli import main
+    from radseek_cli.main import main
 
     bad = tmp_path / "x.spe"
     bad.write_text("$DATA:\n0 1\n5\n")
@@ -254,22 +254,23 @@ def test_detector_file_template_in_the_spectral_model(detector_file):
 def test_n42_export_of_dwells_and_flight_import(tmp_path):
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight
-    from radseek.dataset import read_dataset, write_dataset
+    from radseek_io.dataset import write_dataset
+    from radseek_io.truth import read_dataset_with_truth
     from spectra.flight_cli import main as spectra_main
 
     scene = load_scene()
     ds = simulate_flight(scene, "lattice", seed=2)
     d = write_dataset(tmp_path / "flight", ds.frames, ds.scenario, ds.truth)
     assert spectra_main(["export-n42", str(d), "--out", str(tmp_path / "f.n42")]) == 0
-    ds = read_dataset(d)  # as written (frames.csv rounds durations)
+    ds = read_dataset_with_truth(d)  # as written (frames.csv rounds durations)
     spectra = sf.read_n42(tmp_path / "f.n42")
     dwells = [int(v) for v in dict.fromkeys(ds.frames.dwell) if v >= 0]
     assert len(spectra) == len(dwells)
     for sp, dw in zip(spectra, dwells, strict=True):
         sel = ds.frames.dwell == dw
         np.testing.assert_array_equal(sp.counts, ds.frames.counts[sel].sum(axis=0))
-        assert sp.live_time_s == pytest.approx(ds.frames.duration[sel].sum(), rel=1e-9)
-        np.testing.assert_allclose(sp.boundaries_keV, ds.scenario.channel_edges_keV)
+        assert sp.livetime == pytest.approx(ds.frames.duration[sel].sum(), rel=1e-9)
+        np.testing.assert_allclose(sp.bin_edges_kev, ds.scenario.channel_edges_keV)
     # a flight in another tool's format: native 1024-channel spectrogram + pose track
     real = sf.read_spectrum(DATA / "Cs137_b.xml")
     rng = np.random.default_rng(0)
@@ -282,7 +283,7 @@ def test_n42_export_of_dwells_and_flight_import(tmp_path):
     (tmp_path / "poses.csv").write_text("time_s,x,y,z,yaw,dwell\n0,0,0,1,0,0\n10,1,0,1,0.5,0\n30,2,0,1,1.0,1\n")
     assert spectra_main(["import-flight", str(tmp_path / "spg.csv"), str(tmp_path / "poses.csv"),
                          "--out", str(tmp_path / "imported")]) == 0
-    back = read_dataset(tmp_path / "imported")
+    back = read_dataset_with_truth(tmp_path / "imported")
     assert len(back.frames) == 20
     edges = back.scenario.channel_edges_keV
     centre = 0.5 * (real.edges_keV()[1:] + real.edges_keV()[:-1])

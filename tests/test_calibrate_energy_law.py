@@ -12,7 +12,7 @@ import pytest
 from pydecay.nuclide import Nuclide
 
 from detector_fw_sim.response import gamma_lines
-from radseek import spectrum_files as sf
+from radseek_io import spectrum_io as sf
 from spectra import energy_law as EL
 from spectra import model as M
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek.detector_file import DetectorFile, DetectorFileError, read_detector_file
 from radseek.photon_lines import equilibrium_lines, gamma_lines, source_lines
+from radseek_io.detector_file import DetectorFile, DetectorFileError, read_detector_file
 from spectra import calibrate_cli as C
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
@@ -57,8 +57,8 @@ def test_chain_walk_reaches_the_long_lived_members_only_for_chain_heads():
 
 def test_out_never_replaces_a_file_without_force(tmp_path, capsys):
     """--out refuses an existing file before any work (the rule of ``radseek run`` / ``simulate-dataset``, through
-    ``radseek.outdir.check_output_file``), in both forms; with --force the file is replaced by a valid one."""
-    from radseek.cli import main
+    ``radseek_io.outdir.check_output_file``), in both forms; with --force the file is replaced by a valid one."""
+    from radseek_cli.main import main
 
     out = tmp_path / "det.json"
     out.write_text("an earlier calibration\n")
@@ -95,7 +95,7 @@ def test_no_nan_is_ever_written(tmp_path):
 
 
 def test_joint_form_arguments_are_checked(capsys):
-    from radseek.cli import main
+    from radseek_cli.main import main
 
     cs = str(DATA / "Cs137_b.xml")
     for argv, msg in ((["calibrate", f"{cs}=Cs-137", "--nuclide", "Cs-137"], "not both"),
@@ -115,7 +115,7 @@ def test_drift_of_a_later_session_is_recovered():
     """Two spectra of one unit drawn from the model, the second read with its gain 3 % higher and its offset 2 keV
     higher (a session days later): the joint fit with --drift gives both back within 4 sigma, with the shared
     response held; the pile-up share a spectrum sees follows its rate (one resolving time)."""
-    from radseek import spectrum_files as sf
+    from radseek_io import spectrum_io as sf
     from spectra import fit as F
     from spectra import model as M
 
@@ -144,7 +144,7 @@ def test_drift_of_a_later_session_is_recovered():
 def test_drift_of_one_spectrum_leaves_the_others_on_the_shared_law():
     """``Joint(drift=(2,))`` (``--drift-of K40.rcspg``): only that spectrum gets a gain and an offset; a same-day
     spectrum sees the shared law; an index that is not a spectrum after the first is refused."""
-    from radseek import spectrum_files as sf
+    from radseek_io import spectrum_io as sf
     from spectra import fit as F
     from spectra import model as M
 
@@ -163,7 +163,7 @@ def test_drift_of_one_spectrum_leaves_the_others_on_the_shared_law():
 
 
 def test_drift_of_arguments_are_checked(capsys):
-    from radseek.cli import main
+    from radseek_cli.main import main
 
     cs, eu = f"{DATA / 'Cs137_b.xml'}=Cs-137", f"{DATA / 'Eu152_b.xml'}=Eu-152"
     for argv, msg in ((["calibrate", cs, eu, "--drift-of", "other.xml"], "not one of the fitted spectra"),
@@ -177,11 +177,11 @@ def test_drift_of_arguments_are_checked(capsys):
 def test_overflow_channel_is_out_of_the_fit_and_the_distances():
     """K40.rcspg (sum of its 690 time rows) holds 1030 counts in its last channel, every pulse above the top edge:
     the fit and the shape distances leave that channel out (the XML spectra hold 0 there)."""
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
     from spectra import fit as F
 
     sp = read_spectrum(DATA / "K40.rcspg")
-    assert sp.kind == "foreground" and sp.live_time_s == pytest.approx(43510.0) and sp.counts[-1] > 1000
+    assert sp.kind == "foreground" and sp.livetime == pytest.approx(43510.0) and sp.counts[-1] > 1000
     pr = F.Problem(sp, ("K-40",), read_spectrum(DATA / "bg.xml"))
     assert not pr.mask[-1] and pr.net()[-1] == 0
     assert pr.shape(F.M.baseline_params())[-1] == 0
@@ -201,7 +201,7 @@ def joint_fit():
     """The joint fit on the real Cs-137 + Eu-152 (+ bg.xml), in a small configuration: started from the saved joint
     response, the energy law (4 parameters) refitted with a short MIGRAD (the full forward selection from the
     emulator's response takes ~15 min: the benchmark)."""
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
     from spectra import fit as F
     from spectra import model as M
 
@@ -231,7 +231,7 @@ def test_joint_fit_on_real_cs137_and_eu152_reaches_the_fitted_bound(joint_fit):
 def test_joint_response_predicts_co60_and_ba133_with_no_refit(joint_fit, name, nuclide):
     """The same unit's Co-60 and Ba-133, not in the fit: only the amplitude fitted (pile-up rescaled by rate). They
     meet the figures the benchmark measured, and beat the Cs-137-only response by far."""
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
     from spectra import fit as F
 
     joint, res = joint_fit
@@ -247,7 +247,7 @@ def test_joint_response_predicts_co60_and_ba133_with_no_refit(joint_fit, name, n
 def test_joint_cli_reports_each_spectrum_and_prediction(tmp_path, capsys):
     """The joint form end to end with the saved response (--no-fit): one entry per file in ``spectra`` and
     ``predicted``, each with its total_variation_32, strict JSON."""
-    from radseek.cli import main
+    from radseek_cli.main import main
 
     rc = main(["calibrate", f"{DATA / 'Cs137_b.xml'}=Cs-137", f"{DATA / 'Eu152_b.xml'}=Eu-152",
                "--background", str(DATA / "bg.xml"), "--detector", str(JOINT_DET), "--no-fit",

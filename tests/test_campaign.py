@@ -18,7 +18,7 @@ import pytest
 
 from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_one, open_campaign, parse_effect, summarize
 from radseek.estimate import SourceEstimate
-from radseek.outdir import OutputDirError
+from radseek_io.outdir import OutputDirError
 
 BIN = Path(sys.executable).parent
 #: a fast search: the 9-point lattice cut to 3 dwell points of 1-2 s (a few CPU seconds per flight)

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from radseek.inspect_cli import ZENOH_CLI_COMMAND
 from radseek.zenoh_session import open_session
+from radseek_cli.inspect_cli import ZENOH_CLI_COMMAND
 from tests.conftest import free_port
 
-RADSEEK = [sys.executable, "-m", "radseek.cli"]
+RADSEEK = [sys.executable, "-m", "radseek_cli"]
 WAIT_S = 60.0  # bounds waiting only
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from estimator import diagnose_cli, localize_cli
+from radseek_cli import diagnose_cli, localize_cli
 
 BASE = "lattice-clean"  # source at (4.3, 3.7), no walls
 

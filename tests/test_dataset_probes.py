@@ -15,10 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek import dataset
-from radseek.dataset import COUNT_DTYPE, DatasetError, Wall, read_dataset, read_frames
-from radseek.frame_record import CHANNEL_COLUMNS, COLUMNS
+from radseek.dataset import DatasetError, Wall
+from radseek.frame_record import CHANNEL_COLUMNS, COLUMNS, COUNT_DTYPE
 from radseek.geometry import path_lengths, segment_hits_walls
+from radseek_io import dataset
+from radseek_io.dataset import read_dataset, read_frames
+from radseek_io.truth import read_dataset_with_truth
 from tests.conftest import shared_dataset_names
 
 BASE = "lattice-clean"
@@ -176,7 +178,8 @@ def test_bad_truth_names_the_key(shared_datasets, tmp_path, content, match):
     path = _copy(shared_datasets, tmp_path)
     (path / "truth.json").write_bytes(content.encode("latin-1"))
     with pytest.raises(DatasetError, match="truth.json: .*" + match):
-        read_dataset(path)
+        read_dataset_with_truth(path)
+    assert read_dataset(path).truth is None  # the frames and scenario alone never open truth.json
 
 
 def test_utf8_bom_header_is_read(shared_datasets, tmp_path):

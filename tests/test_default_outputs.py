@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from detector_fw_sim.simulate_cli import build_parser as simulate_parser
-from estimator.compare_cli import _build_parser as compare_parser
+from radseek_cli.compare_cli import _build_parser as compare_parser
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -21,18 +21,18 @@ def _default_out(p: argparse.ArgumentParser) -> str:
 def test_every_default_output_is_under_runs():
     assert _default_out(simulate_parser()).startswith("runs/")
     assert _default_out(compare_parser()).startswith("runs/")
-    from estimator.diagnose_cli import default_out
+    from radseek_cli.diagnose_cli import default_out
 
     a, b = default_out(Path("/x/run1/dataset")), default_out(Path("/x/run2/dataset"))
     assert a.parts[0] == "runs" and a.name.startswith("diagnose-dataset-") and a != b
     assert default_out(Path("/x/run1/dataset")) == a
-    assert 'Path("runs/flight.mcap")' in (REPO / "radseek" / "mcap_log.py").read_text()
+    assert 'Path("runs/flight.mcap")' in (REPO / "radseek_cli" / "record_cli.py").read_text()
     assert "runs/" in (REPO / ".gitignore").read_text().split()
 
 
 @pytest.mark.io
 def test_bare_simulate_dataset_writes_only_under_runs(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "radseek.cli", "simulate-dataset"], cwd=tmp_path, capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "radseek_cli", "simulate-dataset"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(REPO)})
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]

@@ -36,7 +36,7 @@ class Proc:
     """A radseek subprocess whose stdout lines are collected by a thread."""
 
     def __init__(self, *args: str):
-        self.p = subprocess.Popen([sys.executable, "-m", "radseek.cli", *args], stdout=subprocess.PIPE,
+        self.p = subprocess.Popen([sys.executable, "-m", "radseek_cli", *args], stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self.lines: queue.Queue[str] = queue.Queue()
         self.seen: list[str] = []

@@ -1,5 +1,5 @@
 """Issue 30, "Bad input": ``radseek diagnose DATASET`` (and ``radseek localize``, which reads datasets the same way,
-``estimator.localize_cli.read_for_cli``) refuse walls without thickness, walls that overlap and flights too short
+``radseek_cli.localize_cli.read_for_cli``) refuse walls without thickness, walls that overlap and flights too short
 to analyse with one line on stderr naming the file, the wall(s) or the count, exit status 2 and no traceback.
 
 The bad datasets are lattice-clean copies with an edited scenario.json or a truncated frames.csv.
@@ -16,11 +16,12 @@ from pathlib import Path
 
 import pytest
 
-from estimator import diagnose_cli, localize_cli
-from estimator.diagnose_cli import main as diagnose
-from estimator.localize_cli import main as localize
-from estimator.localize_cli import read_for_cli
-from radseek.dataset import DatasetError, Wall, read_scenario, wall_overlaps
+from radseek.dataset import DatasetError, Wall
+from radseek_cli import diagnose_cli, localize_cli
+from radseek_cli.diagnose_cli import main as diagnose
+from radseek_cli.localize_cli import main as localize
+from radseek_cli.localize_cli import read_for_cli
+from radseek_io.dataset import read_scenario, wall_overlaps
 
 REPO = Path(__file__).resolve().parents[1]
 BASE = "lattice-clean"
@@ -227,7 +228,7 @@ def test_localize_refuses_fewer_frames_than_a_fit_needs(shared_datasets, tmp_pat
 @pytest.mark.io
 def test_radseek_diagnose_command_prints_one_line(shared_datasets, tmp_path):
     path = _walls(_copy(shared_datasets, tmp_path), [_wall((4, 1), (4, 3)), _wall((4, 2), (4, 5))])
-    r = subprocess.run([sys.executable, "-m", "radseek.cli", "diagnose", str(path), "--no-plots"], cwd=REPO,
+    r = subprocess.run([sys.executable, "-m", "radseek_cli", "diagnose", str(path), "--no-plots"], cwd=REPO,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stdout == ""
     assert "walls[0] and walls[1] overlap by 0.2 m^2" in _one_line(r.stderr)

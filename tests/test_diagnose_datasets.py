@@ -13,8 +13,9 @@ from contextlib import redirect_stdout
 import pytest
 
 from estimator.diagnose.runner import diagnose
-from estimator.diagnose_cli import main
-from radseek.dataset import read_dataset
+from radseek_cli.diagnose_cli import main
+from radseek_io.truth import read_dataset_with_truth
+from reporting.truth_errors import score_diagnosis
 
 
 def _run_cli(argv: list[str]) -> tuple[int, str]:
@@ -101,7 +102,7 @@ def test_emulated_effect_is_named(effect, params, feature):
 
 def test_clean_shared_dataset_reads_without_truth_leak(shared_datasets):
     # the fit never reads truth: the same answer with the truth removed
-    ds = read_dataset(shared_datasets / "lattice-clean")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-clean")
     no_truth = type(ds)(frames=ds.frames, scenario=ds.scenario, truth=None, path=ds.path)
     from estimator.diagnose.backend import CountFitter
 
@@ -118,7 +119,7 @@ def test_two_missing_effects_are_both_found_one_after_the_other():
     scene = (load_scene().without_effects().with_effect("anisotropy", fraction=0.5, half_angle_deg=30.0)
              .with_effect("background_gradient", gx=3.0, gy=-2.0))
     ds = simulate_flight(scene, path="lawnmower", seed=5)
-    d = diagnose(ds, quiet=True, n_starts=4)
+    d = score_diagnosis(diagnose(ds, quiet=True, n_starts=4), ds.truth)
     assert d.selection.missing == ["anisotropy", "background_gradient"]
     assert d.selection.steps[1].effects == ("anisotropy",)  # the second is tested given the first
     assert d.after is not None and d.after.effects == ("anisotropy", "background_gradient")

@@ -14,6 +14,7 @@ from estimator.diagnose.runner import diagnose
 from estimator.diagnose.threads import blas_threads
 from estimator.spectral import SpectralModel
 from radseek.dataset import Frames
+from reporting.truth_errors import score_diagnosis
 
 
 def _frames(n: np.ndarray, dwell: np.ndarray) -> Frames:
@@ -62,7 +63,7 @@ def test_over_dispersion_is_named_and_not_taken_for_geometry():
 @pytest.mark.slow
 def test_strong_wall_on_an_l_shape_is_named_and_lowers_the_source_error():
     ds = simulate(FlightSpec("lshape", {"wall_attenuation": {"mu_per_m": 3.0}}, crystal="wide", dwell_s=6.0), seed=503)
-    d = diagnose(ds, quiet=True, n_starts=2)
+    d = score_diagnosis(diagnose(ds, quiet=True, n_starts=2), ds.truth)
     assert d.selection.missing[:1] == ["wall_attenuation"]
     assert d.after is not None and d.after.source_error_m <= d.current.source_error_m + 0.01
     mu, err = d.selection.first[0].params["wall_attenuation.mu_per_m"], d.selection.first[0].errors[

@@ -27,8 +27,9 @@ from estimator.diagnose.nuclide import (
     identify_second_nuclide,
     photon_lines,
 )
-from radseek.dataset import Frames, read_dataset
-from radseek.spectrum_files import read_spectrum
+from radseek.dataset import Frames
+from radseek_io.dataset import read_dataset
+from radseek_io.spectrum_io import read_spectrum
 
 FILES = {"Cs-137": "Cs137_b.xml", "Co-60": "Co60_a.xml", "Ba-133": "Ba133_a.xml", "Eu-152": "Eu152_b.xml"}
 TWO_SOURCES = REAL_SPECTRA.parent / "datasets" / "two-sources"
@@ -47,7 +48,7 @@ def measured(name: str) -> np.ndarray:
         c = read_spectrum(Path(REAL_SPECTRA) / "data_am241.n42").rebin(EDGES)
     else:
         s = read_spectrum(Path(REAL_SPECTRA) / FILES[name])
-        c = np.clip(s.rebin(EDGES) - bg.rebin(EDGES) * s.live_time_s / bg.live_time_s, 0.0, None)
+        c = np.clip(s.rebin(EDGES) - bg.rebin(EDGES) * s.livetime / bg.livetime, 0.0, None)
     return c / c.sum()
 
 

@@ -7,8 +7,8 @@ import pytest
 
 from estimator.diagnose.backend import CountFitter, FitTask
 from estimator.model import MeasurementModel
-from radseek.dataset import read_dataset
 from radseek.geometry import path_lengths
+from radseek_io.dataset import read_dataset
 
 
 def test_cached_wall_path_lengths_are_exact(shared_datasets):

@@ -122,7 +122,7 @@ def test_every_effect_has_physics_and_a_feature():
 
 
 def test_cli_offers_the_whole_vocabulary():
-    from estimator.diagnose_cli import VOCABULARY as CLI_VOCABULARY
+    from radseek_cli.diagnose_cli import VOCABULARY as CLI_VOCABULARY
 
     assert tuple(CLI_VOCABULARY) == VOCABULARY and "over_dispersion" in VOCABULARY
 

@@ -132,13 +132,14 @@ def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
     """forward2's straight wall, removed from the scenario (mu x t = 0.5): diagnose names unmapped_wall, its fit is
     adequate, its centre is within 0.5 m of the true slab, and the source error falls."""
     from benchmarks.forward2 import FlightSpec, simulate
-    from estimator.diagnose.report import json_report
     from estimator.diagnose.runner import diagnose
+    from reporting.diagnose_report import json_report
+    from reporting.truth_errors import score_diagnosis
 
     ds = simulate(FlightSpec(geometry="wall", effects={"unmapped_wall": {"mu_per_m": 2.5}}, unmap_walls=True,
                              dwell_s=5.0), seed=11)
     assert ds.scenario.walls == ()
-    d = diagnose(ds, quiet=True, n_starts=2)
+    d = score_diagnosis(diagnose(ds, quiet=True, n_starts=2), ds.truth)
     j = json_report(d)
     assert "unmapped_wall" in j["missing"] and not j["unexplained"]
     truth = ds.truth.effects["unmapped_wall"]["walls"][0]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from benchmarks.forward2 import FlightSpec, simulate
-from estimator.diagnose.report import json_report
 from estimator.diagnose.runner import diagnose
+from reporting.diagnose_report import json_report
 
 
 @pytest.mark.slow

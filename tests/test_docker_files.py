@@ -38,7 +38,7 @@ def test_compose_services_run_real_radseek_commands():
     for name, svc in services.items():
         cmd = svc["command"]
         # argparse reads the options in order and exits 0 at --help only if all before it parsed
-        proc = subprocess.run([sys.executable, "-m", "radseek.cli", *cmd, "--help"], capture_output=True, text=True,
+        proc = subprocess.run([sys.executable, "-m", "radseek_cli", *cmd, "--help"], capture_output=True, text=True,
                               cwd=REPO, timeout=120)
         assert proc.returncode == 0, f"{name}: {proc.stderr[-500:]}"
         assert proc.stdout.startswith(f"usage: radseek {cmd[0]}"), name
@@ -223,7 +223,7 @@ try:
         exec(compile(argv[1], "<RUN>", "exec"), {"__name__": "__main__"})
     else:  # the image's entry point, radseek
         sys.argv = ["radseek", *argv]
-        runpy.run_module("radseek.cli", run_name="__main__", alter_sys=True)
+        runpy.run_module("radseek_cli", run_name="__main__", alter_sys=True)
 except SystemExit as exc:
     code = exc.code
 for name, mod in list(sys.modules.items()):

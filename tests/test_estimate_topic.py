@@ -5,8 +5,8 @@ import time
 
 import numpy as np
 
+from benchmarks.analytic_flights import lattice_flight
 from estimator.localizers import make_localizer
-from estimator.localizers.testing import lattice_flight
 from planner.belief import SourceBelief
 from radseek import topics
 from radseek.zenoh_session import open_session

@@ -28,7 +28,9 @@ from benchmarks.forward2.spectra import (
     source_response,
     total_variation,
 )
-from radseek.dataset import Wall, read_dataset, write_dataset
+from radseek.dataset import Wall
+from radseek_io.dataset import write_dataset
+from radseek_io.truth import read_dataset_with_truth
 
 PKG = Path(__file__).resolve().parents[1] / "benchmarks" / "forward2"
 
@@ -184,7 +186,7 @@ def test_unmapped_wall_is_absent_from_the_scenario_and_in_truth_in_the_contract_
     # the slabs shade part of the flight, not all of it
     L = slab_lengths(ds.frames.positions, ds.truth.sources[0].position, unmapped_walls(ds.truth.effects))
     assert 0.03 < np.mean(L > 0) < 0.8
-    back = read_dataset(write_dataset(tmp_path / "uw", ds.frames, ds.scenario, ds.truth))
+    back = read_dataset_with_truth(write_dataset(tmp_path / "uw", ds.frames, ds.scenario, ds.truth))
     assert back.scenario.walls == () and back.truth.effects["unmapped_wall"] == ds.truth.effects["unmapped_wall"]
 
 
@@ -229,7 +231,7 @@ def test_a_co60_primary_is_in_the_scenario_and_truth(tmp_path):
     ds = simulate(FlightSpec("lattice", {}, nuclide="Co-60"), 3)
     cs = simulate(FlightSpec("lattice", {}), 3)
     assert ds.scenario.nuclide == "Co-60" and ds.truth.sources[0].nuclide == "Co-60"
-    back = read_dataset(write_dataset(tmp_path / "co", ds.frames, ds.scenario, ds.truth))
+    back = read_dataset_with_truth(write_dataset(tmp_path / "co", ds.frames, ds.scenario, ds.truth))
     assert back.scenario.nuclide == "Co-60" and back.truth.sources[0].nuclide == "Co-60"
     # cps_at_1m counts all channels at unit gain for every nuclide: the totals agree within Poisson (same flight)
     n_co, n_cs = ds.frames.total_counts.sum(), cs.frames.total_counts.sum()

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from radseek import topics
-from radseek.dataset import COLUMNS, Frames, FrameWriter, read_frames
-from radseek.frame_record import COUNT_DTYPE, FrameRecord, Spectrum, usable, usable_rate
+from radseek.dataset import Frames
+from radseek.frame_record import COLUMNS, COUNT_DTYPE, FrameRecord, usable, usable_rate
+from radseek.spectrum import Spectrum
+from radseek_io.dataset import FrameWriter, read_frames
 
 EDGES = np.linspace(40, 1640, 33)
 
@@ -27,10 +29,9 @@ def test_a_record_keeps_counts_with_their_edges_and_times_in_the_declared_dtype(
     np.testing.assert_array_equal(r.spectrum.bin_edges_kev, EDGES)
     assert r.values() == [2.5, 0.1, 1.25, -2.0, 1.5, 0.3, 1e-3, 2e-3, 1e-4, 4, *range(32)]
     assert len(r.values()) == len(r.csv_cells()) == len(COLUMNS)
-    with pytest.raises(ValueError, match="32 channels"):
-        Spectrum(np.zeros(31), 0.1)
-    with pytest.raises(ValueError, match="whole numbers"):
-        Spectrum(np.full(32, 0.5), 0.1)
+    for counts, match in ((np.zeros(31), "32 channels"), (np.full(32, 0.5), "whole numbers")):
+        with pytest.raises(ValueError, match=match):  # a frame holds the board's 32 whole counts
+            FrameRecord(2.5, Spectrum(counts, realtime=0.1), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1)
 
 
 def test_records_write_read_and_become_frames_alike(tmp_path):

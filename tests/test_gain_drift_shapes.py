@@ -65,11 +65,11 @@ def scattered() -> Response:
 
 
 def measured(name: str) -> Response:
-    from radseek.spectrum_files import read_spectrum
+    from radseek_io.spectrum_io import read_spectrum
 
     sp, bg = read_spectrum(REAL / name), read_spectrum(REAL / "bg.xml")
     e = sp.edges_keV()
-    net = np.clip(sp.counts - bg.counts * sp.live_time_s / bg.live_time_s, 0.0, None)
+    net = np.clip(sp.counts - bg.counts * sp.livetime / bg.livetime, 0.0, None)
     keep = (e[:-1] >= 0) & (np.diff(e) > 0)
     return Response(e[:-1][keep], e[1:][keep], net[keep] / net[keep].sum(), name)
 

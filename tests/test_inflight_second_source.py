@@ -3,7 +3,7 @@
 import pytest
 
 from estimator.inflight import GOOD_FIT_P, InflightEstimator
-from radseek.dataset import read_dataset
+from radseek_io.dataset import read_dataset
 
 
 def test_a_second_source_is_added_when_one_source_misfits(shared_datasets):

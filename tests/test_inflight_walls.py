@@ -4,12 +4,12 @@ source behind two cinder-block walls, mu = 3 /m)."""
 import pytest
 
 from estimator.inflight import GOOD_FIT_P, WARM_WALLED_STARTS, InflightEstimator
-from radseek.dataset import read_dataset
+from radseek_io.truth import read_dataset_with_truth
 
 
 @pytest.fixture(scope="module")
 def lattice_wall(shared_datasets):
-    return read_dataset(shared_datasets / "lattice-wall")
+    return read_dataset_with_truth(shared_datasets / "lattice-wall")
 
 
 def test_a_misfitting_wall_free_fit_is_refitted_with_the_mapped_walls(lattice_wall, monkeypatch):
@@ -112,8 +112,8 @@ def test_walls_that_explain_nothing_leave_the_wall_free_fit(shared_datasets, mon
     model explains nothing more, already on the start grid (``wall_grid_ratio``), so no walled fit runs."""
     import dataclasses
 
-    ds = read_dataset(shared_datasets / "lattice-clean")
-    walled = read_dataset(shared_datasets / "lattice-wall").scenario.walls
+    ds = read_dataset_with_truth(shared_datasets / "lattice-clean")
+    walled = read_dataset_with_truth(shared_datasets / "lattice-wall").scenario.walls
     tried = _fits_well(monkeypatch)
     rec = InflightEstimator(dataclasses.replace(ds.scenario, walls=walled)).update(ds.frames, dwell=9)
     assert rec["effects"] == []
@@ -134,5 +134,5 @@ def test_the_start_grid_sees_a_shadow_only_where_one_was_recorded(lattice_wall, 
         return wall_grid_ratio(MaximumLikelihood(effects=("wall_attenuation",)).model_for(scenario), ds.frames)
 
     assert ratio(lattice_wall, lattice_wall.scenario) > 10 * WALL_LR
-    clean = read_dataset(shared_datasets / "lattice-clean")
+    clean = read_dataset_with_truth(shared_datasets / "lattice-clean")
     assert ratio(clean, dataclasses.replace(clean.scenario, walls=lattice_wall.scenario.walls)) < WALL_LR / 2

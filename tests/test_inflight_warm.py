@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from estimator.inflight import DEFAULT_SETTINGS, WARM_SIGMA_M, WARM_WALLED_STARTS, InflightEstimator
-from radseek.dataset import read_dataset
+from radseek_io.truth import read_dataset_with_truth
 
 
 @pytest.fixture(scope="module")
 def lattice_clean(shared_datasets):
-    return read_dataset(shared_datasets / "lattice-clean")
+    return read_dataset_with_truth(shared_datasets / "lattice-clean")
 
 
 @pytest.mark.parametrize("injected_misfit", [False, True])
@@ -39,7 +39,7 @@ def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(sh
     """The last estimate was walled; the new wall-free refit misfits and no recorded line of sight near the
     estimate crosses a wall (both injected): the walled model is refitted once, from the last walled estimate and
     the grid's best cells (WARM_WALLED_STARTS). The independent generator's lattice-wall."""
-    ds = read_dataset(shared_datasets / "lattice-wall")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-wall")
     real_fit = InflightEstimator._fit
     calls: list[tuple[tuple[str, ...], int]] = []
 
@@ -70,7 +70,7 @@ def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(sh
 def test_a_wall_free_estimate_the_walls_now_shadow_goes_straight_to_the_walled_fit(shared_datasets, monkeypatch):
     """The last estimate was wall-free (injected) and a recorded line of sight near it crosses a wall: the
     refit is the walled model with its starts, and no wall-free fit first (the shadow would discard it)."""
-    ds = read_dataset(shared_datasets / "lattice-wall")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-wall")
     real_fit = InflightEstimator._fit
     calls: list[tuple[tuple[str, ...], int]] = []
 

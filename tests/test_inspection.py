@@ -16,9 +16,9 @@ import pytest
 from detector_fw_sim.board import Board
 from radseek import topics
 from radseek.board_wire import encode_frame, frame_to_histogram
-from radseek.echo_cli import BLOCKS, Formatter, flag_text, resolve_key, sparkline
-from radseek.inspect_cli import KeyStats, table, topics_markdown
 from radseek.zenoh_session import open_session
+from radseek_cli.echo_cli import BLOCKS, Formatter, flag_text, resolve_key, sparkline
+from radseek_cli.inspect_cli import KeyStats, table, topics_markdown
 
 REPO = Path(__file__).resolve().parents[1]
 ZENOH_CLI = Path(sys.executable).with_name("zenoh")
@@ -61,7 +61,7 @@ class Publisher:
 
 
 def run_cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "radseek.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "radseek_cli", *args], capture_output=True, text=True,
                           timeout=timeout)
 
 

@@ -10,10 +10,10 @@ import time
 import pytest
 import websockets
 
-from launch.live_view import LiveView, MapState
 from radseek import topics
 from radseek.dataset import Wall
 from radseek.zenoh_session import open_session
+from radseek_cli.live_view import LiveView, MapState
 
 WAIT_S = 60.0  # bounds waiting only
 

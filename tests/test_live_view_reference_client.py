@@ -34,7 +34,7 @@ def _client() -> str:
 def test_the_reference_client_decodes_the_map_and_a_topic(router):
     client = _client()
     port = free_port()
-    view = subprocess.Popen([sys.executable, "-m", "radseek.cli", "view", "--connect", router, "--port", str(port),
+    view = subprocess.Popen([sys.executable, "-m", "radseek_cli", "view", "--connect", router, "--port", str(port),
                              "--duration", "120"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     node = None
     try:

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from estimator.localize_cli import hold_to_the_bound
 from estimator.localizers import make_localizer
-from radseek.dataset import read_dataset
+from radseek_cli.localize_cli import hold_to_the_bound
+from radseek_io.dataset import read_dataset
 
 
 def _result(loc) -> dict:

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from estimator import localize_cli
+from radseek_cli import localize_cli
 
 
 def _run(capsys, *argv):

@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from estimator import compare_cli, localize_cli
-from estimator.localizers.testing import lattice_flight
-from radseek.dataset import write_dataset
+from benchmarks.analytic_flights import lattice_flight
+from radseek_cli import compare_cli, localize_cli
+from radseek_io.dataset import write_dataset
+from reporting import truth_errors
 
 FAST = {
     "pf": ["--set", "n_particles=5000"],
@@ -51,7 +52,7 @@ def test_match_errors_pairs_each_truth_once():
     tr = ds.truth.sources[0]
     srcs = [{"x": tr.x + 3, "y": tr.y, "z": 0.0, "cps_at_1m": 1.0},
             {"x": tr.x + 0.1, "y": tr.y, "z": 0.0, "cps_at_1m": tr.cps_at_1m * 1.1}]
-    e = localize_cli.match_errors(srcs, ds.truth)
+    e = truth_errors.match_errors(srcs, ds.truth)
     assert e[0]["estimate"] == 1 and e[0]["position_error_m"] == pytest.approx(0.1)
     assert e[0]["intensity_error_rel"] == pytest.approx(0.1)
 
@@ -90,7 +91,7 @@ def test_every_method_on_a_simulated_flight(method, simulated_lattice):
     from estimator.localizers import make_localizer
 
     loc = make_localizer(method, **SETTINGS[method]).fit(simulated_lattice)
-    err = localize_cli.match_errors(loc.sources_, simulated_lattice.truth)[0]
+    err = truth_errors.match_errors(loc.sources_, simulated_lattice.truth)[0]
     assert err["position_error_m"] < (0.5 if method == "gp" else 0.15)
     assert abs(err["intensity_error_rel"]) < 0.15
     est = loc.to_estimate(t=1.0)
@@ -100,11 +101,11 @@ def test_every_method_on_a_simulated_flight(method, simulated_lattice):
 @pytest.mark.slow
 def test_every_method_on_every_shared_dataset(shared_datasets):
     from estimator.localizers import make_localizer
-    from radseek.dataset import read_dataset
+    from radseek_io.truth import read_dataset_with_truth
 
     fast = {**SETTINGS, "mle": {"n_starts": 1, "pose_uncertainty": False, "compute_crlb": False}}
     for name in sorted(p.name for p in shared_datasets.iterdir() if (p / "frames.csv").exists()):
-        ds = read_dataset(shared_datasets / name)
+        ds = read_dataset_with_truth(shared_datasets / name)
         for method, st in fast.items():
             loc = make_localizer(method, **st).fit(ds)
             assert loc.sources_ and all(np.isfinite(list(s.values())).all() for s in loc.sources_), (name, method)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.analytic_flights import dwell_frames, lattice_flight, scenario_for
 from estimator.localizers import make_localizer
 from estimator.localizers.gaussian_process import GaussianProcess, find_peaks
-from estimator.localizers.testing import dwell_frames, lattice_flight, scenario_for
 
 
 def test_gp_interpolates_noise_free_points():

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.analytic_flights import dwell_frames, lattice_flight, lattice_points, scenario_for
 from estimator.localizers import LOCALIZERS, clone, localizer_class, make_localizer
-from estimator.localizers.testing import dwell_frames, lattice_flight, lattice_points, scenario_for
 
 
 def test_mle_covers_truth_in_90_percent_of_seeded_runs():

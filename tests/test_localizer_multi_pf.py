@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.analytic_flights import dwell_frames, expected_total, lattice_flight, scenario_for
 from estimator.localizers import make_localizer
 from estimator.localizers.multi_source_pf import landmark_intensity, separate_intensities
-from estimator.localizers.testing import dwell_frames, expected_total, lattice_flight, scenario_for
-from radseek.dataset import Wall, read_dataset
+from radseek.dataset import Wall
 from radseek.geometry import path_lengths
+from radseek_io.truth import read_dataset_with_truth
 
 
 def test_eq_3_11_exact_intensity():
@@ -42,7 +43,7 @@ def test_two_sources_shared_dataset(shared_datasets):
     Known weakness (docs/localizers.md): eq. 3.11 fits the first source as if it were alone, so with
     two comparable sources 4.9 m apart its position lands ~1.4 m off, between them.
     """
-    ds = read_dataset(shared_datasets / "two-sources")
+    ds = read_dataset_with_truth(shared_datasets / "two-sources")
     loc = make_localizer("multi-pf").fit(ds)
     assert len(loc.sources_) == 2
     truth = [(s.x, s.y) for s in ds.truth.all_sources()]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.analytic_flights import dwell_frames, lattice_flight, lattice_points, scenario_for
 from estimator.localizers import make_localizer
 from estimator.localizers.particle_filter import low_variance_resample
-from estimator.localizers.testing import dwell_frames, lattice_flight, lattice_points, scenario_for
 
 
 def test_low_variance_resampler_counts_match_weights():

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.analytic_flights import dwell_frames, lattice_flight, scenario_for
 from estimator.localizers import clone, make_localizer
 from estimator.localizers.sphere_intersection import eq5_error, intersection_points
-from estimator.localizers.testing import dwell_frames, lattice_flight, scenario_for
 from radseek.dataset import Wall
 
 

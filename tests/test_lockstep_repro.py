@@ -18,7 +18,7 @@ WALL_FIELDS = {"wall_time_s"}  # the only fields allowed to differ
 
 
 def _cmd(out):
-    return [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
+    return [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
             "--max-dwells", "4", "--seed", "0", "--zenoh-port", str(free_port()),
             "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
             "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]

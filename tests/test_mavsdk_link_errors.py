@@ -24,7 +24,7 @@ def test_a_taken_port_is_a_named_connection_error():
 
 
 def test_run_prints_the_missions_own_error(tmp_path):
-    from launch.run_cli import _last_words
+    from launch.stack import _last_words
 
     log = tmp_path / "mission.log"
     log.write_text("Traceback ...\nradseek mission: cannot open the MAVLink link: udpin://0.0.0.0:14540: BIND_ERROR\n")

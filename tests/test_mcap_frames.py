@@ -1,6 +1,6 @@
-"""A flight read back from its MCAP log (radseek/mcap_frames.py): the frame records the mission's recorder
+"""A flight read back from its MCAP log (radseek_io/mcap_frames.py): the frame records the mission's recorder
 made, rebuilt from the recorded histogram, pose and mission/state topics, and `radseek replay FILE.mcap`.
-Real MCAP files written by the recorder's writer (radseek.mcap_log.McapLog); the end-to-end check against
+Real MCAP files written by the recorder's writer (radseek_io.mcap_log.McapLog); the end-to-end check against
 a flown `radseek run` is tests/test_run_mcap.py."""
 
 import json
@@ -11,12 +11,12 @@ import sys
 import numpy as np
 import pytest
 
-from estimator.replay_cli import replay
 from radseek import topics
-from radseek.dataset import read_dataset
 from radseek.frame_record import FrameRecord
-from radseek.mcap_frames import McapFrameError, beside, read_flight
-from radseek.mcap_log import McapLog
+from radseek_cli.replay_cli import replay
+from radseek_io.mcap_frames import McapFrameError, beside, read_flight
+from radseek_io.mcap_log import McapLog
+from radseek_io.truth import read_dataset_with_truth
 
 WALL0 = 1_700_000_000_000_000_000  # ns: log times only order the file
 
@@ -109,7 +109,7 @@ def _as_messages(ds):
 def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, tmp_path):
     """A reference flight written as topics and read back: the same frames column for column, and `radseek
     replay FILE.mcap` (scenario and truth found beside it in dataset/) gives the dataset's replay."""
-    ds = read_dataset(shared_datasets / "lattice-clean")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-clean")  # replay reports the error vs truth
     run = tmp_path / "run"
     (run / "dataset").mkdir(parents=True)
     for name in ("scenario.json", "truth.json"):
@@ -122,7 +122,7 @@ def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, t
     assert beside(path, "scenario.json") == run / "dataset" / "scenario.json"
     last = ds.frames.dwell.max() + 1  # the last dwell only: one fit (the machine is shared)
     expected = replay(ds, first_dwell=int(last))
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(path), "--from-dwell", str(last),
+    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(path), "--from-dwell", str(last),
                           "--json"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert f"{len(f)} frames rebuilt from {path}" in out.stderr
@@ -164,7 +164,7 @@ def test_replay_cli_says_which_mcap_file_it_cannot_use(shared_datasets, tmp_path
     (tmp_path / "bad.mcap").write_text("not mcap")
 
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "radseek.cli", "replay", *args], capture_output=True,
+        return subprocess.run([sys.executable, "-m", "radseek_cli", "replay", *args], capture_output=True,
                               text=True, timeout=120)
 
     bad = run(str(tmp_path / "bad.mcap"), "--scenario", scenario)

@@ -8,8 +8,8 @@ import time
 import pytest
 
 from radseek import topics
-from radseek.mcap_log import Recorder, json_schema, read
 from radseek.zenoh_session import open_session
+from radseek_io.mcap_log import Recorder, json_schema, read
 from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 WAIT_S = 60.0  # bounds waiting only

@@ -109,9 +109,9 @@ def test_bad_effect_names_and_spectral_only_effects_are_refused():
 
 def test_photopeak_window_uses_only_its_channels(shared_datasets):
     from estimator.localizers.base import make_localizer
-    from radseek.dataset import read_dataset
+    from radseek_io.truth import read_dataset_with_truth
 
-    ds = read_dataset(shared_datasets / "lattice-wall")
+    ds = read_dataset_with_truth(shared_datasets / "lattice-wall")
     k = MeasurementModel.window_channels(ds.scenario, 600, 720)
     edges = ds.scenario.channel_edges_keV
     assert all(edges[i] < 720 and edges[i + 1] > 600 for i in k) and len(k) == 3

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.io
 
 def test_no_router_is_one_line_after_the_connect_timeout(tmp_path):
     scenario = REPO.parent / "shared" / "datasets" / "lattice-clean" / "scenario.json"
-    r = subprocess.run([sys.executable, "-m", "radseek.cli", "mission", "--scenario", str(scenario),
+    r = subprocess.run([sys.executable, "-m", "radseek_cli", "mission", "--scenario", str(scenario),
                         "--out", str(tmp_path / "m"), "--connect", f"tcp/127.0.0.1:{free_port()}",
                         "--connect-timeout", "2"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from radseek import topics
-from radseek.dataset import read_dataset
 from radseek.zenoh_session import open_session
+from radseek_io.dataset import read_dataset
 from tests.conftest import free_port
 from vehicle_sim.harness import free_udp_port
 
@@ -43,7 +43,7 @@ def test_mission_survives_injected_faults(tmp_path):
     out = tmp_path / "run"
     PORTS = {"zenoh": free_port(), "mav": free_udp_port(), "gcs": free_udp_port(),
              "local": f"{free_udp_port()},{free_udp_port()}"}
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "20",
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "20",
            "--zenoh-port", str(PORTS["zenoh"]), "--mavlink-port", str(PORTS["mav"]), "--gcs-port", str(PORTS["gcs"]),
            "--vehicle-local-ports", PORTS["local"], "--timeout", str(RUN_TIMEOUT_S), "--seed", "3",
            "--vehicle-arg=--drop-rate=0.1",

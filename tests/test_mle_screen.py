@@ -142,7 +142,7 @@ def test_a_runner_up_basin_stopped_at_its_call_cap_still_wins_when_it_is_ahead(s
     best fit and is polished to the same minimum as the normal order. The cap changes nothing in the normal order."""
     from estimator.inflight import POOL_FRAMES
     from estimator.localizers.mle import MaximumLikelihood
-    from radseek.dataset import read_dataset
+    from radseek_io.dataset import read_dataset
 
     ds = read_dataset(shared_datasets / "spin-anisotropy")
     f = mle.pooled(ds.frames, POOL_FRAMES, dwells_only=True).select(np.arange(181))

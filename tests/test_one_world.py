@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.timeout(RUN_TIMEOUT_
 
 
 def _run(scene: str, seed: int, out) -> dict:
-    cmd = [sys.executable, "-m", "radseek.cli", "run", scene, "--out", str(out), "--quiet", "--speedup", "50",
+    cmd = [sys.executable, "-m", "radseek_cli", "run", scene, "--out", str(out), "--quiet", "--speedup", "50",
            "--max-dwells", str(MAX_DWELLS), "--seed", str(seed), "--no-mcap", "--zenoh-port", str(free_port()),
            "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
            "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]

@@ -23,12 +23,14 @@ from pathlib import Path
 import pytest
 
 from detector_fw_sim.simulate_cli import main as simulate_main
-from launch.run_cli import EXIT_SEARCH_FAILED, EXIT_USAGE, search_failure
 from launch.run_cli import main as run_main
-from mission.mission_cli import main as mission_main
+from launch.stack import EXIT_SEARCH_FAILED, EXIT_USAGE
 from mission.recorder import FlightRecorder
-from radseek.dataset import read_dataset, read_scenario, write_json
-from radseek.outdir import OutputDirError, atomic_path, atomic_write_json, prepare_output
+from mission.search import search_failure
+from radseek_cli.mission_cli import main as mission_main
+from radseek_io.dataset import read_scenario, write_json
+from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, prepare_output
+from radseek_io.truth import read_dataset_with_truth
 from tests.conftest import free_port
 from vehicle_sim.harness import free_udp_port
 
@@ -119,7 +121,7 @@ def test_simulate_dataset_refuses_a_non_empty_folder_unless_force(tmp_path, caps
     (out / "notes.txt").write_text("mine")
     assert simulate_main(["--out", str(out), "--seed", "1", "--force"]) == 0
     assert (out / "frames.csv").read_bytes() != frames and (out / "notes.txt").read_text() == "mine"
-    assert read_dataset(out).truth is not None and _no_temporaries(out)
+    assert read_dataset_with_truth(out).truth is not None and _no_temporaries(out)
     # --force with a scene that fails: the previous truth is gone, not left beside nothing
     bad = tmp_path / "bad.toml"
     bad.write_text('[[sources]]\nposition = [0, 0, 0]\ncps_at_1m = "lots"\n')
@@ -160,7 +162,7 @@ def test_run_refuses_a_non_empty_folder(tmp_path, capsys):
 
 @pytest.mark.io
 def test_run_help_documents_exit_codes():
-    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "run", "--help"], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "radseek_cli", "run", "--help"], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0
     assert "exit codes:" in proc.stdout and "the search failed" in proc.stdout and "--force" in proc.stdout
@@ -173,7 +175,7 @@ def test_run_help_documents_exit_codes():
 
 def _run_cmd(out: Path, *extra: str) -> tuple[list[str], int]:
     zport = free_port()
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "20",
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "20",
            "--zenoh-port", str(zport), "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
            "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(WAIT_S), *extra]
     return cmd, zport
@@ -235,7 +237,7 @@ def test_aborted_run_leaves_its_frames_and_no_previous_summary(tmp_path):
     assert _rows(out / "dataset" / "frames.csv") >= 20  # what was recorded is kept
     assert (out / "dataset" / "frames.csv").read_text().startswith("t,")
     # the MCAP log is finished too (the recorder is stopped with the stack): its footer and index are there
-    from radseek.mcap_frames import read_flight
+    from radseek_io.mcap_frames import read_flight
 
     assert len(read_flight(out / "flight.mcap").records) >= 20
     # the stack was stopped with the launcher (its router no longer holds the port)
@@ -265,7 +267,7 @@ def test_failed_search_exits_non_zero(tmp_path):
 
 def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path):
     """A parent that is a file (or a path the system refuses): OutputDirError naming the folder and the reason."""
-    from radseek.outdir import OutputDirError, prepare_output
+    from radseek_io.outdir import OutputDirError, prepare_output
 
     blocker = tmp_path / "a-file"
     blocker.write_text("x")

@@ -22,8 +22,8 @@ import pytest
 import zenoh
 
 from radseek import topics
-from radseek.dataset import read_dataset, write_json
 from radseek.zenoh_session import open_session
+from radseek_io.dataset import read_dataset, write_json
 from tests.test_detector_stream import Proc
 from vehicle_sim.harness import free_udp_port
 
@@ -149,7 +149,7 @@ def test_mission_without_an_autopilot_says_so_and_exits_1(router, tmp_path):
     scenario = tmp_path / "scenario.json"
     write_json(scenario, load_scene().scenario().to_dict())
     port = free_udp_port()
-    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "mission", "--scenario", str(scenario), "--out",
+    proc = subprocess.run([sys.executable, "-m", "radseek_cli", "mission", "--scenario", str(scenario), "--out",
                            str(tmp_path / "flight"), "--connect", router, "--url", f"udpin://127.0.0.1:{port}",
                            "--connect-timeout", "2"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stderr

@@ -7,8 +7,9 @@ import pytest
 
 from launch import plan_cli
 from planner.occupancy import OccupancyMap
-from radseek.dataset import Scenario, Wall, read_scenario, write_json
+from radseek.dataset import Scenario, Wall
 from radseek.topics import Plan
+from radseek_io.dataset import read_scenario, write_json
 
 
 @pytest.fixture()

@@ -20,7 +20,7 @@ from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 @pytest.mark.io
 def test_export_plan_from_the_planner(tmp_path):
     out = tmp_path / "search.plan"
-    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "plan", "--method", "lawnmower", "--export-plan",
+    proc = subprocess.run([sys.executable, "-m", "radseek_cli", "plan", "--method", "lawnmower", "--export-plan",
                            str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(out.read_text())
@@ -35,7 +35,7 @@ def test_export_plan_from_the_planner(tmp_path):
     assert rally == []
     walled = tmp_path / "walls.plan"
     scene = Path(__file__).resolve().parents[1] / "detector_fw_sim" / "scenes" / "lattice-wall.toml"
-    proc = subprocess.run([sys.executable, "-m", "radseek.cli", "plan", "--scene", str(scene), "--method",
+    proc = subprocess.run([sys.executable, "-m", "radseek_cli", "plan", "--scene", str(scene), "--method",
                            "lawnmower", "--export-plan", str(walled)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     polygons = json.loads(walled.read_text())["geoFence"]["polygons"]
@@ -63,7 +63,7 @@ def test_mission_flies_a_plan_with_fence_and_rally(tmp_path):
 
         listener = threading.Thread(target=listen, daemon=True)
         listener.start()
-        proc = subprocess.run([sys.executable, "-m", "radseek.cli", "mission", "--plan", str(plan), "--url",
+        proc = subprocess.run([sys.executable, "-m", "radseek_cli", "mission", "--plan", str(plan), "--url",
                                f"udpin://127.0.0.1:{api}"], capture_output=True, text=True, timeout=400)
         assert proc.returncode == 0, proc.stdout + proc.stderr
         summary = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -7,7 +7,8 @@ import pytest
 
 from mission.recorder import FlightRecorder, PoseHistory, flagged_rows
 from radseek import topics
-from radseek.dataset import Scenario, read_dataset
+from radseek.dataset import Scenario
+from radseek_io.dataset import read_dataset
 
 SCEN = Scenario(channel_edges_keV=np.linspace(40, 1640, 33), background_cps=30.0, source_z=0.0,
                 bounds_min=np.zeros(3), bounds_max=np.array([10.0, 10.0, 3.0]))

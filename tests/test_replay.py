@@ -11,10 +11,10 @@ import pytest
 
 from detector_fw_sim.scene import load_scene
 from estimator.inflight import MIN_SIGMA_M, sigma_m
-from estimator.replay_cli import flown_first_dwell, replay
 from launch.offline import fly_offline
 from mission.search import SearchConfig
-from radseek.dataset import read_dataset
+from radseek_cli.replay_cli import flown_first_dwell, replay
+from radseek_io.truth import read_dataset_with_truth
 
 
 def test_replay_reproduces_the_flown_estimates():
@@ -53,7 +53,7 @@ def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
            {"t": 3.0, "event": "decision", "phase": "search", "estimate": {"dwell": 8, "x": 1.0, "y": 2.0}}]
     (ds / "mission_log.jsonl").write_text("".join(json.dumps(e) + "\n" for e in log))
     assert flown_first_dwell(ds) == 8
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--json"],
+    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(ds), "--json"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)
@@ -62,7 +62,7 @@ def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
 
 
 def test_replay_converges_on_the_reference_lattice(shared_datasets):
-    rows = replay(read_dataset(shared_datasets / "lattice-clean"), "mle", {"n_starts": 2})
+    rows = replay(read_dataset_with_truth(shared_datasets / "lattice-clean"), "mle", {"n_starts": 2})
     assert [r["dwells"] for r in rows] == list(range(1, 10))
     # more dwells, more information: the final ellipse is tighter than after four dwells, and the final
     # error lies within 4 of its own sigmas (plus the ~4 cm per-dwell pose offset of the reference data)
@@ -72,12 +72,12 @@ def test_replay_converges_on_the_reference_lattice(shared_datasets):
 
 @pytest.mark.io
 def test_replay_cli_json_and_bad_input(shared_datasets, tmp_path):
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(shared_datasets / "lattice-clean"),
+    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(shared_datasets / "lattice-clean"),
                           "--method", "sphere", "--json", "--plot", str(tmp_path / "r.png")],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)
     assert rows[-1]["dwells"] == 9 and (tmp_path / "r.png").stat().st_size > 1000
-    bad = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(tmp_path / "nope")],
+    bad = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(tmp_path / "nope")],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "not a dataset directory" in bad.stderr

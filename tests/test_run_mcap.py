@@ -13,12 +13,12 @@ import time
 import numpy as np
 import pytest
 
-from launch.run_cli import Stack, recorder_ready, start_recorder, stop_recorder
+from launch.stack import Stack, recorder_ready, start_recorder, stop_recorder
 from radseek import topics
 from radseek.board_wire import decode_frame
-from radseek.dataset import read_dataset
-from radseek.mcap_frames import read_flight
 from radseek.zenoh_session import open_session
+from radseek_io.dataset import read_dataset
+from radseek_io.mcap_frames import read_flight
 from tests.conftest import free_port
 from vehicle_sim.harness import free_udp_port
 from vehicle_sim.telemetry import DEFAULT_RATES
@@ -27,7 +27,7 @@ RUN_TIMEOUT_S = 900
 
 
 def _run(out):
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
            "--max-dwells", "4", "--seed", "0", "--zenoh-port", str(free_port()),
            "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
            "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]
@@ -96,7 +96,7 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     assert flight.first_dwell() == mission["estimates"][0]["dwell"]
 
     # --- radseek replay OUT/flight.mcap gives the estimates the mission flew with, and the final one
-    rep = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(out / "flight.mcap"), "--json"],
+    rep = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(out / "flight.mcap"), "--json"],
                          capture_output=True, text=True, timeout=600)
     assert rep.returncode == 0, rep.stderr[-3000:]
     rows = json.loads(rep.stdout)

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from launch import ports as P
-from launch.run_cli import Stack, start_router
 from launch.run_cli import main as run_main
+from launch.stack import Stack, start_router
 from radseek import topics
-from radseek.dataset import read_dataset
-from radseek.mcap_frames import read_flight
+from radseek_io.dataset import read_dataset
+from radseek_io.mcap_frames import read_flight
 
 RUN_TIMEOUT_S = 900
 PORTS_LINE = re.compile(r"^radseek run: ports: (?:instance (\d+): )?zenoh tcp/127\.0\.0\.1:(\d+), "
@@ -84,7 +84,7 @@ def _ppid(pid: int) -> int | None:
 
 
 def _run(out, seed: int, *extra: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
            "--max-dwells", "2", "--seed", str(seed), "--timeout", str(RUN_TIMEOUT_S), *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

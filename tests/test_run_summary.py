@@ -18,9 +18,9 @@ from detector_fw_sim.scene import load_scene
 from estimator.inflight import GOOD_FIT_P, ellipse, gof_warning
 from launch.offline import fly_offline
 from launch.report import write_report
-from launch.run_cli import print_summary
+from launch.stack import print_summary
 from mission.search import SearchConfig
-from radseek.dataset import write_dataset
+from radseek_io.dataset import write_dataset
 
 SUMMARY_KEYS = {"error_m", "sigma_m", "ellipse_95", "bound_m", "p_value", "warnings", "estimate", "estimate_source",
                 "stop_sigma_m", "dwell_points", "search_dwell_points", "mission_time_s", "stop_reason", "truth"}
@@ -99,11 +99,11 @@ def test_failed_goodness_of_fit_is_said_by_run(shared_datasets, tmp_path, capsys
 @pytest.mark.io
 def test_failed_goodness_of_fit_is_said_by_replay(shared_datasets):
     ds = shared_datasets / "spin-anisotropy"
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "8"],
+    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(ds), "--from-dwell", "8"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert "the model misses something here" in out.stdout and "radseek diagnose" in out.stdout
-    out = subprocess.run([sys.executable, "-m", "radseek.cli", "replay", str(ds), "--from-dwell", "9", "--json"],
+    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(ds), "--from-dwell", "9", "--json"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)  # the JSON stays clean: the warning goes to stderr
@@ -119,9 +119,9 @@ def test_the_zoom_inset_takes_the_corner_that_hides_no_dwell(shared_datasets):
     import matplotlib.pyplot as plt
 
     from launch.report import _emptiest_corner
-    from radseek.dataset import read_dataset
+    from radseek_io.truth import read_dataset_with_truth
 
-    f = read_dataset(shared_datasets / "lattice-clean").frames
+    f = read_dataset_with_truth(shared_datasets / "lattice-clean").frames
     fig, ax = plt.subplots()
     ax.set_xlim(f.x.min() - 0.5, f.x.max() + 6.0)  # room to the right, as a map with bounds beyond the flight
     ax.set_ylim(f.y.min() - 0.5, f.y.max() + 0.5)

@@ -115,7 +115,7 @@ def test_every_bundled_scene_is_still_valid(name):
 def test_scene_size_is_capped_with_the_limit_named(tmp_path):
     """10^6 walls ran at 1.5 s of sim time per 28 s of wall: walls, sources and the file's bytes are capped, and the
     message names the limit without echoing the whole list back."""
-    from radseek.dataset import MAX_SOURCES, MAX_WALLS
+    from radseek_io.dataset import MAX_SOURCES, MAX_WALLS
 
     wall = {"start": [7.0, 1.0], "end": [7.0, 3.0], "thickness": 0.2}
     with pytest.raises(SceneError, match=rf"field 'walls': List should have at most {MAX_WALLS} items") as exc:
@@ -130,7 +130,8 @@ def test_scene_size_is_capped_with_the_limit_named(tmp_path):
 
 
 def test_a_scenario_with_too_many_walls_is_refused(tmp_path, shared_datasets):
-    from radseek.dataset import MAX_WALLS, DatasetError, read_scenario
+    from radseek.dataset import DatasetError
+    from radseek_io.dataset import MAX_WALLS, read_scenario
 
     d = json.loads((shared_datasets / "lattice-wall" / "scenario.json").read_text())
     d["walls"] = d["walls"] * (MAX_WALLS // len(d["walls"]) + 1)

@@ -12,7 +12,8 @@ from detector_fw_sim.flight_paths import FlightPathError, build_trajectory, make
 from detector_fw_sim.scene import load_scene
 from detector_fw_sim.simulate import simulate_flight
 from detector_fw_sim.simulate_cli import main as cli_main
-from radseek.dataset import EFFECTS, Dataset, read_dataset
+from radseek.dataset import EFFECTS, Dataset
+from radseek_io.truth import read_dataset_with_truth
 
 
 @pytest.fixture(scope="module")
@@ -48,10 +49,10 @@ def test_default_lattice_follows_the_dataset_conventions(default_flight, tmp_pat
     assert abs(ds.scenario.background_cps / ds.truth.background_cps - 1) < 0.15  # a few % off (sd 3 %)
     assert ds.truth.sources[0].cps_at_1m == 1600.0
     # round trip through the files
-    from radseek.dataset import write_dataset
+    from radseek_io.dataset import write_dataset
 
     write_dataset(tmp_path / "ds", f, ds.scenario, ds.truth)
-    back = read_dataset(tmp_path / "ds")
+    back = read_dataset_with_truth(tmp_path / "ds")
     assert np.array_equal(back.frames.counts, f.counts) and back.truth.effects == {}
 
 
@@ -64,7 +65,7 @@ def test_recorded_pose_noise_has_the_declared_variance(default_flight):
 
 
 def test_default_lattice_matches_reference_and_baseline_model(default_flight, shared_datasets):
-    ref = read_dataset(shared_datasets / "lattice-clean")
+    ref = read_dataset_with_truth(shared_datasets / "lattice-clean")
     sim = default_flight
     # both follow the dataset-spec baseline model per dwell; the spread comes from the per-dwell pose
     # offset (sd 0.04 m at 1.5-3 m: <= 5 % in rate) plus Poisson (~2 %): 4.5 sigma ~ 25 %
@@ -155,10 +156,10 @@ def test_builtin_and_csv_paths(tmp_path):
 def test_cli_runs_on_defaults_and_reports_bad_input(tmp_path, capsys):
     out = tmp_path / "flight"
     assert cli_main(["--out", str(out)]) == 0
-    ds = read_dataset(out)
+    ds = read_dataset_with_truth(out)
     assert (out / "truth.json").exists() and ds.truth.sources[0].nuclide == "Cs-137"
     assert cli_main(["--out", str(tmp_path / "e"), "--effect", "dead_time:tau_s=3e-5", "--path", "close-pass"]) == 0
-    assert read_dataset(tmp_path / "e").truth.effects == {"dead_time": {"tau_s": 3e-5}}
+    assert read_dataset_with_truth(tmp_path / "e").truth.effects == {"dead_time": {"tau_s": 3e-5}}
     bad = tmp_path / "bad.toml"
     bad.write_text('[[sources]]\nposition = [0, 0, 0]\ncps_at_1m = "lots"\n')
     assert cli_main(["--scene", str(bad), "--out", str(tmp_path / "x")]) == 2

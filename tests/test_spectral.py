@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from estimator.spectral import SpectralModel, energy_bins, response
-from radseek.dataset import read_dataset
+from radseek_io.dataset import read_dataset
 
 EDGES = np.r_[40.0, np.linspace(83.0, 1600.0, 31), 3000.0]
 

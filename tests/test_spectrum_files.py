@@ -1,4 +1,4 @@
-"""Spectrum file readers and the N42 writer (radseek.spectrum_files), on the real RadiaCode-102 files."""
+"""Spectrum file readers and the N42 writer (radseek_io.spectrum_io), on the real RadiaCode-102 files."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from radseek import spectrum_files as sf
+from radseek_io import spectrum_io as sf
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 
@@ -18,7 +18,7 @@ DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 def test_radiacode_xml_reads_counts_time_calibration_serial():
     sp = sf.read_spectrum(DATA / "Cs137_b.xml")
     assert sp.n_channels == 1024
-    assert sp.live_time_s == 300.0
+    assert sp.livetime == 300.0
     assert sp.counts.sum() == 83512
     assert sp.calibration == pytest.approx((-6.38159, 2.36593, 4.39819e-4))
     assert sp.serial == "RC-102-001272"
@@ -29,7 +29,7 @@ def test_radiacode_xml_reads_counts_time_calibration_serial():
 def test_n42_2011_from_radiacode_tools():
     sp = sf.read_spectrum(DATA / "data_am241.n42")
     assert sp.n_channels == 1024
-    assert sp.live_time_s == 613.0 and sp.real_time_s == 613.0
+    assert sp.livetime == 613.0 and sp.realtime == 613.0
     assert sp.calibration == pytest.approx((-6.2832313, 2.4383054, 0.0003818))
     assert sp.serial == "RC-102-000115"
     assert sp.kind == "foreground"
@@ -37,14 +37,14 @@ def test_n42_2011_from_radiacode_tools():
 
 
 def test_background_and_ba133_read():
-    assert sf.read_spectrum(DATA / "bg.xml").live_time_s == 1800.0
+    assert sf.read_spectrum(DATA / "bg.xml").livetime == 1800.0
     assert sf.read_spectrum(DATA / "Ba133_a.xml").counts.sum() == 207680
 
 
 @pytest.mark.parametrize("name,total", [("Co60_a.xml", 61243), ("Eu152_b.xml", 144169)])
 def test_the_same_devices_other_nuclides_read(name, total):
     sp = sf.read_spectrum(DATA / name)
-    assert sp.live_time_s == 300.0 and sp.counts.sum() == total and sp.serial == "RC-102-001272"
+    assert sp.livetime == 300.0 and sp.counts.sum() == total and sp.serial == "RC-102-001272"
 
 
 @pytest.mark.parametrize("writer,suffix", [(sf.write_spe, ".spe"), (sf.write_chn, ".chn"), (sf.write_csv, ".csv")])
@@ -53,21 +53,21 @@ def test_ortec_and_csv_round_trip(tmp_path, writer, suffix):
     p = writer(tmp_path / f"cs{suffix}", sp)
     back = sf.read_spectrum(p)
     np.testing.assert_array_equal(back.counts, sp.counts)
-    assert back.live_time_s == pytest.approx(300.0)
+    assert back.livetime == pytest.approx(300.0)
     np.testing.assert_allclose(back.edges_keV(), sp.edges_keV(), rtol=1e-6, atol=1e-3)  # .chn stores float32
 
 
 def test_n42_writer_round_trip_with_boundaries_and_background(tmp_path):
     edges = np.linspace(40, 3000, 33)
-    fg = sf.Spectrum(np.arange(32.0), 10.0, 12.0, boundaries_keV=edges, start_time="2026-01-01T00:00:00Z", title="d0")
+    fg = sf.Spectrum(np.arange(32.0), 10.0, 12.0, bin_edges_kev=edges, start_time="2026-01-01T00:00:00Z", title="d0")
     bg = sf.Spectrum(np.ones(1024), 100.0, calibration=(1.0, 3.0), kind="background")
     p = sf.write_n42(tmp_path / "x.n42", [fg, bg])
     a, b = sf.read_n42(p)
     np.testing.assert_array_equal(a.counts, fg.counts)
-    np.testing.assert_allclose(a.boundaries_keV, edges)
-    assert (a.live_time_s, a.real_time_s, a.title) == (10.0, 12.0, "d0")
+    np.testing.assert_allclose(a.bin_edges_kev, edges)
+    assert (a.livetime, a.realtime, a.title) == (10.0, 12.0, "d0")
     assert b.kind == "background" and b.calibration == (1.0, 3.0)
-    assert sf.read_spectrum(p, kind="background").live_time_s == 100.0
+    assert sf.read_spectrum(p, kind="background").livetime == 100.0
 
 
 def test_n42_counted_zeroes(tmp_path):
@@ -138,7 +138,7 @@ def test_spe_agrees_with_becquerel(tmp_path):
     p = sf.write_spe(tmp_path / "cs.spe", sp)
     data, _cal = bq.parsers.spe.read(p)
     np.testing.assert_array_equal(np.asarray(data["counts"])[: sp.n_channels], sp.counts)
-    assert data["livetime"] == pytest.approx(sp.live_time_s)
+    assert data["livetime"] == pytest.approx(sp.livetime)
 
 
 def test_n42_export_opens_in_specutils(tmp_path):
@@ -166,7 +166,7 @@ def test_fuzzed_xml_raises_only_spectrum_file_error(which, pos, cut, junk):
     except sf.SpectrumFileError as exc:
         assert "fuzz." in str(exc)
     else:
-        assert all(np.all(s.counts >= 0) and s.live_time_s > 0 for s in sp)
+        assert all(np.all(s.counts >= 0) and s.livetime > 0 for s in sp)
 
 
 @settings(max_examples=80, deadline=None)
@@ -191,7 +191,7 @@ def test_writers_round_trip_any_spectrum(tmp_path_factory, counts, live, c0, c1)
         writer(p, [sp]) if writer is sf.write_n42 else writer(p, sp)
         back = sf.read_spectrum(p)
         np.testing.assert_array_equal(back.counts, sp.counts)
-        assert back.live_time_s == pytest.approx(live, rel=1e-6)
+        assert back.livetime == pytest.approx(live, rel=1e-6)
 
 
 # ------------------------------------------------------------------------ files from other devices and tools
@@ -202,7 +202,7 @@ BQ = Path(__file__).resolve().parent / "data" / "becquerel"
 def test_digibase_spe_all_zero_calibration_means_uncalibrated():
     # a real Maestro file whose $MCA_CAL is 0 0 0: read as channel numbers, not as every channel at 0 keV
     sp = sf.read_spectrum(BQ / "digibase_5min_30_1.spe")
-    assert (sp.n_channels, sp.counts.sum(), sp.live_time_s, sp.real_time_s) == (1024, 892301, 296.0, 300.0)
+    assert (sp.n_channels, sp.counts.sum(), sp.livetime, sp.realtime) == (1024, 892301, 296.0, 300.0)
     assert sp.calibration == (0.0, 1.0)
     assert np.all(np.diff(sp.edges_keV()) > 0)
 
@@ -233,7 +233,7 @@ def test_n42_compression_attribute_as_avid_writes_it(tmp_path):
     (tmp_path / "avid.n42").write_text(doc)
     sp = sf.read_spectrum(tmp_path / "avid.n42")
     np.testing.assert_array_equal(sp.counts, [0, 0, 0, 0, 22, 16, 0, 0, 5])
-    assert sp.meta["detector"] == "d1" and sp.live_time_s == 0.999
+    assert sp.meta["detector"] == "d1" and sp.livetime == 0.999
     (tmp_path / "bad.n42").write_text(doc.replace('Compression="CountedZeroes"', 'Compression="Zip"'))
     with pytest.raises(sf.SpectrumFileError, match=r"bad\.n42: .*Spectrum\[0\]/ChannelData: unknown compressionCode"):
         sf.read_spectrum(tmp_path / "bad.n42")
@@ -284,9 +284,9 @@ def test_n42_2006(tmp_path):
     p.write_text(N42_2006)
     fg, bg = sf.read_spectra(p)
     np.testing.assert_array_equal(fg.counts, [0, 0, 7, 0, 3])
-    assert (fg.live_time_s, fg.real_time_s, fg.calibration, fg.kind) == (0.999718, 0.999998, (1.0, 3.0), "foreground")
+    assert (fg.livetime, fg.realtime, fg.calibration, fg.kind) == (0.999718, 0.999998, (1.0, 3.0), "foreground")
     assert fg.start_time == "2016-02-04T20:28:33.000Z" and fg.meta["detector"] == "VD1"
-    assert (bg.kind, bg.live_time_s, bg.real_time_s) == ("background", 299.5, 300.0)
+    assert (bg.kind, bg.livetime, bg.realtime) == ("background", 299.5, 300.0)
     np.testing.assert_allclose(bg.edges_keV(), [0, 1000, 2000, 3000])  # FullRangeFraction in MeV
     assert sf.detect_format(tmp_path / "old.xml", N42_2006.encode()) == "n42"
     p.write_text(N42_2006.replace('ID="Lin"', 'ID="Other"'))
@@ -301,7 +301,7 @@ def test_resultdatafile_live_time_and_polynomial_order(tmp_path):
     p.write_text(text.replace("<MeasurementTime>300</MeasurementTime>",
                               "<MeasurementTime>300</MeasurementTime><LiveTime>297.5</LiveTime>"))
     sp = sf.read_spectrum(p)
-    assert (sp.live_time_s, sp.real_time_s) == (297.5, 300.0)
+    assert (sp.livetime, sp.realtime) == (297.5, 300.0)
     # radiacode-tools' data_invalid_cal_inconsistent_order.xml: order 2 but the quadratic term deleted
     p.write_text(text.replace("<Coefficient>4.39819E-4</Coefficient>", ""))
     with pytest.raises(sf.SpectrumFileError, match=r"EnergySpectrum/EnergyCalibration: PolynomialOrder 2 needs 3"):

@@ -1,4 +1,4 @@
-"""The readers added for issue 32 (radseek.spectrum_io), on real public files: RadiaCode .rcspg, radiacode-tools
+"""The readers added for issue 32 (radseek_io.spectrum_io), on real public files: RadiaCode .rcspg, radiacode-tools
 NDJSON logs, RadiaCode XML with an embedded background, RadiaCode JSON; the CSV variants; bad input; the
 ``radseek spectra show`` and NDJSON ``import-flight`` commands (sources and licences: tests/data/real-spectra)."""
 
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radseek import spectrum_io as sio
-from radseek.dataset import read_dataset
-from radseek.spectrum_io import ndjson, rcspg
+from radseek_io import spectrum_io as sio
+from radseek_io.dataset import read_dataset
+from radseek_io.spectrum_io import ndjson, rcspg
 from spectra import flight_cli
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
@@ -37,7 +37,7 @@ def test_rcspg_rows_and_accumulated_row_told_apart():
     durations = np.array([r.duration_s for r in rows])
     # the header's accumulation time is the sum of the rows' durations (43,510 s), not the accumulated row's
     assert durations.sum() == hdr.accumulation_s == 43510
-    assert hdr.accumulated.live_time_s == 1586387 and hdr.accumulated.kind == "accumulated"
+    assert hdr.accumulated.livetime == 1586387 and hdr.accumulated.kind == "accumulated"
     # one-minute rows, and one row of 1563 s where the recording was interrupted (Flags 0)
     assert np.median(durations) == 60 and durations.max() == 1563 and hdr.flags == "0"
     # the accumulated row holds the device's history: every channel at least the recording's counts
@@ -53,9 +53,9 @@ def test_rcspg_rows_and_accumulated_row_told_apart():
 def test_rcspg_through_read_spectra():
     fg, acc = sio.read_spectra(K40)
     assert (fg.kind, acc.kind) == ("foreground", "accumulated")
-    assert fg.live_time_s == 43510 and fg.counts.sum() == 249362 and fg.meta["rows"] == 690
+    assert fg.livetime == 43510 and fg.counts.sum() == 249362 and fg.meta["rows"] == 690
     assert fg.start_time == "2023-12-01T08:16:11Z"  # FILETIME is UTC; the header's "Time" 00:16:11 is local
-    assert fg.real_time_s == pytest.approx(43512.3, abs=0.1)
+    assert fg.realtime == pytest.approx(43512.3, abs=0.1)
     # K-40's 1461 keV line is where the calibration puts it: the rate above background peaks within 3 % of it
     e = fg.edges_keV()
     centre = 0.5 * (e[1:] + e[:-1])
@@ -104,7 +104,7 @@ def test_ndjson_without_breaks_frames_sum_to_last_minus_first():
     fg, acc = sio.read_spectra(XRAY)
     assert fg.meta["frames"] == len(recs) - 1
     np.testing.assert_array_equal(fg.counts, np.subtract(recs[-1]["counts"], recs[0]["counts"]))
-    assert acc.live_time_s == recs[-1]["duration"] and acc.counts.sum() == sum(recs[-1]["counts"])
+    assert acc.livetime == recs[-1]["duration"] and acc.counts.sum() == sum(recs[-1]["counts"])
 
 
 def test_ndjson_irregular_timing_never_crashes(tmp_path):
@@ -143,13 +143,13 @@ def test_ndjson_refuses_bad_values_naming_the_line(tmp_path):
 def test_radiacode_xml_embedded_background():
     fg, bg = sio.read_spectra(TH)
     assert (fg.kind, bg.kind) == ("foreground", "background")
-    assert (fg.live_time_s, bg.live_time_s) == (172800, 127800)
+    assert (fg.livetime, bg.livetime) == (172800, 127800)
     assert (fg.title, bg.title) == ("Th-232-BG", "BG 35hr")
     # each layer keeps its own StartTime (the file has one per layer)
     assert (fg.start_time, bg.start_time) == ("2023-10-17T22:30:56", "2023-09-15T18:58:27")
     assert fg.counts.sum() == 26474139 and bg.counts.sum() == 450876
     # the background is a background: its rate is a small fraction of the thorium source's
-    assert bg.counts.sum() / bg.live_time_s < 0.03 * fg.counts.sum() / fg.live_time_s
+    assert bg.counts.sum() / bg.livetime < 0.03 * fg.counts.sum() / fg.livetime
 
 
 def test_radiacode_json_documents(tmp_path):
@@ -158,23 +158,23 @@ def test_radiacode_json_documents(tmp_path):
     fg, bg = sio.read_spectra(TH)
     doc = {"fg": {"spectrum_name": fg.title, "device_model": "RadiaCode-102", "serial_number": fg.serial,
                   "calibration": {"a0": fg.calibration[0], "a1": fg.calibration[1], "a2": fg.calibration[2]},
-                  "timestamp": "2023-10-17T22:30:56", "duration": fg.live_time_s, "channels": 1024,
+                  "timestamp": "2023-10-17T22:30:56", "duration": fg.livetime, "channels": 1024,
                   "counts": [int(c) for c in fg.counts], "comment": ""},
            "bg": {"spectrum_name": bg.title, "device_model": "RadiaCode-102", "serial_number": bg.serial,
                   "calibration": list(bg.calibration), "timestamp": "2023-09-15T18:58:27",
-                  "duration": bg.live_time_s, "channels": 1024, "counts": [int(c) for c in bg.counts]},
+                  "duration": bg.livetime, "channels": 1024, "counts": [int(c) for c in bg.counts]},
            "note": ""}
     f = tmp_path / "th.json"
     f.write_text(json.dumps(doc))
     a, b = sio.read_spectra(f)
     np.testing.assert_array_equal(a.counts, fg.counts)
     np.testing.assert_array_equal(b.counts, bg.counts)
-    assert (a.kind, b.kind, b.live_time_s) == ("foreground", "background", 127800)
+    assert (a.kind, b.kind, b.livetime) == ("foreground", "background", 127800)
     rec = XRAY.read_text().splitlines()[0]
     g = tmp_path / "record.json"
     g.write_text(rec)
     (sp,) = sio.read_spectra(g)
-    assert sp.kind == "accumulated" and sp.live_time_s == json.loads(rec)["duration"]
+    assert sp.kind == "accumulated" and sp.livetime == json.loads(rec)["duration"]
     doc["fg"]["channels"] = 1000
     f.write_text(json.dumps(doc))
     with pytest.raises(sio.SpectrumFileError, match="fg channels"):
@@ -204,11 +204,11 @@ def test_csv_live_time_keys_and_command_line(tmp_path):
     for head, live, real in (("# MeasurementTime,532\n", 532, None), ("LiveTime,300\nRealTime,310\n", 300, 310),
                              ("# Live Time (s): 12.5\n", 12.5, None), ("# real_time_s: 40\n", 40, None)):
         sp = sio.read_spectrum(_csv(tmp_path, head + body))
-        assert (sp.live_time_s, sp.real_time_s) == (live, real), head
+        assert (sp.livetime, sp.realtime) == (live, real), head
         assert sp.calibration == pytest.approx((10.0, 2.0, 0.0), abs=1e-9)  # fitted through the energy column
     with pytest.raises(sio.SpectrumFileError, match="--live-time"):
         sio.read_spectra(_csv(tmp_path, body))
-    assert sio.read_spectrum(_csv(tmp_path, body), live_time_s=60).live_time_s == 60
+    assert sio.read_spectrum(_csv(tmp_path, body), live_time_s=60).livetime == 60
     sp = sio.read_spectrum(_csv(tmp_path, "# live_time_s: 5\nEnergy (keV);Counts\n30;1\n10;4\n20;2\n"))
     np.testing.assert_array_equal(sp.counts, [4, 2, 1])  # energy rows sorted, ';' delimited
     np.testing.assert_allclose(sp.edges_keV(), [10, 20, 30, 40])
@@ -256,7 +256,7 @@ def test_file_size_limit(tmp_path):
 
 
 def _run(*args):
-    return subprocess.run([sys.executable, "-m", "radseek.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "radseek_cli", *map(str, args)], capture_output=True, text=True,
                           cwd=REPO, timeout=300)
 
 

@@ -1,5 +1,5 @@
 """A ``radseek run`` killed with SIGKILL cannot stop its stack: the stack's processes must die with it
-(``launch.run_cli.Stack`` asks Linux for a parent-death signal). Real processes, no mocks."""
+(``launch.stack.Stack`` asks Linux for a parent-death signal). Real processes, no mocks."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR
 PARENT = """
 import sys, time
 from pathlib import Path
-from launch.run_cli import Stack
+from launch.stack import Stack
 stack = Stack(Path(sys.argv[1]))
 child = stack.start("sleeper", [sys.executable, "-c", "import time; time.sleep(600)"])
 print(child.pid, flush=True)

@@ -77,11 +77,11 @@ def test_the_verdict_is_the_deciding_vehicles():
 
 
 def test_mission_refuses_a_team_without_itself(tmp_path, capsys):
-    from mission.mission_cli import main as mission_main
+    from radseek_cli.mission_cli import main as mission_main
 
     scenario = tmp_path / "scenario.json"
     from detector_fw_sim.scene import load_scene
-    from radseek.dataset import write_json
+    from radseek_io.dataset import write_json
 
     write_json(scenario, load_scene("default").scenario().to_dict())
     with pytest.raises(SystemExit) as exc:
@@ -96,7 +96,7 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
     from mcap.reader import make_reader
 
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "radseek.cli", "run", "--vehicles", "2", "--out", str(out),
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "--vehicles", "2", "--out", str(out),
            "--speedup", "50", "--seed", "0", "--zenoh-port", str(free_port()),
            "--mavlink-port", str(free_udp_block(2)), "--gcs-port", str(free_udp_block(2)),
            "--vehicle-local-ports", f"{free_udp_block(2)},{free_udp_block(2)}",

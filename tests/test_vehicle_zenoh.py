@@ -33,7 +33,7 @@ def test_vehicle_publishes_truth_and_estimate_and_never_waits_for_zenoh():
     with VehicleProcess(free_udp_port(), gcs_port, args, zenoh=True), Gcs(gcs_port) as gcs:
         gcs.recv("HEARTBEAT")  # no router yet: MAVLink is up regardless
         assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
-        router = subprocess.Popen([sys.executable, "-m", "radseek.cli", "router", "--listen", endpoint],
+        router = subprocess.Popen([sys.executable, "-m", "radseek_cli", "router", "--listen", endpoint],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             assert "listening" in router.stdout.readline()

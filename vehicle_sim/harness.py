@@ -56,7 +56,7 @@ class VehicleProcess:
     """``radseek vehicle`` as a subprocess; ``args`` are extra CLI options."""
 
     def __init__(self, api_port: int, gcs_port: int, args: list[str] = (), zenoh: bool = False):
-        cmd = [sys.executable, "-m", "radseek.cli", "vehicle", "--api-port", str(api_port), "--gcs-port",
+        cmd = [sys.executable, "-m", "radseek_cli", "vehicle", "--api-port", str(api_port), "--gcs-port",
                str(gcs_port), "--api-local-port", "0", "--gcs-local-port", "0", *args]
         if not zenoh:
             cmd.append("--no-zenoh")

@@ -3,7 +3,7 @@ it was not built from.
 
 Its own code path: it imports neither ``detector_fw_sim`` (the emulator) nor ``estimator`` (the model diagnose
 fits), nor ``radseek.count_model`` / ``radseek.geometry``. It uses ``radseek.dataset`` only for the output
-container (the dataset format) and ``radseek.spectrum_files`` to read measured spectra.
+container (the dataset format) and ``radseek_io.spectrum_io`` to read measured spectra.
 
 - spectra (``spectra.py``): measured CsI(Tl) spectra (``shared/real-spectra``: a RadiaCode-102's Cs-137, Co-60,
   Eu-152, Ba-133 and room background, background-subtracted by live time), altered crystals (worse resolution,

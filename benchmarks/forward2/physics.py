@@ -37,7 +37,8 @@ from benchmarks.forward2.spectra import (
     scatter_response,
     source_response,
 )
-from radseek.dataset import Dataset, Frames, Scenario, Truth, TruthSource, Wall
+from radseek.dataset import Dataset, Frames, Scenario, Wall
+from radseek.truth import Truth, TruthSource
 
 GEOMETRIES = ("lattice", "spin", "lawnmower", "closepass", "outdoor", "wall", "lshape")
 #: default primary source strength (cps at 1 m) per geometry

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.spectrum_files import read_spectrum
+from radseek_io.spectrum_io import read_spectrum
 
 REAL_SPECTRA = Path(__file__).resolve().parents[3] / "shared" / "real-spectra"
 #: comparator edges of the shared datasets (keV), channel 31 is the overflow
@@ -74,9 +74,9 @@ def _measured(directory: str, nuclide: str = "Cs-137") -> tuple[np.ndarray, np.n
     e = src.edges_keV()
     if not np.allclose(e, bg.edges_keV()):
         raise ValueError(f"{nuclide} and background spectra have different calibrations")
-    net = src.counts - bg.counts * src.live_time_s / bg.live_time_s
+    net = src.counts - bg.counts * src.livetime / bg.livetime
     lo, hi, net_k = _fine(net, e)
-    _, _, bg_k = _fine(bg.counts * src.live_time_s / bg.live_time_s, e)
+    _, _, bg_k = _fine(bg.counts * src.livetime / bg.livetime, e)
     return lo, hi, net_k, bg_k
 
 

@@ -8,6 +8,6 @@ One job per module:
 - ``selection``: forward selection over the effect vocabulary with likelihood-ratio tests (boundary-aware nulls).
 - ``explain``: one-sentence physics per effect and the residual feature it should remove.
 - ``plots``: matplotlib (Agg) PNGs.
-- ``report``: the text and JSON reports.
-- ``runner``: the whole loop (fit, compare, select, add) used by ``estimator.diagnose_cli``.
+- the text and JSON reports are ``reporting.diagnose_report`` (a layer that may see the truth: the source error).
+- ``runner``: the whole loop (fit, compare, select, add) used by ``radseek_cli.diagnose_cli``.
 """

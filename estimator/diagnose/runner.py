@@ -1,7 +1,7 @@
 """The diagnose loop: fit the current model, compare with the data, find what is missing, add it, compare again.
 
-Everything here reads the dataset's frames and scenario only; ``truth`` (when the dataset has one) is used for
-one thing, the source error in the report.
+Everything here reads the dataset's frames and scenario only, never its truth: the source error in the report is
+computed afterwards by :func:`reporting.truth_errors.score_diagnosis`.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from estimator.diagnose.selection import Selection, forward_select, null_log10_p
 from estimator.diagnose.threads import blas_threads
 from estimator.diagnose.verdict import adequate, hotspots, misfit_text
 from estimator.spectral import SpectralFit, SpectralModel
-from radseek.dataset import Dataset, Truth
+from radseek.dataset import Dataset
 
 SPECTRAL_FEATURE = "spectral channel over time"
 DISPERSION_FEATURE = "frame-to-frame scatter"
@@ -63,7 +63,7 @@ class ModelReport:
     spectral: SpectralFit | None
     spectral_dev_per_dof: float
     sources: list[dict[str, float]]
-    source_error_m: float | None
+    source_error_m: float | None  # vs the truth: filled by reporting.truth_errors.score_diagnosis, never here
     counts: np.ndarray  # (N,) observed total counts per frame
     effect_params: dict[str, tuple[float, float]] = field(default_factory=dict)
 
@@ -75,14 +75,6 @@ def sources_of(fit: Any) -> list[dict[str, float]]:
         out.append({"x": float(v["second_source.x"]), "y": float(v["second_source.y"]),
                     "z": float(v.get("second_source.z", 0.0)), "cps_at_1m": float(v["second_source.cps_at_1m"])})
     return out
-
-
-def source_error(sources: list[dict[str, float]], truth: Truth | None) -> float | None:
-    """3-D distance from the fitted primary source to the nearest true source (truth.json, reporting only)."""
-    if truth is None or not truth.sources:
-        return None
-    p = np.array([sources[0]["x"], sources[0]["y"], sources[0]["z"]])
-    return float(min(np.linalg.norm(p - s.position) for s in truth.all_sources()))
 
 
 def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralFit | None, n_bins: int = 8
@@ -120,7 +112,7 @@ def analyse(ds: Dataset, effects: tuple[str, ...], fit: Any, spectral: SpectralF
     if disp is not None:
         params["over_dispersion.rel_sd"] = (disp.rel_sd, disp.error)
     return ModelReport(effects, fit, gof, gof_seg, feats, trends, lab, seg_p, float(np.sqrt(np.mean(seg_p**2))),
-                       spectral, spec_dev, src, source_error(src, ds.truth), n, params)
+                       spectral, spec_dev, src, None, n, params)
 
 
 def explained_feature(before: ModelReport, after: ModelReport, effect: str) -> str:

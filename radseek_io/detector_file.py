@@ -66,7 +66,7 @@ class DetectorFile:
     def write(self, path: str | Path) -> Path:
         """Write the file atomically; a NaN or infinity anywhere is refused (``DetectorFileError`` naming the field):
         strict JSON, and a reader would reject it anyway."""
-        from radseek.outdir import atomic_write_text
+        from radseek_io.outdir import atomic_write_text
 
         data = self.to_json()
         bad = first_non_finite(data)

@@ -1,5 +1,6 @@
-"""Shared pieces of the spectrum readers: :class:`Spectrum`, :class:`SpectrumFileError`, number, duration, XML and
-energy-calibration helpers (conventions in :mod:`radseek.spectrum_io`)."""
+"""Shared pieces of the spectrum readers: number, duration, XML and energy-calibration helpers (conventions in
+:mod:`radseek_io.spectrum_io`). :class:`Spectrum` and :class:`SpectrumFileError` are the contracts'
+(:mod:`radseek.spectrum`), re-exported here for the readers."""
 
 from __future__ import annotations
 
@@ -7,92 +8,27 @@ import io
 import math
 import re
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 
-#: counts above this in one channel are not a measurement (a RadiaCode's 18-day accumulated history holds ~1e9
-#: in all channels together); 1e300 or a corrupted number is refused naming the channel
-MAX_COUNTS_PER_CHANNEL = 1e12
-#: live or real times above this (3.2 years) are refused: a corrupted duration, not a measurement
-MAX_TIME_S = 1e8
-#: a live time may exceed the real time by this fraction plus LIVE_OVER_REAL_S (rounding in the writers)
-LIVE_OVER_REAL_FRACTION = 0.01
-LIVE_OVER_REAL_S = 1.0
-#: more channels than this is a corrupted channel index or count, not an MCA
-MAX_CHANNELS = 65536
+from radseek.spectrum import (  # noqa: F401 (re-exported: the readers' shared names)
+    LIVE_OVER_REAL_FRACTION,
+    LIVE_OVER_REAL_S,
+    MAX_CHANNELS,
+    MAX_COUNTS_PER_CHANNEL,
+    MAX_TIME_S,
+    Spectrum,
+    SpectrumFileError,
+    check_counts_array,
+    check_times,
+    polynomial_edges,
+)
+
 #: files larger than this are refused before being read (``max_bytes`` raises it): the XML readers hold the
 #: whole tree in memory, several times the file
 MAX_FILE_BYTES = 64 * 1024 * 1024
-
-
-class SpectrumFileError(ValueError):
-    """A spectrum file that cannot be read; the message names the file and the element that is wrong."""
-
-
-@dataclass(frozen=True)
-class Spectrum:
-    """Counts per channel with live time and energy calibration (see the module docstring)."""
-
-    counts: np.ndarray
-    live_time_s: float
-    real_time_s: float | None = None
-    calibration: tuple[float, ...] = (0.0, 1.0)
-    #: explicit channel boundaries (n + 1, keV); overrides ``calibration`` when given
-    boundaries_keV: np.ndarray | None = None
-    start_time: str | None = None
-    title: str = ""
-    serial: str = ""
-    kind: str = "foreground"
-    source: str = ""
-    meta: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        who = self.source or "<spectrum>"
-        c = np.asarray(self.counts, dtype=float)
-        if c.ndim != 1 or len(c) == 0:
-            raise SpectrumFileError(f"{who}: counts must be a non-empty 1-D array")
-        if len(c) > MAX_CHANNELS:
-            raise SpectrumFileError(f"{who}: counts: {len(c)} channels, more than {MAX_CHANNELS}")
-        check_counts_array(who, "counts", c)
-        check_times(who, "live time", self.live_time_s, self.real_time_s)
-        object.__setattr__(self, "counts", c)
-        if self.boundaries_keV is not None:
-            b = np.asarray(self.boundaries_keV, dtype=float)
-            if b.shape != (len(c) + 1,) or not np.all(np.isfinite(b)) or np.any(np.diff(b) <= 0):
-                raise SpectrumFileError(f"{who}: {len(c) + 1} finite ascending channel boundaries "
-                                        f"needed, got {b.shape[0]}")
-            object.__setattr__(self, "boundaries_keV", b)
-        if not all(math.isfinite(v) for v in self.calibration):
-            raise SpectrumFileError(f"{who}: energy calibration {self.calibration} is not finite")
-
-    @property
-    def n_channels(self) -> int:
-        return len(self.counts)
-
-    def edges_keV(self) -> np.ndarray:
-        """(n + 1,) channel boundaries in keV."""
-        if self.boundaries_keV is not None:
-            return self.boundaries_keV
-        return polynomial_edges(self.calibration, self.n_channels)
-
-    def rate(self) -> np.ndarray:
-        return self.counts / self.live_time_s
-
-    def rebin(self, edges_keV: np.ndarray, overflow: bool = True) -> np.ndarray:
-        """Counts in the bins ``edges_keV`` (m + 1 edges), channels split linearly in energy; with ``overflow``
-        the last bin is open above (as channel 31 of the board)."""
-        e = self.edges_keV()
-        keep = np.r_[True, np.diff(e) > 0]
-        cum = np.r_[0.0, np.cumsum(self.counts)]
-        ce = np.interp(np.asarray(edges_keV, dtype=float), e[keep], cum[keep])
-        out = np.diff(ce)
-        if overflow:
-            out[-1] = cum[-1] - ce[-2]
-        return out
-
 
 # ------------------------------------------------------------------------------------------------ helpers
 
@@ -144,24 +80,7 @@ def _check_counts(path: str | Path, where: str, values) -> np.ndarray:
     return a
 
 
-def check_counts_array(who: str, where: str, a: np.ndarray) -> None:
-    """Counts finite, >= 0 and <= MAX_COUNTS_PER_CHANNEL; the error names the first bad channel."""
-    bad = ~np.isfinite(a) | (a < 0) | (a > MAX_COUNTS_PER_CHANNEL)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise SpectrumFileError(f"{who}: {where}: channel {i} has {a[i]!r} counts (must be finite, >= 0 and "
-                                f"<= {MAX_COUNTS_PER_CHANNEL:g})")
 
-
-def check_times(who: str, where: str, live: float, real: float | None) -> None:
-    """Live time in (0, MAX_TIME_S], real time likewise when given, live <= real (plus a rounding margin)."""
-    if not (isinstance(live, (int, float)) and math.isfinite(live) and 0 < live <= MAX_TIME_S):
-        raise SpectrumFileError(f"{who}: {where} must be > 0 and <= {MAX_TIME_S:g} s, got {live!r}")
-    if real is not None:
-        if not (isinstance(real, (int, float)) and math.isfinite(real) and 0 < real <= MAX_TIME_S):
-            raise SpectrumFileError(f"{who}: real time must be > 0 and <= {MAX_TIME_S:g} s, got {real!r}")
-        if live > real * (1 + LIVE_OVER_REAL_FRACTION) + LIVE_OVER_REAL_S:
-            raise SpectrumFileError(f"{who}: {where} {live:g} s exceeds the real time {real:g} s")
 
 
 def read_limited(path: str | Path, max_bytes: int | None = None) -> bytes:
@@ -238,10 +157,7 @@ def _poly_cal(path: str | Path, where: str, coefs, n: int) -> tuple[float, ...]:
     return c
 
 
-def polynomial_edges(cal: tuple[float, ...], n: int) -> np.ndarray:
-    """(n + 1,) channel edges in keV of the polynomial calibration ``cal``: E(i) = c0 + c1 i + c2 i^2 + ..."""
-    i = np.arange(n + 1, dtype=float)
-    return sum(c * i**k for k, c in enumerate(cal)) * np.ones_like(i)
+
 
 
 def _rising(edges: np.ndarray) -> bool:

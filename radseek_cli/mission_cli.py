@@ -26,8 +26,9 @@ from pathlib import Path
 from mission.client.connection import DEFAULT_URL
 from mission.search import STRATEGIES, search_failure
 from radseek import zenoh_session
-from radseek.dataset import DatasetError, read_scenario
-from radseek.outdir import OutputDirError, prepare_output
+from radseek.dataset import DatasetError
+from radseek_io.dataset import read_scenario
+from radseek_io.outdir import OutputDirError, prepare_output
 
 #: what a mission writes under --out, summaries first: --force removes them in this order
 MISSION_OUTPUTS = ("mission_summary.json", "truth.json", "frames.csv", "frames_flagged.csv", "mission_log.jsonl",

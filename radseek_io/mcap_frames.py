@@ -38,9 +38,10 @@ from pathlib import Path
 import numpy as np
 
 from radseek import topics
-from radseek.dataset import Dataset, Frames, Scenario, Truth
+from radseek.dataset import Dataset, Frames, Scenario
 from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
 from radseek.pose_history import PoseHistory
+from radseek.truth import Truth
 
 #: the first and last bytes of every MCAP file (the specification's magic)
 MCAP_MAGIC = b"\x89MCAP0\r\n"

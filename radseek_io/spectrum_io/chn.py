@@ -56,8 +56,8 @@ def read_chn(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
 def write_chn(path: str | Path, sp: Spectrum) -> Path:
     """An Ortec .chn with a -102 trailer (used by the tests)."""
     cal = tuple(sp.calibration) + (0.0,) * (3 - len(sp.calibration))
-    head = _CHN_HEADER.pack(-1, 1, 1, b"00", round((sp.real_time_s or sp.live_time_s) / 0.02),
-                            round(sp.live_time_s / 0.02), b"01JAN70*", b"0000", 0, sp.n_channels)
+    head = _CHN_HEADER.pack(-1, 1, 1, b"00", round((sp.realtime or sp.livetime) / 0.02),
+                            round(sp.livetime / 0.02), b"01JAN70*", b"0000", 0, sp.n_channels)
     body = np.asarray(sp.counts, dtype="<i4").tobytes()
     trailer = struct.pack("<hhfff", -102, 0, *cal[:3]) + bytes(512 - 16)
     Path(path).write_bytes(head + body + trailer)

@@ -24,7 +24,8 @@ import numpy as np
 
 from estimator.localizers.particle_filter import ParticleFilter
 from estimator.metrics import kl_gaussian
-from radseek.dataset import Dataset, DatasetError, read_dataset
+from radseek.dataset import Dataset, DatasetError
+from radseek_io.dataset import read_dataset
 
 __all__ = ["main", "replay", "kl_curve"]
 

@@ -283,8 +283,8 @@ def n42_document(spectra: list[Spectrum], *, instrument: str = "radseek 32-chann
     ET.SubElement(rdi, f"{{{ns}}}RadDetectorKindCode").text = detector_kind
     for i, sp in enumerate(spectra):
         ec = ET.SubElement(root, f"{{{ns}}}EnergyCalibration", {"id": f"ec-{i}"})
-        if sp.boundaries_keV is not None:
-            ET.SubElement(ec, f"{{{ns}}}EnergyBoundaryValues").text = " ".join(_fmt(v) for v in sp.boundaries_keV)
+        if sp.bin_edges_kev is not None:
+            ET.SubElement(ec, f"{{{ns}}}EnergyBoundaryValues").text = " ".join(_fmt(v) for v in sp.bin_edges_kev)
         else:
             ET.SubElement(ec, f"{{{ns}}}CoefficientValues").text = " ".join(_fmt(v) for v in sp.calibration)
     for i, sp in enumerate(spectra):
@@ -295,10 +295,10 @@ def n42_document(spectra: list[Spectrum], *, instrument: str = "radseek 32-chann
         ET.SubElement(meas, f"{{{ns}}}MeasurementClassCode").text = {"background": "Background"}.get(
             sp.kind, "Foreground")
         ET.SubElement(meas, f"{{{ns}}}StartDateTime").text = sp.start_time or "1970-01-01T00:00:00Z"
-        ET.SubElement(meas, f"{{{ns}}}RealTimeDuration").text = format_duration(sp.real_time_s or sp.live_time_s)
+        ET.SubElement(meas, f"{{{ns}}}RealTimeDuration").text = format_duration(sp.realtime or sp.livetime)
         spel = ET.SubElement(meas, f"{{{ns}}}Spectrum", {"id": f"rm-{i}-sp", "radDetectorInformationReference": "det-1",
                                                          "energyCalibrationReference": f"ec-{i}"})
-        ET.SubElement(spel, f"{{{ns}}}LiveTimeDuration").text = format_duration(sp.live_time_s)
+        ET.SubElement(spel, f"{{{ns}}}LiveTimeDuration").text = format_duration(sp.livetime)
         counts = sp.counts
         text = " ".join(str(int(c)) if float(c).is_integer() else _fmt(c) for c in counts)
         ET.SubElement(spel, f"{{{ns}}}ChannelData", {"compressionCode": "None"}).text = text

@@ -72,7 +72,7 @@ def read_spe(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
 def write_spe(path: str | Path, sp: Spectrum) -> Path:
     """An Ortec ASCII .spe (used by the tests; polynomial calibration only)."""
     lines = ["$SPEC_ID:", sp.title or "radseek", "$DATE_MEA:", sp.start_time or "01/01/1970 00:00:00", "$MEAS_TIM:",
-             f"{sp.live_time_s:.10g} {sp.real_time_s or sp.live_time_s:.10g}", "$DATA:", f"0 {sp.n_channels - 1}"]
+             f"{sp.livetime:.10g} {sp.realtime or sp.livetime:.10g}", "$DATA:", f"0 {sp.n_channels - 1}"]
     lines += [str(int(c)) for c in sp.counts]
     lines += ["$MCA_CAL:", str(len(sp.calibration)), " ".join(f"{c:.9g}" for c in sp.calibration) + " keV"]
     Path(path).write_text("\n".join(lines) + "\n")

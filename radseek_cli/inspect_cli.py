@@ -17,8 +17,8 @@ import time
 from dataclasses import dataclass, fields
 
 from radseek import topics
-from radseek.serve import open_session_or_report, serve_until_stopped
 from radseek.zenoh_session import add_arguments
+from radseek_cli.serve import open_session_or_report, serve_until_stopped
 
 # who publishes each topic (documentation only; the schema itself lives in radseek/topics.py)
 PUBLISHERS: dict[str, str] = {

@@ -12,7 +12,7 @@ dataset in the shared format, recorded by radseek or not.
 
 ``radseek replay OUT/flight.mcap`` (a path ending in ``.mcap``: the MCAP log ``radseek run`` records)
 replays from the recorded topics instead: the frames are rebuilt from ``detector/histogram``, ``pose``
-and ``mission/state`` exactly as the mission's recorder made them (``radseek/mcap_frames.py``), the first
+and ``mission/state`` exactly as the mission's recorder made them (``radseek_io/mcap_frames.py``), the first
 dwell comes from the first recorded ``estimate``, and the scenario from ``--scenario`` or the run's
 ``dataset/scenario.json`` (else ``scenario.json``) beside the file; ``truth.json`` from the same place
 when it exists.
@@ -104,8 +104,10 @@ def flown_first_dwell(path: str | Path) -> int | None:
 def _read_mcap(path: str, scenario: str | None):
     """The flight in a run's MCAP log as a dataset, and the dwell count of its first estimate (None: none
     recorded). DatasetError or McapFrameError (both name the file) when it cannot be read."""
-    from radseek.dataset import DatasetError, read_scenario, read_truth
-    from radseek.mcap_frames import beside, read_flight
+    from radseek.dataset import DatasetError
+    from radseek_io.dataset import read_scenario
+    from radseek_io.mcap_frames import beside, read_flight
+    from radseek_io.truth import read_truth
 
     scenario_file = Path(scenario) if scenario else beside(path, "scenario.json")
     if scenario_file is None:
@@ -145,14 +147,18 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     from estimator.inflight import gof_warning
-    from radseek.dataset import DatasetError, read_dataset
-    from radseek.mcap_frames import McapFrameError
+    from radseek.dataset import DatasetError
+    from radseek_io.mcap_frames import McapFrameError
+    from radseek_io.truth import read_dataset_with_truth
 
     from_mcap = args.dataset.endswith(".mcap")
     if args.scenario and not from_mcap:
         p.error("--scenario is for an MCAP log (a path ending in .mcap); a dataset holds its own scenario.json")
     try:
-        ds, mcap_first = _read_mcap(args.dataset, args.scenario) if from_mcap else (read_dataset(args.dataset), None)
+        if from_mcap:
+            ds, mcap_first = _read_mcap(args.dataset, args.scenario)
+        else:
+            ds, mcap_first = read_dataset_with_truth(args.dataset), None
     except (DatasetError, McapFrameError) as exc:  # both name the file
         print(f"radseek replay: {exc}", file=sys.stderr)
         return 2

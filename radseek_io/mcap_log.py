@@ -15,10 +15,11 @@ Times: ``log_time`` is the wall clock at reception (ns, so the file sorts as it 
 ``time_usec``) when it has one, else the log time.
 
 ``Recorder`` runs it in the background (zenoh subscriber + optional UDP MAVLink listener, one writer
-thread); ``radseek record`` is its CLI; ``read`` iterates over a file's messages decoded.
+thread); ``radseek record`` is its CLI (:mod:`radseek_cli.record_cli`); ``read`` iterates over a file's
+messages decoded.
 ``radseek run`` runs ``radseek record`` for every flight into ``OUT/flight.mcap`` (listening on the vehicle's
 ``--gcs-port``), and ``radseek replay OUT/flight.mcap`` rebuilds the flight's frames from it
-(``radseek.mcap_frames``).
+(``radseek_io.mcap_frames``).
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 from radseek import topics
-from radseek.serve import serve_on_session
 
 log = logging.getLogger(__name__)
 RAW_ENCODING = "radseek.board_frame"
@@ -214,30 +214,3 @@ def read(path: str | Path) -> Iterator[tuple[str, int, int, Any]]:
             data = message.data
             payload = json.loads(data) if channel.message_encoding == "json" else bytes(data)
             yield channel.topic, message.log_time, message.publish_time, payload
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``radseek record``: write an MCAP log of the live zenoh topics and the vehicle's MAVLink."""
-    import argparse
-
-    from radseek.zenoh_session import add_arguments
-
-    p = argparse.ArgumentParser(prog="radseek record", description=main.__doc__)
-    p.add_argument("--out", type=Path, default=Path("runs/flight.mcap"),
-                   help="MCAP file to write (default runs/flight.mcap)")
-    p.add_argument("--mavlink-port", type=int, default=None,
-                   help="also record MAVLink arriving on this UDP port (e.g. the vehicle's --gcs-port)")
-    p.add_argument("--duration", type=float, help="wall seconds to record (default: until Ctrl-C / SIGTERM)")
-    add_arguments(p)
-    args = p.parse_args(argv)
-    if args.duration is not None and args.duration <= 0:
-        p.error("--duration must be > 0")
-    if args.out.exists() and args.out.is_dir():
-        p.error(f"--out {args.out} is a directory")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    return serve_on_session(
-        "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=args.mavlink_port),
-        OSError, lambda exc: f"UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another with "
-                             "--mavlink-port",
-        started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
-        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints

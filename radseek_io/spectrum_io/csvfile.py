@@ -175,7 +175,7 @@ def read_csv(path: str | Path, data: bytes | None = None, live_time_s: float | N
                         len(counts))
         bounds = None
     live, real = _times(path, meta, live_time_s)
-    return [make_spectrum(path, "spectrum", counts, live, real, calibration=cal, boundaries_keV=bounds,
+    return [make_spectrum(path, "spectrum", counts, live, real, calibration=cal, bin_edges_kev=bounds,
                           start_time=meta.get("starttime"), title=meta.get("title", ""),
                           kind=meta.get("kind", "foreground"))]
 
@@ -205,9 +205,9 @@ def _is_number(s: str) -> bool:
 
 
 def write_csv(path: str | Path, sp: Spectrum) -> Path:
-    lines = [f"# live_time_s: {sp.live_time_s:.9g}"]
-    if sp.real_time_s:
-        lines.append(f"# real_time_s: {sp.real_time_s:.9g}")
+    lines = [f"# live_time_s: {sp.livetime:.9g}"]
+    if sp.realtime:
+        lines.append(f"# real_time_s: {sp.realtime:.9g}")
     lines += ["# calibration: " + " ".join(f"{c:.9g}" for c in sp.calibration), "channel,counts"]
     lines += [f"{i},{c:.9g}" for i, c in enumerate(sp.counts)]
     Path(path).write_text("\n".join(lines) + "\n")

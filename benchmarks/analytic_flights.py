@@ -12,7 +12,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from radseek.count_model import dead_time, expected_rate
-from radseek.dataset import COLUMNS, POSE_COLUMNS, Dataset, Frames, Scenario, Truth, TruthSource
+from radseek.dataset import Dataset, Frames, Scenario
+from radseek.frame_record import COLUMNS, POSE_COLUMNS
+from radseek.truth import Truth, TruthSource
 
 __all__ = ["expected_total", "dwell_frames", "lattice_points", "lattice_flight", "scenario_for"]
 

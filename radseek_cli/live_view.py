@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from radseek import topics
-from radseek.mcap_log import json_schema
-from radseek.serve import serve_on_session
+from radseek_cli.serve import serve_on_session
+from radseek_io.mcap_log import json_schema
 
 MAP_HZ = 5.0  # wall Hz at most for /map updates
 
@@ -194,7 +194,7 @@ class LiveView:
 
 def _load_area(args) -> tuple[Any, list[Any]]:
     if args.scenario is not None:
-        from radseek.dataset import read_scenario
+        from radseek_io.dataset import read_scenario
 
         sc = read_scenario(Path(args.scenario))
         return (tuple(sc.bounds_min), tuple(sc.bounds_max)), list(sc.walls)

@@ -32,17 +32,12 @@ import numpy as np
 from estimator.inflight import GOOD_FIT_P, MIN_FRAMES
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
-from radseek.dataset import (
-    DatasetError,
-    DatasetWarning,
-    Truth,
-    check_walls_disjoint,
-    read_dataset,
-    read_scenario,
-    stderr_progress,
-)
+from radseek.dataset import DatasetError
+from radseek_io.dataset import DatasetWarning, check_walls_disjoint, read_scenario, stderr_progress
+from radseek_io.truth import read_dataset_with_truth
+from reporting.truth_errors import match_errors
 
-__all__ = ["main", "match_errors", "parse_settings", "check_settings", "read_with_warnings"]
+__all__ = ["main", "parse_settings", "check_settings", "read_with_warnings"]
 
 #: a flight longer than this is fitted on pooled frames (consecutive frames of one dwell or transit run
 #: summed): a 1.4 M-frame flight would otherwise need several GB in the localizers' start-point grids
@@ -123,7 +118,7 @@ def read_for_cli(prog: str, path: str, quiet: bool = False, min_frames: int = MI
             if scenario_file.is_file():  # walls first: a long flight's frames take minutes to read
                 check_walls_disjoint(read_scenario(scenario_file), scenario_file)
             progress = None if quiet else stderr_progress(f"{prog}: reading frames.csv")
-            ds = read_dataset(path, progress=progress)
+            ds = read_dataset_with_truth(path, progress=progress)  # the truth for the error report only
     except DatasetError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return None
@@ -154,31 +149,6 @@ def heartbeat(message: str, every_s: float = HEARTBEAT_S, quiet: bool = False) -
         stop.set()
         if thread is not None:
             thread.join(1.0)
-
-
-def match_errors(sources: list[dict[str, float]], truth: Truth) -> list[dict[str, float]]:
-    """Per true source (primary first): the nearest estimate's horizontal and 3-D position error and
-    relative intensity error. Each estimate is used at most once (greedy by distance)."""
-    true = list(truth.all_sources())
-    est = [np.array([s["x"], s["y"], s["z"]]) for s in sources]
-    pairs = sorted(((float(np.linalg.norm(e - t.position)), i, j) for j, t in enumerate(true)
-                    for i, e in enumerate(est)))
-    used_i: set[int] = set()
-    used_j: set[int] = set()
-    out: dict[int, dict[str, float]] = {}
-    for d, i, j in pairs:
-        if i in used_i or j in used_j:
-            continue
-        used_i.add(i)
-        used_j.add(j)
-        t, s = true[j], sources[i]
-        out[j] = {"true_x": t.x, "true_y": t.y, "true_cps_at_1m": t.cps_at_1m,
-                  "position_error_m": float(np.hypot(s["x"] - t.x, s["y"] - t.y)), "position_error_3d_m": d,
-                  "intensity_error_rel": float(s["cps_at_1m"] / t.cps_at_1m - 1.0), "estimate": i}
-    for j, t in enumerate(true):
-        out.setdefault(j, {"true_x": t.x, "true_y": t.y, "true_cps_at_1m": t.cps_at_1m, "position_error_m": None,
-                           "position_error_3d_m": None, "intensity_error_rel": None, "estimate": None})
-    return [out[j] for j in range(len(true))]
 
 
 def _build_parser() -> argparse.ArgumentParser:

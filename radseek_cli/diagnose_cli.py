@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.starts < 1:
         print(f"radseek diagnose: --starts must be >= 1, got {args.starts}", file=sys.stderr)
         return 2
-    from estimator.localize_cli import read_for_cli
+    from radseek_cli.localize_cli import read_for_cli
 
     ds = read_for_cli("radseek diagnose", args.dataset, args.quiet, min_frames=MIN_FRAMES,
                       needed_for="to fit the model and test effects")
@@ -122,8 +122,9 @@ def main(argv: list[str] | None = None) -> int:
               "(key 'walls')", file=sys.stderr)
         return 2
     from estimator.diagnose.backend import progress
-    from estimator.diagnose.report import json_report, text_report
     from estimator.diagnose.runner import diagnose
+    from reporting.diagnose_report import json_report, text_report
+    from reporting.truth_errors import score_diagnosis
 
     added = tuple(e for e in dict.fromkeys(args.add) if e not in args.model)
     out = args.out or default_out(ds.path)
@@ -138,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         d = diagnose(ds, model=tuple(args.model), add=added, alpha=args.alpha, n_starts=args.starts,
                      seed=args.seed, quiet=args.quiet, jobs=args.jobs, saved=saved)
+        score_diagnosis(d, ds.truth)  # the source error vs truth.json, computed here, after the fits
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         print(f"radseek diagnose: the analysis failed on {ds.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
