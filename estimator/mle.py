@@ -97,11 +97,10 @@ _MIN_INCREMENT = 1e-6
 
 
 def walk_starts(frames: Frames) -> np.ndarray:
-    """(N,) bool: frames that begin another vehicle's odometry walk. Frames of several vehicles are
-    concatenated vehicle by vehicle, each in time order, so a frame earlier than its predecessor starts the
-    next vehicle's walk; the first frame starts a walk too. One vehicle's frames: only the first."""
-    t = np.asarray(frames.t, dtype=float)
-    return np.r_[True, t[1:] < t[:-1]] if len(t) else np.zeros(0, dtype=bool)
+    """(N,) bool: frames that begin another odometry walk (``Frames.walk`` changes; the first frame starts one
+    too). One vehicle's frames: only the first."""
+    w = np.asarray(frames.walk)
+    return np.r_[True, w[1:] != w[:-1]] if len(w) else np.zeros(0, dtype=bool)
 
 
 def pose_error_model(frames: Frames, declared: str | None = None) -> str:

@@ -84,9 +84,9 @@ def team_dwell(dwell: np.ndarray, vehicle: int, n_vehicles: int) -> np.ndarray:
 
 def team_frames(per_vehicle: Sequence[Frames | None]) -> Frames:
     """The team's frames: each vehicle's frames (own time order, own dwell indices) concatenated vehicle by
-    vehicle with team-unique dwell indices (:func:`team_dwell`). Each vehicle's first frame is earlier than
-    the previous vehicle's last, which tells the fit that another odometry walk begins
-    (``estimator.mle.walk_starts``); a vehicle whose frames would not is moved to keep that true."""
+    vehicle with team-unique dwell indices (:func:`team_dwell`), each frame's ``vehicle`` and its odometry
+    ``walk`` (one per vehicle) said in their columns. Longest flight first, so that files written from it
+    without those columns still read back with the walks apart (``Frames.walk``)."""
     n = len(per_vehicle)
     parts = [(v, f) for v, f in enumerate(per_vehicle) if f is not None and len(f)]
     if not parts:
@@ -96,6 +96,8 @@ def team_frames(per_vehicle: Sequence[Frames | None]) -> Frames:
     names = list(Frames.__dataclass_fields__)
     cols = {k: np.concatenate([getattr(f, k) for _, f in parts]) for k in names}
     cols["dwell"] = np.concatenate([team_dwell(f.dwell, v, n) for v, f in parts]).astype(int)
+    cols["vehicle"] = np.concatenate([np.full(len(f), v) for v, f in parts])
+    cols["walk"] = cols["vehicle"].copy()  # one odometry walk per vehicle
     return Frames(**cols)
 
 

@@ -115,6 +115,24 @@ class Frames:
     var_z: np.ndarray
     dwell: np.ndarray  # int, -1 while moving
     counts: np.ndarray  # (n, 32) COUNT_DTYPE when read or recorded (simulators may hold expected counts)
+    #: int, the team index of the vehicle that recorded each frame (0 for a single vehicle)
+    vehicle: np.ndarray | None = None
+    #: int, the odometry walk each frame's pose belongs to (one per vehicle flight): its pose errors are one random
+    #: walk. Not given: a frame earlier than its predecessor starts the next walk (frames of several flights
+    #: concatenated flight by flight, each in time order), the one place this is inferred
+    walk: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        if self.vehicle is None:
+            object.__setattr__(self, "vehicle", np.zeros(n, dtype=int))
+        if self.walk is None:
+            t = np.asarray(self.t, dtype=float)
+            object.__setattr__(self, "walk", np.cumsum(np.r_[False, t[1:] < t[:-1]]).astype(int) if n
+                               else np.zeros(0, dtype=int))
+        for name in ("vehicle", "walk"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"Frames.{name} has {len(getattr(self, name))} entries for {n} frames")
 
     def __len__(self) -> int:
         return len(self.t)
