@@ -118,7 +118,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
     with StackRun(stack, out) as run:
         start_router(stack, ports)
         if args.mcap:
-            start_recorder(stack, out, endpoint, port[0]["gcs"])
+            start_recorder(stack, out, endpoint, gcs_ports={name: port[v]["gcs"] for v, name in enumerate(names)})
         for v, name in enumerate(names):
             stack.start(f"detector-{name}", _radseek(
                 "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed + 1000 * v),

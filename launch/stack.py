@@ -128,11 +128,14 @@ def _last_words(log: Path) -> str:
     return f": {last}" if last.startswith("radseek ") else ""
 
 
-def start_recorder(stack: Stack, out: Path, endpoint: str, gcs_port: int) -> None:
+def start_recorder(stack: Stack, out: Path, endpoint: str, gcs_port: int | None = None,
+                   gcs_ports: dict[str, int] | None = None) -> None:
     """Start ``radseek record`` into ``out/flight.mcap``: every zenoh topic, and the MAVLink the vehicle
-    sends its GCS port (the recorder is that GCS: it listens and never answers)."""
+    sends its GCS port (the recorder is that GCS: it listens and never answers); a team's, each vehicle's
+    GCS port (``gcs_ports`` by vehicle name)."""
+    ports = ([] if gcs_port is None else [str(gcs_port)]) + [f"{n}={p}" for n, p in (gcs_ports or {}).items()]
     stack.start("recorder", _radseek("record", "--out", str(out / "flight.mcap"), "--connect", endpoint,
-                                     "--mavlink-port", str(gcs_port)))
+                                     *(a for p in ports for a in ("--mavlink-port", p))))
 
 
 def recorder_ready(stack: Stack, out: Path) -> subprocess.Popen | None:

@@ -10,6 +10,15 @@ from radseek_cli.serve import serve_on_session
 from radseek_io.mcap_log import Recorder
 
 
+def _one_chunk(name: str) -> bool:
+    """A vehicle name usable in a key and a channel name (``topics.key``'s rule)."""
+    try:
+        topics.key(topics.POSE, name)
+    except ValueError:
+        return False
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     """``radseek record``: write an MCAP log of the live zenoh topics and the vehicle's MAVLink."""
     import argparse
@@ -19,19 +28,31 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek record", description=main.__doc__)
     p.add_argument("--out", type=Path, default=Path("runs/flight.mcap"),
                    help="MCAP file to write (default runs/flight.mcap)")
-    p.add_argument("--mavlink-port", type=int, default=None,
-                   help="also record MAVLink arriving on this UDP port (e.g. the vehicle's --gcs-port)")
+    p.add_argument("--mavlink-port", action="append", default=[], metavar="[VEHICLE=]PORT",
+                   help="also record MAVLink arriving on this UDP port (e.g. the vehicle's --gcs-port), as "
+                        "mavlink/<MESSAGE>; VEHICLE=PORT records it as mavlink/<VEHICLE>/<MESSAGE>; repeat for a team")
     p.add_argument("--duration", type=float, help="wall seconds to record (default: until Ctrl-C / SIGTERM)")
     add_arguments(p)
     args = p.parse_args(argv)
+    unnamed, named = None, {}
+    for spec in args.mavlink_port:
+        name, _, port = spec.rpartition("=")
+        if not port.isdigit() or not 0 < int(port) < 65536 or (name and not _one_chunk(name)):
+            p.error(f"--mavlink-port {spec!r}: expected PORT or VEHICLE=PORT (a UDP port 1-65535)")
+        if name:
+            named[name] = int(port)
+        elif unnamed is None:
+            unnamed = int(port)
+        else:
+            p.error("--mavlink-port: one unnamed port at most (name the others VEHICLE=PORT)")
+    ports = ", ".join(str(v) for v in ([unnamed] if unnamed else []) + list(named.values()))
     if args.duration is not None and args.duration <= 0:
         p.error("--duration must be > 0")
     if args.out.exists() and args.out.is_dir():
         p.error(f"--out {args.out} is a directory")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     return serve_on_session(
-        "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=args.mavlink_port),
-        OSError, lambda exc: f"UDP port {args.mavlink_port} unavailable ({exc.strerror}): choose another with "
-                             "--mavlink-port",
+        "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=unnamed, mavlink_ports=named),
+        OSError, lambda exc: f"UDP port(s) {ports} unavailable ({exc.strerror}): choose others with --mavlink-port",
         started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
         stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints

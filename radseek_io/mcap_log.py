@@ -8,7 +8,8 @@ Channels:
   declaration: the schema cannot drift from the code); ``detector/raw`` (the board's binary frame) has
   no schema and the encoding ``radseek.board_frame`` (decode with ``radseek.board_wire.decode_frame``).
 - ``mavlink/<MESSAGE>``: each MAVLink message the vehicle sent to the GCS port, as JSON
-  (pymavlink's ``to_dict()``; byte arrays as lists), schema ``mavlink.<MESSAGE>``.
+  (pymavlink's ``to_dict()``; byte arrays as lists), schema ``mavlink.<MESSAGE>``; a team's vehicles each on
+  their own GCS port, ``mavlink/<vehicle>/<MESSAGE>``.
 
 Times: ``log_time`` is the wall clock at reception (ns, so the file sorts as it was recorded);
 ``publish_time`` is the simulation time of the payload (its ``t`` field, or MAVLink ``time_boot_ms`` /
@@ -93,7 +94,7 @@ class McapLog:
         if ch is not None:
             return ch
         if name.startswith("mavlink/"):
-            msg = name.split("/", 1)[1]
+            msg = name.rsplit("/", 1)[1]
             schema = {"title": f"mavlink.{msg}", "type": "object",
                       "description": f"MAVLink {msg} as pymavlink's to_dict()"}
             sid = self._writer.register_schema(f"mavlink.{msg}", "jsonschema", json.dumps(schema).encode())
@@ -133,22 +134,32 @@ def _sim_ns(data: bytes) -> int | None:
 
 class Recorder:
     """Records zenoh topics (``session``, key expression ``key``) and MAVLink datagrams arriving on UDP
-    ``mavlink_port`` into an MCAP file, in a background writer thread. ``stop()`` finishes the file."""
+    ``mavlink_port`` (channels ``mavlink/<MESSAGE>``) and on the ``mavlink_ports`` of named vehicles (channels
+    ``mavlink/<vehicle>/<MESSAGE>``) into an MCAP file, in a background writer thread. ``stop()`` finishes the
+    file."""
 
     def __init__(self, path: str | Path, session=None, *, key: str = topics.all_keys(),
-                 mavlink_port: int | None = None, mavlink_host: str = "127.0.0.1"):
+                 mavlink_port: int | None = None, mavlink_host: str = "127.0.0.1",
+                 mavlink_ports: dict[str, int] | None = None):
         self.log = McapLog(path)
         self._q: queue.Queue[tuple[str, bytes, int, int | None] | None] = queue.Queue()
         self._stop = threading.Event()
         self._sub = None
         if session is not None:
             self._sub = session.declare_subscriber(key, self._on_sample)
-        self._sock = None
+        ports = ([("", mavlink_port)] if mavlink_port is not None else []) + list((mavlink_ports or {}).items())
+        self._socks: dict[socket.socket, str] = {}  # socket -> channel prefix
         self._mav_thread = None
-        if mavlink_port is not None:
-            self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self._sock.bind((mavlink_host, mavlink_port))
-            self._sock.settimeout(0.1)
+        try:
+            for name, port in ports:
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                self._socks[sock] = f"mavlink/{name}/" if name else "mavlink/"
+                sock.bind((mavlink_host, port))
+        except OSError:
+            for sock in self._socks:
+                sock.close()
+            raise
+        if self._socks:
             self._mav_thread = threading.Thread(target=self._mavlink_loop, name="mcap-mavlink", daemon=True)
             self._mav_thread.start()
         self._writer = threading.Thread(target=self._write_loop, name="mcap-writer", daemon=True)
@@ -159,27 +170,39 @@ class Recorder:
         self._q.put((str(sample.key_expr), data, time.time_ns(), _sim_ns(data)))
 
     def _mavlink_loop(self) -> None:
+        import select
+
         os.environ.setdefault("MAVLINK20", "1")
         from pymavlink.dialects.v20 import common as M
 
-        mav = M.MAVLink(None)
-        mav.robust_parsing = True
+        parsers = {}
+        for sock in self._socks:
+            parsers[sock] = M.MAVLink(None)
+            parsers[sock].robust_parsing = True
         while not self._stop.is_set():
             try:
-                data, _ = self._sock.recvfrom(65535)
-            except (TimeoutError, OSError):
-                continue
-            now = time.time_ns()
-            for m in mav.parse_buffer(data) or []:
-                kind = m.get_type()
-                if kind == "BAD_DATA":
+                ready, _, _ = select.select(list(self._socks), [], [], 0.1)
+            except (OSError, ValueError):
+                return
+            for sock in ready:
+                try:
+                    data, _ = sock.recvfrom(65535)
+                except OSError:
                     continue
-                d = {k: _jsonable(v) for k, v in m.to_dict().items()}
-                sim = d.get("time_boot_ms")
-                sim_ns = int(sim * 1e6) if isinstance(sim, int) else None
-                if sim_ns is None and isinstance(d.get("time_usec"), int) and kind != "SYSTEM_TIME":
-                    sim_ns = int(d["time_usec"] * 1e3)
-                self._q.put((f"mavlink/{kind}", json.dumps(d).encode(), now, sim_ns))
+                self._mavlink_datagram(parsers[sock], self._socks[sock], data)
+
+    def _mavlink_datagram(self, mav, prefix: str, data: bytes) -> None:
+        now = time.time_ns()
+        for m in mav.parse_buffer(data) or []:
+            kind = m.get_type()
+            if kind == "BAD_DATA":
+                continue
+            d = {k: _jsonable(v) for k, v in m.to_dict().items()}
+            sim = d.get("time_boot_ms")
+            sim_ns = int(sim * 1e6) if isinstance(sim, int) else None
+            if sim_ns is None and isinstance(d.get("time_usec"), int) and kind != "SYSTEM_TIME":
+                sim_ns = int(d["time_usec"] * 1e3)
+            self._q.put((prefix + kind, json.dumps(d).encode(), now, sim_ns))
 
     def _write_loop(self) -> None:
         while True:
@@ -197,7 +220,8 @@ class Recorder:
             self._sub.undeclare()
         if self._mav_thread is not None:
             self._mav_thread.join(2)
-            self._sock.close()
+        for sock in self._socks:
+            sock.close()
         self._q.put(None)
         self._writer.join(30)
         self.log.close()

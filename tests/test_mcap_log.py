@@ -53,3 +53,32 @@ def test_recorder_logs_every_topic_and_mavlink(router, tmp_path):
     assert hb["autopilot"] == 12  # PX4
     clock = [(pub, p["t"]) for ch, _, pub, p in messages if ch == topics.key(topics.SIM_CLOCK)]
     assert all(pub == int(t * 1e9) for pub, t in clock)  # publish_time is the sim time
+
+
+@pytest.mark.io
+def test_a_teams_mavlink_is_recorded_per_vehicle(tmp_path):
+    """Datagrams on two named GCS ports land on mavlink/<vehicle>/<MESSAGE>, each vehicle's own."""
+    import os
+    import socket
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import common as M
+
+    ports = {"uav0": free_udp_port(), "uav1": free_udp_port()}
+    rec = Recorder(tmp_path / "team.mcap", None, mavlink_ports=ports)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for sysid, port in enumerate(ports.values(), start=1):
+            mav = M.MAVLink(None, srcSystem=sysid)
+            hb = M.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3).pack(mav)
+            for _ in range(3):
+                tx.sendto(hb, ("127.0.0.1", port))
+        deadline = time.monotonic() + 5
+        while rec.log.count < 6 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        tx.close()
+        path = rec.stop()
+    channels = [ch for ch, *_ in read(path)]
+    assert channels.count("mavlink/uav0/HEARTBEAT") == 3 and channels.count("mavlink/uav1/HEARTBEAT") == 3
+    assert not any(ch == "mavlink/HEARTBEAT" for ch in channels)

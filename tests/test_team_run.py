@@ -140,7 +140,8 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
         seen = {ch.topic for _, ch, _ in make_reader(f).iter_messages()}
     for key in (topics.key(topics.TEAM_STATUS, "uav0"), topics.key(topics.TEAM_STATUS, "uav1"),
                 topics.key(topics.ESTIMATE, topics.TEAM), topics.key(topics.HISTOGRAM, "uav1"),
-                topics.key(topics.POSE, "uav1")):
+                topics.key(topics.POSE, "uav1"), "mavlink/uav0/HEARTBEAT", "mavlink/uav1/HEARTBEAT",
+                "mavlink/uav1/GLOBAL_POSITION_INT"):  # and every vehicle's MAVLink, each on its own channels
         assert key in seen, sorted(seen)
     # two autopilots, each on its own MAVLink ports
     ready = [next(line for line in (out / "logs" / f"vehicle-{v}.log").read_text().splitlines()
