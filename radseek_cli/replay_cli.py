@@ -6,7 +6,9 @@ the end of each dwell, from the dwell the mission first estimated at (the end of
 ``mission_log.jsonl`` beside ``frames.csv`` when the flight wrote one, else ``--from-dwell``, else every
 dwell), so on a recorded flight it reproduces the estimates the mission flew with. ``--method NAME``
 instead fits another localizer (``sphere``, ``pf``, ``multi-pf``, ``gp``, ``mle``) afresh after every dwell.
-The table shows how the estimate and its 1-sigma ellipse evolved, and its error when ``truth.json`` exists.
+A team run's ``dataset/`` (one folder per vehicle) replays as the team's flight: every vehicle's frames,
+dwell by dwell in time order. The table shows how the estimate and its 1-sigma ellipse evolved, and its
+error when ``truth.json`` exists.
 ``--plot FILE`` draws error and sigma against dwell number; ``--json`` prints the rows. Works on any
 dataset in the shared format, recorded by radseek or not.
 
@@ -51,12 +53,12 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
                                  {**DEFAULT_SETTINGS, **(settings or {})}) if method == INFLIGHT else None
     rows = []
     dwells = [int(d) for d in np.unique(f.dwell[f.dwell >= 0])]
-    ends = [int(np.flatnonzero(f.dwell == d).max()) for d in dwells]
-    for k, (d, end) in enumerate(sorted(zip(dwells, ends, strict=True), key=lambda de: de[1])):
+    ends = [float(f.t[f.dwell == d].max()) for d in dwells]  # a team's frames are vehicle by vehicle: by time
+    for k, (d, end) in enumerate(sorted(zip(dwells, ends, strict=True), key=lambda de: (de[1], de[0]))):
         if k + 1 < first_dwell:
             continue
-        upto = f.select(np.arange(len(f)) <= end)
-        row = {"dwells": k + 1, "dwell": d, "t": float(upto.t[-1])}
+        upto = f.select(f.t <= end + 1e-9)
+        row = {"dwells": k + 1, "dwell": d, "t": end}
         if inflight is not None:
             est = inflight.update(upto, dwell=k + 1)
             if est is None:
@@ -99,6 +101,32 @@ def flown_first_dwell(path: str | Path) -> int | None:
         if entry.get("event") == "decision" and isinstance(est, dict) and "dwell" in est:
             return int(est["dwell"])
     return None
+
+
+def team_folders(path: str | Path) -> list[Path]:
+    """The vehicles' dataset folders of a team run's ``dataset/`` (``uav0``, ``uav1``, ... by team index), or []
+    when ``path`` is one dataset."""
+    path = Path(path)
+    if not path.is_dir() or (path / "frames.csv").exists():
+        return []
+    inner = [p for p in path.iterdir() if p.is_dir() and (p / "frames.csv").exists()]
+    return sorted(inner, key=lambda p: (len(p.name), p.name))  # uav2 before uav10
+
+
+def read_team(path: str | Path):
+    """A team run's flight as one dataset (``mission.team.team_frames``: every vehicle's frames, team-unique
+    dwell indices, the vehicle and odometry walk of each frame), and the dwell count of the team's first
+    estimate (None: no mission log says)."""
+    from mission.team import team_frames
+    from radseek.dataset import Dataset
+    from radseek_io.truth import read_dataset_with_truth
+
+    folders = team_folders(path)
+    sets = [read_dataset_with_truth(p) for p in folders]
+    frames = team_frames([d.frames for d in sets])
+    firsts = [f for f in (flown_first_dwell(p) for p in folders) if f is not None]
+    truth = next((d.truth for d in sets if d.truth is not None), None)
+    return Dataset(frames=frames, scenario=sets[0].scenario, truth=truth, path=Path(path)), min(firsts, default=None)
 
 
 def _read_mcap(path: str, scenario: str | None):
@@ -155,8 +183,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.scenario and not from_mcap:
         p.error("--scenario is for an MCAP log (a path ending in .mcap); a dataset holds its own scenario.json")
     try:
+        team = [] if from_mcap else team_folders(args.dataset)
         if from_mcap:
             ds, mcap_first = _read_mcap(args.dataset, args.scenario)
+        elif team:
+            ds, mcap_first = read_team(args.dataset)
+            print(f"radseek replay: a team's flight: {', '.join(p.name for p in team)} ({len(ds.frames)} frames)",
+                  file=sys.stderr)
         else:
             ds, mcap_first = read_dataset_with_truth(args.dataset), None
     except (DatasetError, McapFrameError) as exc:  # both name the file
@@ -170,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError:
             settings[key] = value
     try:
-        flown = (mcap_first if from_mcap else flown_first_dwell(args.dataset)) if args.method == INFLIGHT else None
+        flown = (mcap_first if from_mcap or team else flown_first_dwell(args.dataset)) \
+            if args.method == INFLIGHT else None
         first = args.from_dwell if args.from_dwell is not None else flown or 1
         rows = replay(ds, args.method, settings, first_dwell=first, localizer=args.localizer)
     except ValueError as exc:

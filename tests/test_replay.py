@@ -81,3 +81,28 @@ def test_replay_cli_json_and_bad_input(shared_datasets, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(tmp_path / "nope")],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "not a dataset directory" in bad.stderr
+
+
+def test_a_team_run_replays_as_the_teams_flight(tmp_path, capsys):
+    """A team run's dataset/ (one folder per vehicle, each with its own dwell indices) replays as one flight:
+    every team dwell in time order, on every vehicle's frames up to it; the last estimate within the joint
+    fit's own 3 sigma of the truth, as the flown one."""
+    from launch.offline_team import fly_team_offline
+    from radseek_cli.replay_cli import main as replay_main
+    from radseek_io.dataset import write_dataset
+
+    r = fly_team_offline(load_scene(), 2, seed=0)
+    f, n = r.dataset.frames, 2
+    for v in range(n):  # each vehicle's own dataset, as radseek run --vehicles 2 writes it
+        mine = f.select(f.vehicle == v)
+        mine.dwell[:] = np.where(mine.dwell >= 0, (mine.dwell - v) // n, -1)
+        write_dataset(tmp_path / "dataset" / f"uav{v}", mine, r.dataset.scenario, r.dataset.truth)
+    capsys.readouterr()
+    assert replay_main([str(tmp_path / "dataset"), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    ends = [row["t"] for row in rows]
+    assert ends == sorted(ends) and [row["dwells"] for row in rows] == list(range(1, len(rows) + 1))
+    assert len(rows) == len(np.unique(f.dwell[f.dwell >= 0]))
+    assert {int(d) % n for d in (row["dwell"] for row in rows)} == {0, 1}  # both vehicles' dwells
+    last = rows[-1]
+    assert last["error_m"] < 3 * max(last["sigma_m"], MIN_SIGMA_M)
