@@ -4,10 +4,9 @@ Each vehicle is what ``radseek run`` starts for it: its own world (the mock auto
 board, ``vehicle_sim.world``; counts and drift seeded ``seed + 1000 v``, launch point
 ``mission.team.home_positions``) and its own team executive (``mission.team_executive``: its own team brain,
 fed by what the teammates say). What the zenoh team traffic carries between mission processes goes through a
-shared board here (``InProcessTeam``), and the vehicles step on one sim clock: a vehicle takes its next frame
-only when no teammate is behind it (``TeamBoard.wait_turn``), so every vehicle decides at a frame's time on
-what the others said up to then, and a claim is stamped with its sim time (ties go to the lower index).
-Reproducible: the same seed flies the same team flight.
+shared board here (``InProcessTeam``). The vehicles take their frames in turn, as over zenoh
+(``mission.team_link``): so each decides on what the others said up to a known frame, and the same seed flies
+the same team flight.
 
 A vehicle may be failed at a sim time (``fail``): its mission stops where it is (the vehicle hovers, records
 nothing more, its last reservation stays) and the teammates are told once, as a silent teammate is over zenoh.
@@ -35,23 +34,18 @@ from radseek.dataset import Dataset, Frames
 from vehicle_sim.odometry import OdometryParams
 from vehicle_sim.world import World
 
-#: sim s a vehicle hovers for its teammates to say where they are before it plans without them
-START_WAIT_SIM_S = 60.0
-
 
 class VehicleFailed(Exception):
     """Raised in a vehicle's frame source at its failure time: its mission stops there."""
 
 
 class TeamBoard:
-    """What the team's vehicles say to each other, and the one sim clock they step on."""
+    """What the team's vehicles say to each other (their statuses, their frames, the joint estimate)."""
 
     def __init__(self, names: tuple[str, ...]):
         self.names = names
         self.statuses: dict[str, topics.TeamStatus] = {}
         self.sources: dict[str, TeamFrames] = {}
-        self.clock = {n: 0.0 for n in names}
-        self.live = set(names)  # vehicles whose mission still runs
         self.failed: dict[str, float] = {}
         self.estimate: topics.Estimate | None = None
         self._changed = asyncio.Event()
@@ -60,37 +54,26 @@ class TeamBoard:
         self._changed.set()
 
     async def wait_for(self, ready) -> None:
-        """Until ``ready()`` holds (checked whenever a vehicle moves on or leaves)."""
+        """Until ``ready()`` holds (checked whenever a vehicle says something or fails)."""
         while not ready():
             self._changed.clear()
             await self._changed.wait()
 
-    async def wait_turn(self, name: str, t: float) -> None:
-        """Until no live teammate of ``name`` is behind sim time ``t``."""
-        await self.wait_for(lambda: all(self.clock[n] >= t - 1e-9 for n in self.live if n != name))
-
-    def leave(self, name: str) -> None:
-        self.live.discard(name)
-        self.notify()
-
 
 class TeamFrames(InProcessFrames):
-    """A team vehicle's frames: the world steps on the team's one clock; at its failure time the mission stops."""
+    """A team vehicle's frames; at its failure time its mission stops."""
 
-    def __init__(self, board: TeamBoard, name: str, fail_at: float | None, *args):
+    def __init__(self, name: str, fail_at: float | None, *args):
         super().__init__(*args)
-        self.board, self.name, self.fail_at = board, name, fail_at
+        self.name, self.fail_at = name, fail_at
         self.est_path: list[np.ndarray] = []  # the estimated pose at each frame's mid-time
 
     async def tick(self, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
-        await self.board.wait_turn(self.name, self.t)
         if self.fail_at is not None and self.t >= self.fail_at - 1e-9:
             raise VehicleFailed(self.name)
         hist = await super().tick()
         p = self.poses.at(self.t - self.frame_s / 2)
         self.est_path.append(np.array([p.x, p.y, p.z]) if p is not None else np.full(3, np.nan))
-        self.board.clock[self.name] = self.t
-        self.board.notify()
         return hist
 
 
@@ -116,8 +99,8 @@ class InProcessTeam(TeamLinkBase):
         st = self.board.statuses.get(name)
         return label_dwells(Frames.from_records(src.records), list(st.dwells) if st is not None else [])
 
-    def _stamp(self, t: float) -> float:
-        return float(t)  # one sim clock: the earlier claim is the earlier sim time (ties: the lower index)
+    def _gone(self, name: str) -> bool:
+        return name in self.board.failed
 
     def lost(self) -> list[str]:
         return sorted(self._told)
@@ -125,17 +108,8 @@ class InProcessTeam(TeamLinkBase):
     def publish_estimate(self, msg: topics.Estimate) -> None:
         self.board.estimate = msg
 
-    async def settle(self, t: float) -> None:
-        """Until every live teammate has reached sim time ``t`` (a claim it makes at ``t`` is then in)."""
-        await self.board.wait_for(lambda: all(self.board.clock[n] >= t - 1e-9 for n in self.board.live
-                                              if n != self.me))
-
-    async def wait_start(self, t: float) -> list[str]:
-        """Hover, frame by frame, until every teammate has said where it is (at most ``START_WAIT_SIM_S``)."""
-        src = self.board.sources[self.me]
-        while len(self.reserved()) < len(self.mates) and src.t - t < START_WAIT_SIM_S:
-            await src.tick()
-        return [n for n in self.mates if self.names.index(n) not in self.reserved()]
+    async def wait_turn(self, t_next: float, frame_s: float) -> None:
+        await self.board.wait_for(lambda: self.turn_ready(t_next, frame_s))
 
     def newly_silent(self) -> list[tuple[str, str]]:
         out = []
@@ -194,7 +168,7 @@ def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | N
             world = World(vehicle_config(s, tuple(homes[v]), speed, yaw_rate_max, odometry),
                           DetectorEmulator(scene, seed=s))
             vehicle = InProcessVehicle(world)
-            src = TeamFrames(board, name, fail.get(v), world, vehicle, scenario.channel_edges_keV)
+            src = TeamFrames(name, fail.get(v), world, vehicle, scenario.channel_edges_keV)
             board.sources[name] = src
             brain = TeamBrain(scenario, config, team, seed=s)
             executives.append(TeamExecutive(scenario, config, brain, InProcessTeam(board, name)))
@@ -206,9 +180,8 @@ def fly_team_offline(scene: Scene, n_vehicles: int = 2, config: SearchConfig | N
                 return await executives[v].fly(*sources[v], land_in_place=True)
             except VehicleFailed:
                 board.failed[name] = sources[v][1].t
+                board.notify()
                 return None
-            finally:
-                board.leave(name)
 
         return board, executives, sources, await asyncio.gather(*(one(v) for v in range(n_vehicles)))
 

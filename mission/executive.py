@@ -66,6 +66,7 @@ class FrameSource(Protocol):
     """Histograms one at a time, each recorded with the estimated pose at its mid-time."""
 
     t: float  # sim time of the frame taken last (the mission's "now")
+    frame_s: float  # s, the frame period
     records: list[FrameRecord]  # every usable frame recorded so far
 
     async def tick(self, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -59,13 +58,12 @@ POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time 
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
 TEAM_SILENT_WALL_S = 10.0  # wall s without a teammate's team/status (nor its vehicle's clock) before it is failed
 #: sim s a teammate's vehicle may fly past its mission's last team/status before the mission is taken as failed:
-#: under lockstep a live mission's vehicle never runs more than a frame past its ack, and the mission repeats its
-#: status every TEAM_HEARTBEAT_SIM_S, so a vehicle that does has had its lockstep released: its mission is gone
+#: under lockstep a live mission's vehicle never runs more than a frame past its ack, and the mission says it is
+#: done with every frame, so a vehicle that does has had its lockstep released: its mission is gone
 MATE_LAG_SIM_S = 5.0
-TEAM_HEARTBEAT_WALL_S = 1.0  # wall s between team/status repeats ...
-TEAM_HEARTBEAT_SIM_S = 1.0  # ... and sim s
-CLAIM_WALL_S = 0.3  # wall s a claimed reservation waits for a crossing claim made at the same time
-TEAM_START_WALL_S = 180.0  # wall s to wait for every teammate to be airborne before the first plan
+TEAM_HEARTBEAT_WALL_S = 1.0  # wall s between repeats of the last team/status (alive while it computes or waits)
+TEAM_START_WALL_S = 180.0  # wall s to wait for a teammate never heard from before it is taken as failed
+TURN_POLL_WALL_S = 0.002  # wall s between looks at the teammates' statuses while waiting for this vehicle's turn
 
 
 @dataclass
@@ -222,13 +220,19 @@ class _MateStream(_PosedHistograms):
         self.name = name
         self.edges = channel_edges_keV
         self.status: topics.TeamStatus | None = None
-        self.heard_wall = time.monotonic()  # (a teammate never heard from is failed after the timeout too)
+        self.heard_wall: float | None = None  # wall time of its last team/status (None: never heard)
+        self.created_wall = time.monotonic()
         self.silent = False
         self.pose_t = -1.0  # the latest sim time of its vehicle's pose
+        self.released_t = -1.0  # the latest frame time recorded (usable or not)
 
     def _pose(self, pose: topics.Pose) -> bool:
         self.pose_t = max(self.pose_t, pose.t)
         return self.poses.add(pose)
+
+    def _received(self, hist: topics.Histogram, now: float):
+        pose_t = self.pose_t  # a histogram whose end time's pose is in already is recorded at once
+        return lambda h, w: h.t <= pose_t + 1e-6 or now - w > POSE_WAIT_WALL_S
 
     def on_status(self, sample: zenoh.Sample) -> None:
         msg = self.drops.decode(topics.TeamStatus, sample)
@@ -242,8 +246,19 @@ class _MateStream(_PosedHistograms):
 
     def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
         record = FrameRecord.from_histogram(hist, pose, -1, self.edges)
+        self.released_t = max(self.released_t, hist.t)
         if record.usable:
             self.records.append(record)
+
+    def gone(self, now: float) -> str | None:
+        """Why this teammate's mission is taken as gone, else None (call with the lock held)."""
+        if self.status is not None and self.pose_t - self.status.t > MATE_LAG_SIM_S:
+            return f"its vehicle flew {self.pose_t - self.status.t:.1f} s past its mission's last status"
+        if self.heard_wall is None and now - self.created_wall > TEAM_START_WALL_S:
+            return f"no team/status in {TEAM_START_WALL_S:g} s wall"
+        if self.heard_wall is not None and now - self.heard_wall > TEAM_SILENT_WALL_S:
+            return f"no team/status for {TEAM_SILENT_WALL_S:g} s wall"
+        return None
 
     def frames(self) -> Frames | None:
         """Its usable frames so far, each labelled with its dwell index (-1 in transit)."""
@@ -266,13 +281,28 @@ class _Team(TeamLinkBase):
                            session.declare_subscriber(topics.key(topics.TEAM_STATUS, n), m.on_status)]
         self._pub = topics.declare_publisher(session, topics.TEAM_STATUS, me)
         self._est_pub = topics.declare_publisher(session, topics.ESTIMATE, topics.TEAM)
-        self._sent_wall = -math.inf
-        self._sent_t = -math.inf
+        # the last status, repeated every TEAM_HEARTBEAT_WALL_S from a thread: alive while it computes or waits
+        self._last: bytes | None = None
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._beat = threading.Thread(target=self._heartbeat, name="team-status", daemon=True)
+        self._beat.start()
 
     # -- the carrier: zenoh
     def _send(self, msg: topics.TeamStatus) -> None:
-        self._pub.put(msg.to_bytes())
-        self._sent_wall, self._sent_t = time.monotonic(), self.t
+        data = msg.to_bytes()
+        with self._send_lock:
+            self._last = data
+            self._pub.put(data)
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(TEAM_HEARTBEAT_WALL_S):
+            with self._send_lock:
+                if self._last is not None:
+                    try:
+                        self._pub.put(self._last)
+                    except Exception:  # noqa: BLE001 - a closed session at shutdown
+                        return
 
     def _statuses(self) -> dict[str, topics.TeamStatus]:
         out = {}
@@ -285,56 +315,56 @@ class _Team(TeamLinkBase):
     def _mate_frames(self, name: str) -> Frames | None:
         return self.mates[name].frames()
 
-    def _stamp(self, t: float) -> float:
-        return time.time()  # wall clock: the processes' sim clocks are not one clock
+    def _gone(self, name: str) -> bool:
+        m = self.mates[name]
+        with m.lock:
+            return m.silent or m.gone(time.monotonic()) is not None
 
     def lost(self) -> list[str]:
         return [n for n, m in self.mates.items() if m.silent]
 
-    def heartbeat(self, t: float) -> None:
-        """Repeat the status every TEAM_HEARTBEAT_WALL_S wall and TEAM_HEARTBEAT_SIM_S sim seconds (once it has
-        said where it is)."""
-        super().heartbeat(t)
-        if self.seq and (time.monotonic() - self._sent_wall > TEAM_HEARTBEAT_WALL_S or
-                         self.t - self._sent_t >= TEAM_HEARTBEAT_SIM_S):
-            self._put()
+    def turn_ready(self, t_next: float, frame_s: float) -> bool:
+        """``TeamLinkBase.turn_ready``, and every teammate's frames up to its turn recorded here (its histograms
+        and poses come on other keys than its status)."""
+        if not super().turn_ready(t_next, frame_s):
+            return False
+        for n, m in self.mates.items():
+            need = t_next if self.names.index(n) < self.index else t_next - frame_s
+            with m.lock:
+                behind = (m.status is not None and m.status.state != "done" and need >= frame_s - 1e-6
+                          and m.released_t < need - 1e-6)  # (its first frame ends at frame_s)
+                waited = m.heard_wall is not None and time.monotonic() - m.heard_wall > FRAME_TIMEOUT_WALL_S
+            if behind and not waited and not self._gone(n):
+                return False
+        return True
+
+    async def wait_turn(self, t_next: float, frame_s: float) -> None:
+        """Look at the teammates' statuses until it is this vehicle's turn (a silent teammate is not waited for
+        longer than ``TEAM_SILENT_WALL_S``: the flight then differs from run to run, as it must)."""
+        while not self.turn_ready(t_next, frame_s):
+            await asyncio.sleep(TURN_POLL_WALL_S)
 
     def publish_estimate(self, msg: topics.Estimate) -> None:
         self._est_pub.put(msg.to_bytes())
 
-    async def settle(self, t: float) -> None:
-        """Wait ``CLAIM_WALL_S`` of wall time (lockstep holds sim time) for a teammate's claim made at the same
-        time: the claims' stamps are wall clock, so of two crossing claims the later one yields."""
-        await asyncio.sleep(CLAIM_WALL_S)
-
-    async def wait_start(self, t: float) -> list[str]:
-        """Wait (wall time, while lockstep holds sim time, so it costs no flight time) until every teammate has
-        said where it is, for at most ``TEAM_START_WALL_S``; returns the teammates given up on."""
-        waited = time.monotonic()
-        while len(self.reserved()) < len(self.mates) and time.monotonic() - waited < TEAM_START_WALL_S:
-            self.heartbeat(t)
-            await asyncio.sleep(0.05)
-        return [n for n in self.mates if self.names.index(n) not in self.reserved()]
-
     def newly_silent(self) -> list[tuple[str, str]]:
         """Teammates whose mission is gone (once each, with why): its vehicle flew ``MATE_LAG_SIM_S`` of its sim
-        time past the mission's last status (lockstep released), or nothing came for ``TEAM_SILENT_WALL_S``."""
+        time past the mission's last status (lockstep released), or nothing came for ``TEAM_SILENT_WALL_S``
+        (``TEAM_START_WALL_S`` for one never heard from)."""
         now, out = time.monotonic(), []
         for n, m in self.mates.items():
             with m.lock:
                 if m.silent or (m.status is not None and m.status.state == "done"):
                     continue
-                why = None
-                if m.status is not None and m.pose_t - m.status.t > MATE_LAG_SIM_S:
-                    why = f"its vehicle flew {m.pose_t - m.status.t:.1f} s past its mission's last status"
-                elif now - m.heard_wall > TEAM_SILENT_WALL_S:
-                    why = f"no team/status for {TEAM_SILENT_WALL_S:g} s wall"
+                why = m.gone(now)
                 if why is not None:
                     m.silent = True
                     out.append((n, why))
         return out
 
     def close(self) -> None:
+        self._stop.set()
+        self._beat.join(timeout=2.0)
         for s in self._subs:
             s.undeclare()
         self._subs = []

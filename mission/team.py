@@ -36,7 +36,7 @@ from mission.search import Decision, Phase, SearchBrain, SearchConfig, belief_of
 from planner.allocation import Reservation, as_reservation, clearance, path_clear, required_clearance, sample_polyline
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
 from planner.dwell_controller import DwellController, DwellStatus
-from planner.dwell_tree import grow_tree, shortcut_path
+from planner.dwell_tree import grow_tree, seed_ompl, shortcut_path
 from planner.exploration import exploration_done, plan_exploration
 from planner.next_best import finish_path, score_nodes
 from planner.plan import DwellPlan
@@ -148,6 +148,13 @@ class TeamBrain(SearchBrain):
         self._pose_var = np.zeros((self.team.n_vehicles, 2))  # per vehicle: x-y variance now (m^2), growth (m^2/m)
         self._sigma = math.inf
         self.final: TeamDecision | None = None
+        # OMPL's random trees restart from this brain's own seed stream at every decision: its vehicle's trees do
+        # not depend on what other brains planned in the same process (a team flown in one process plans as
+        # the team's mission processes do, each alone)
+        self._tree_seeds = np.random.default_rng([seed, 0x0D7])
+
+    def _reseed_trees(self) -> None:
+        seed_ompl(int(self._tree_seeds.integers(1, 2**31 - 1)))
 
     # ---------------------------------------------------------------------------- dwell control
 
@@ -161,6 +168,7 @@ class TeamBrain(SearchBrain):
 
     def start(self, current: np.ndarray, vehicle: int = 0,  # type: ignore[override]
               reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
+        self._reseed_trees()
         current = np.asarray(current, dtype=float)
         current = np.r_[current[:2], self.config.altitude_m, current[3]]
         return self._team_explore(vehicle, current, reserved, "start: explore until three readings stand above "
@@ -171,6 +179,7 @@ class TeamBrain(SearchBrain):
                   reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
         """Vehicle ``vehicle`` ended a dwell at ``position``; ``frames`` is the team's (:func:`team_frames`),
         ``reserved`` every other live vehicle's reservation (``planner.allocation.reservation``)."""
+        self._reseed_trees()
         if self.final is not None:
             return self._again(vehicle)
         self.add_dwell(vehicle, position, status.mean_rate, flown)
@@ -232,6 +241,7 @@ class TeamBrain(SearchBrain):
     def replan(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None = None
                ) -> TeamDecision:
         """Ask again after a hold (or after a teammate's reservation changed)."""
+        self._reseed_trees()
         if self.final is not None:
             return self._again(vehicle)
         if self.phase is Phase.SEARCH and self._belief is not None:

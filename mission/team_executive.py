@@ -25,12 +25,15 @@ from radseek.dataset import Frames, Scenario
 from radseek.outcome import Outcome
 
 CLAIM_ATTEMPTS = 5  # claims yielded in a row before the vehicle holds instead
+#: sim s a vehicle hovers for its teammates to say where they are before it plans without them
+START_WAIT_SIM_S = 60.0
 
 
 class TeamLink(Protocol):
     """This vehicle's side of the team's traffic."""
 
     index: int  # this vehicle's team index
+    state: str  # this vehicle's state as it last said it (``topics.TEAM_STATES``)
     names: tuple[str, ...]  # the team's vehicle names, by index
     mates: dict  # teammate name -> its stream (anything)
 
@@ -39,11 +42,11 @@ class TeamLink(Protocol):
     def claim(self, t: float, path: np.ndarray, var_xy: float) -> float:
         """Announce ``path`` as this vehicle's reservation; returns the claim's stamp."""
 
-    async def settle(self, t: float) -> None:
-        """Wait until teammates' claims made at sim time ``t`` are in."""
+    def done_with(self, t: float) -> None:
+        """This vehicle has fully handled its frame ending at ``t``."""
 
-    async def wait_start(self, t: float) -> list[str]:
-        """Wait until every teammate has said where it is (or is given up on); returns those given up on."""
+    async def wait_turn(self, t_next: float, frame_s: float) -> None:
+        """Until this vehicle's turn to take its frame ending at ``t_next`` (``mission.team_link``)."""
 
     def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float, var_xy: float) -> str | None: ...
 
@@ -81,9 +84,16 @@ class TeamExecutive(MissionExecutive):
         return self.team.over()
 
     def on_tick(self) -> None:
-        self.team.heartbeat(self.t)
+        self.team.done_with(self.t)
         for name, why in self.team.newly_silent():
             self.event("teammate_lost", vehicle=name, why=why)
+
+    async def tick(self, **kw) -> topics.Histogram | None:
+        """The next frame, taken in the team's turn (``mission.team_link``)."""
+        self.on_tick()
+        if self.team.state != "done":  # its search over, it lands on its own
+            await self.team.wait_turn(self.t + self.frames.frame_s, self.frames.frame_s)
+        return await self.frames.tick(**kw)
 
     def publish_estimate(self) -> None:
         loc = self.brain.localizer
@@ -99,10 +109,9 @@ class TeamExecutive(MissionExecutive):
             self.brain.add_dwell(index, np.array([dwell["x"], dwell["y"], dwell["z"]]), dwell["mean_rate"], flown)
 
     async def _claim(self, decide, first: TeamDecision | None = None) -> TeamDecision:
-        """Decide (``decide()`` -> TeamDecision) and claim the plan's reservation: publish it, let the teammates'
-        claims made at the same time come in (``TeamLink.settle``), and plan again if an earlier claim crosses
-        this one (``mission.team``'s allocation rule, made safe between vehicles: of two crossing claims the
-        later one yields)."""
+        """Decide (``decide()`` -> TeamDecision) and claim the plan's reservation: publish it, and plan again if
+        an earlier claim crosses this one (``mission.team``'s allocation rule, made safe between vehicles: of two
+        crossing claims the later one yields; taking frames in turn, every earlier claim is already heard)."""
         assert self.team is not None
         team = self.team
         for attempt in range(CLAIM_ATTEMPTS):
@@ -115,7 +124,6 @@ class TeamExecutive(MissionExecutive):
             path = decision.plan.path[:, :3]
             var_end = self.brain.var_at_end(team.index, path)
             stamp = team.claim(self.t, path, var_end)
-            await team.settle(self.t)
             crossing = team.earlier_crossing(path, stamp, self.brain.team.separation_m, var_end)
             if crossing is None:
                 self.decisions.append(decision)
@@ -144,15 +152,19 @@ class TeamExecutive(MissionExecutive):
         current = self.current()
         team.set(self.t, "start", np.r_[current[:2], self.config.altitude_m][None, :],
                  self._own_pose_variance()[0])
-        # no plan before every teammate has said where it is (airborne at its launch point), or is given up on
-        missing = await team.wait_start(self.t)
+        # no plan before every teammate has said where it is (airborne at its launch point): hover meanwhile
+        t0 = self.t
+        while len(team.reserved()) < len(team.mates) and self.t - t0 < START_WAIT_SIM_S:
+            await self.tick()
+        missing = [n for n in team.mates if team.names.index(n) not in team.reserved()]
         if missing:
             self.event("teammates_missing_at_start", vehicles=missing)
         decision = await self._claim(lambda: brain.start(self.current(), me, team.reserved()))
         own_dwells = 0
         while self.abort_reason is None:
             over = team.over()
-            if over is not None:
+            if over is not None:  # done too: its teammates no longer take turns with it
+                team.finish(self.t, over.reason, decided=False, outcome=over.outcome)
                 return over
             if decision.done:
                 team.finish(self.t, decision.reason, decided=True, outcome=decision.outcome)

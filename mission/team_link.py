@@ -4,8 +4,17 @@ This vehicle's status (``topics.TeamStatus``: where it is, the path it reserved,
 flew, whether it is done and why) and the rules on the teammates' statuses (their reservations, the earlier
 crossing claim, the team's end, their new dwells, the team's frames) are written once here. A carrier says
 how a status goes out (``_send``), what the teammates said last (``_statuses``), a teammate's frames
-(``_mate_frames``), how a claim is stamped (``_stamp``) and the waits: zenoh between mission processes
-(``mission.mission_process._Team``) or shared memory in one process (``launch.offline_team``).
+(``_mate_frames``), which teammates are gone (``_gone``) and how to wait for one's turn (``wait_turn``): zenoh
+between mission processes (``mission.mission_process._Team``) or shared memory in one process
+(``launch.offline_team``).
+
+**Turns.** The vehicles take their frames in turn: vehicle ``i`` takes its next frame (ending at ``t``) only
+once every teammate before it in the team (``j < i``) has fully handled its frame ending at ``t``, and every
+teammate after it has handled the frame before (``handled_t``, said in each status). So while ``i`` handles
+its frame ``t`` it has heard exactly what each teammate said up to its own turn on ``t`` (``j < i``) or on
+``t`` minus a frame (``j > i``), over zenoh as in one process, and the same seed flies the same team flight.
+A claim is then checked against every earlier claim at once: claims are stamped with their sim time, and
+of two at one time the later in the turn yields (``earlier_crossing``).
 """
 
 from __future__ import annotations
@@ -51,6 +60,7 @@ class TeamLinkBase:
         self.outcome: Outcome | None = None
         self.decided = False
         self.t = 0.0
+        self.handled_t = -1.0  # the last frame this vehicle's mission has fully handled
         self._taken = {n: 0 for n in self.mates}  # teammates' dwells already handed to the brain
         self._flown_taken = {n: 0 for n in self.mates}
 
@@ -65,20 +75,47 @@ class TeamLinkBase:
     def _mate_frames(self, name: str) -> Frames | None:
         raise NotImplementedError
 
-    def _stamp(self, t: float) -> float:
-        """The stamp of a claim made at sim time ``t`` (earlier stamps win)."""
+    def _gone(self, name: str) -> bool:
+        """A teammate no longer waited for (failed, killed, silent)."""
+        raise NotImplementedError
+
+    async def wait_turn(self, t_next: float, frame_s: float) -> None:
+        """Until ``turn_ready(t_next, frame_s)``."""
         raise NotImplementedError
 
     def lost(self) -> list[str]:
         """Teammates taken as failed so far."""
         return []
 
+    # -- turns
+    def done_with(self, t: float) -> None:
+        """This vehicle's mission has fully handled its frame ending at ``t``: say so (its teammates' turn)."""
+        self.t = max(self.t, float(t))
+        self.handled_t = float(t)
+        self._put()
+
+    def turn_ready(self, t_next: float, frame_s: float) -> bool:
+        """May this vehicle take its frame ending at ``t_next``: has every teammate before it handled its frame
+        ending at ``t_next``, and every one after it the frame before (a teammate done or gone is not waited for)?"""
+        statuses = self._statuses()
+        for n in self.mates:
+            if self._gone(n):
+                continue
+            st = statuses.get(n)
+            if st is not None and st.state == "done":
+                continue
+            need = t_next if self.names.index(n) < self.index else t_next - frame_s
+            if st is None or st.handled_t < need - 1e-6:
+                return False
+        return True
+
     # -- saying
     def status(self) -> topics.TeamStatus:
         return topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
                                  reservation=self.reservation.tolist(), dwells=self.dwells,
                                  flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
-                                 stamp=self.stamp, var_xy=self.var_xy, outcome=self.outcome or "")
+                                 stamp=self.stamp, var_xy=self.var_xy, outcome=self.outcome or "",
+                                 handled_t=self.handled_t)
 
     def _put(self) -> None:
         msg = self.status()
@@ -93,8 +130,8 @@ class TeamLinkBase:
         self._put()
 
     def claim(self, t: float, path: np.ndarray, var_xy: float) -> float:
-        """Announce the plan's path as this vehicle's reservation; returns the claim's stamp."""
-        self.stamp = self._stamp(t)
+        """Announce the plan's path as this vehicle's reservation; returns the claim's stamp (its sim time)."""
+        self.stamp = float(t)
         self.set(t, "fly", path, var_xy)
         return self.stamp
 

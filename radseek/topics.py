@@ -431,9 +431,11 @@ class TeamStatus(_Payload):
     ``radseek.outcome.Outcome`` value), ``decided``
     whether this vehicle's estimate ended it (the whole team then ends its search). ``var_xy`` is the drift
     the vehicle expects by its reservation's end (its reported pose variance plus its growth over the path):
-    teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (wall
-    seconds since the epoch) orders two claims made at once: of two crossing reservations the later
-    claim yields and plans again."""
+    teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (the sim
+    time of the claim) orders two claims: of two crossing reservations the later claim yields and plans
+    again (of two at one time, the higher team index). ``handled_t`` is the last frame the sender's mission
+    has fully handled (its decisions on it sent): the team's vehicles take their frames in turn on it
+    (``mission.team_link``), so every vehicle decides on what the others said up to a known frame."""
 
     TOPIC: ClassVar[str] = TEAM_STATUS
     t: float  # s, the sender's sim time
@@ -445,9 +447,10 @@ class TeamStatus(_Payload):
     flown: list[list[float]] = field(default_factory=list)
     reason: str = ""
     decided: bool = False
-    stamp: float = 0.0  # wall s since the epoch when this reservation was claimed
+    stamp: float = 0.0  # s, sim time when this reservation was claimed
     var_xy: float = 0.0  # m^2, >= 0: the x-y pose variance (per axis) the vehicle expects at its reservation's end
     outcome: str = ""  # with state done: the ``radseek.outcome.Outcome`` value of ``reason`` ("" before then)
+    handled_t: float = -1.0  # s, the last frame the sender's mission has fully handled (-1: none yet)
 
     def validate(self) -> None:
         super().validate()
@@ -455,6 +458,7 @@ class TeamStatus(_Payload):
             raise PayloadError(f"{self.TOPIC}: field 'state' must be one of {TEAM_STATES}, got {_short(self.state)}")
         _check_int(self.TOPIC, "seq", self.seq, 0)
         _check_range(self.TOPIC, "var_xy", self.var_xy, 0.0, 1e6)
+        _check_range(self.TOPIC, "handled_t", self.handled_t, -1.0, self.t + 1e-6)
         if not isinstance(self.decided, bool):
             raise PayloadError(f"{self.TOPIC}: field 'decided' must be true or false, got {_short(self.decided)}")
         if not isinstance(self.outcome, str) or self.outcome not in {"", *(o.value for o in Outcome)}:
