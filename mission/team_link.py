@@ -50,7 +50,7 @@ class TeamLinkBase:
         self.me, self.names, self.index = me, tuple(names), tuple(names).index(me)
         self.mates: dict = {n: None for n in names if n != me}
         self.seq = 0
-        self.state = "start"
+        self.state = "takeoff"  # until the executive says where it starts (``set(t, "start", ...)``)
         self.reservation = np.zeros((1, 3))
         self.var_xy = 0.0
         self.stamp = 0.0
@@ -153,9 +153,10 @@ class TeamLinkBase:
 
     # -- what the teammates say
     def reserved(self) -> dict[int, Reservation]:
-        """Every teammate's last reservation by team index (a failed teammate's stays: where it was last)."""
+        """Every teammate's last reservation by team index (a failed teammate's stays: where it was last); a
+        teammate still taking off has said none yet."""
         return {self.names.index(n): Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
-                for n, st in self._statuses().items()}
+                for n, st in self._statuses().items() if st.state != "takeoff"}
 
     def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float, var_xy: float) -> str | None:
         """A teammate whose reservation crosses ``path`` and was claimed before ``stamp`` (this claim yields)."""

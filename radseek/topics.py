@@ -413,7 +413,8 @@ class Plan(_Payload):
 
 
 #: what a team member is doing (``TeamStatus.state``)
-TEAM_STATES = ("start", "fly", "dwell", "hold", "done")
+#: ``takeoff``: the mission runs but has not said where it starts (its reservation means nothing yet)
+TEAM_STATES = ("takeoff", "start", "fly", "dwell", "hold", "done")
 
 
 @dataclass(frozen=True)

@@ -67,3 +67,13 @@ def test_the_same_seed_flies_the_same_team_flight():
     assert len(fa) == len(fb) > 100
     assert (fa.t == fb.t).all() and (fa.positions == fb.positions).all() and (fa.counts == fb.counts).all()
     assert a.error_m == b.error_m
+
+
+def test_three_vehicles_keep_their_separation_from_the_start():
+    """A teammate still taking off has said no reservation: it is not reserved at a made-up point, and no plan
+    is made before every teammate has said where it starts (seed 16 flew two vehicles 7 mm apart when a
+    taking-off teammate's first status counted as its start)."""
+    r = fly_team_offline(SCENE, 3, seed=16)
+    assert all(s is not None and s["outcome"] == "found" for s in r.summaries), r.log
+    assert r.min_separation_est_m >= TeamConfig().separation_m - 1e-9
+    assert r.min_separation_m >= TeamConfig().separation_m - 5 * 0.03 * math.sqrt(40)
