@@ -163,18 +163,9 @@ class SearchBrain:
                 return self._explore(current, f"explore: {self._above()} of 3 readings above background")
         belief, sigma = self._estimate(frames)
         misfit = self._misfit()
-        if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
-                sigma < self.config.stop_sigma_m and self._stable() and not misfit:
-            return self._done(f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND)
-        floor = self._drift_limited()
-        if belief is not None and self.search_dwells >= self.config.min_search_dwells and floor and \
-                self._stable() and not misfit:
-            return self._done(f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the "
-                              f"odometry-drift floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is "
-                              "below what this flight's drift allows)", Outcome.DRIFT_LIMITED)
-        if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
-            return self._done(f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})",
-                              Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT)
+        stop = self.stop_rule(belief, sigma)
+        if stop is not None:
+            return self._done(*stop)
         if belief is None:
             return self._explore(current, "no estimate yet: keep exploring")
         plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.next_best,
@@ -184,6 +175,25 @@ class SearchBrain:
             # the whole tree): gather counts where none were taken yet rather than give up with budget left
             return self._explore(current, f"no valid next-best dwell point (1-sigma {sigma:.3f} m): explore")
         return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
+
+    def stop_rule(self, belief: SourceBelief | None, sigma: float) -> tuple[str, Outcome] | None:
+        """Whether the search stops after the estimate ``belief`` (1-sigma ``sigma`` m) of the dwells so far, and
+        why (the reason for people, the outcome for programs), else None (paper 003 sec. IV-B-4: found when the
+        1-sigma is below ``stop_sigma_m``; here also when it has stopped falling at the drift floor, and never
+        on a misfitting or unstable estimate; the budget spent otherwise). One rule for one vehicle and a team."""
+        misfit = self._misfit()
+        searched = belief is not None and self.search_dwells >= self.config.min_search_dwells
+        if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
+            return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
+        floor = self._drift_limited()
+        if searched and floor and self._stable() and not misfit:
+            return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the odometry-drift "
+                    f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
+                    "drift allows)", Outcome.DRIFT_LIMITED)
+        if self.search_dwells >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells:
+            return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})", \
+                Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
+        return None
 
     # ---------------------------------------------------------------------------- helpers
 

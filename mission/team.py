@@ -109,17 +109,14 @@ def split_walks(frames: Frames) -> list[Frames]:
 
 
 @dataclass(frozen=True)
-class TeamDecision:
-    """What one vehicle does next: fly ``plan`` then dwell; or hover ``hold_s`` and ask again
-    (:meth:`TeamBrain.replan`); or, neither, the team's search is over."""
+class TeamDecision(Decision):
+    """What one vehicle does next (a ``Decision`` with its ``vehicle``): fly ``plan`` then dwell; or hover
+    ``hold_s`` and ask again (:meth:`TeamBrain.replan`); or, neither, the team's search is over (``outcome``
+    the team's search's end; ``retired``: this vehicle's)."""
 
-    vehicle: int
-    phase: Phase
-    plan: DwellPlan | None
-    reason: str
+    vehicle: int = 0
     hold_s: float = 0.0
     retire: bool = False  # this vehicle leaves the search (no free path for long); the team's goes on
-    outcome: Outcome | None = None  # the team's search's end (``retired``: this vehicle's), else None
 
     @property
     def done(self) -> bool:
@@ -158,15 +155,15 @@ class TeamBrain(SearchBrain):
 
     # ---------------------------------------------------------------------------- dwell control
 
-    def begin_dwell(self, vehicle: int = 0) -> None:  # type: ignore[override]
+    def begin_dwell(self, vehicle: int = 0) -> None:
         self.dwells[vehicle].reset()
 
-    def on_frame(self, hist: topics.Histogram, vehicle: int = 0) -> DwellStatus:  # type: ignore[override]
+    def on_frame(self, hist: topics.Histogram, vehicle: int = 0) -> DwellStatus:
         return self.dwells[vehicle].update(hist.t, hist.total, hist.duration, hist.flags)
 
     # ---------------------------------------------------------------------------- decisions
 
-    def start(self, current: np.ndarray, vehicle: int = 0,  # type: ignore[override]
+    def start(self, current: np.ndarray, vehicle: int = 0,
               reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
         self._reseed_trees()
         current = np.asarray(current, dtype=float)
@@ -174,7 +171,7 @@ class TeamBrain(SearchBrain):
         return self._team_explore(vehicle, current, reserved, "start: explore until three readings stand above "
                                                               "background")
 
-    def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames,  # type: ignore[override]
+    def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames,
                   current: np.ndarray, flown: np.ndarray | None = None, vehicle: int = 0,
                   reserved: Mapping[int, np.ndarray | Reservation] | None = None) -> TeamDecision:
         """Vehicle ``vehicle`` ended a dwell at ``position``; ``frames`` is the team's (:func:`team_frames`),
@@ -193,18 +190,9 @@ class TeamBrain(SearchBrain):
         belief, sigma = self._estimate(frames)
         self._belief, self._sigma = belief, sigma
         misfit = self._misfit()
-        if belief is not None and self.search_dwells >= self.config.min_search_dwells and \
-                sigma < self.config.stop_sigma_m and self._stable() and not misfit:
-            return self._team_done(vehicle, f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m",
-                                   Outcome.FOUND)
-        floor = self._drift_limited()
-        if belief is not None and self.search_dwells >= self.config.min_search_dwells and floor and \
-                self._stable() and not misfit:
-            return self._team_done(vehicle, f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling "
-                                            f"at the odometry-drift floor {floor:.3f} m)", Outcome.DRIFT_LIMITED)
-        if self.search_dwells >= self.config.max_search_dwells or n_dwells >= self.config.max_dwells:
-            return self._team_done(vehicle, f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})",
-                                   Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT)
+        stop = self.stop_rule(belief, sigma)  # the one stop rule (mission.search)
+        if stop is not None:
+            return self._team_done(vehicle, *stop)
         if belief is None:
             return self._team_explore(vehicle, current, reserved, "no estimate yet: keep exploring")
         return self._team_next(vehicle, current, reserved, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
@@ -262,10 +250,10 @@ class TeamBrain(SearchBrain):
         self.holds += 1
         self._in_row[vehicle] += 1
         if self._in_row[vehicle] > MAX_HOLDS_IN_ROW:
-            return TeamDecision(vehicle, self.phase, None, f"search aborted: no free path for {MAX_HOLDS_IN_ROW} "
-                                                           f"holds in a row ({reason})", retire=True,
-                                outcome=Outcome.RETIRED)
-        return TeamDecision(vehicle, self.phase, None, f"hold {self.team.hold_s:g} s: {reason}", self.team.hold_s)
+            return TeamDecision(self.phase, None, f"search aborted: no free path for {MAX_HOLDS_IN_ROW} holds in a "
+                                                  f"row ({reason})", Outcome.RETIRED, vehicle=vehicle, retire=True)
+        return TeamDecision(self.phase, None, f"hold {self.team.hold_s:g} s: {reason}", vehicle=vehicle,
+                            hold_s=self.team.hold_s)
 
     def _team_explore(self, vehicle: int, current: np.ndarray, reserved: Mapping[int, np.ndarray | Reservation] | None,
                       reason: str) -> TeamDecision:
@@ -280,7 +268,7 @@ class TeamBrain(SearchBrain):
                 break
             if self._clear(vehicle, plan.path[:, :3], others):
                 self._in_row[vehicle] = 0
-                return TeamDecision(vehicle, Phase.EXPLORE, plan, reason)
+                return TeamDecision(Phase.EXPLORE, plan, reason, vehicle=vehicle)
             # that frontier's way is taken by a teammate: prune it too and take the next one
             pruned = np.vstack([pruned, plan.dwell_points[:, :3]])
         if not others and not plan.ok:
@@ -321,17 +309,17 @@ class TeamBrain(SearchBrain):
                 plan = DwellPlan(path[-1:], path, f"team_next_best_{cfg.gain_kind}",
                                  gains=scores.gain[node:node + 1], info={"nodes": len(tree), "node": int(node)})
                 self._in_row[vehicle] = 0
-                return TeamDecision(vehicle, Phase.SEARCH, plan, reason)
+                return TeamDecision(Phase.SEARCH, plan, reason, vehicle=vehicle)
         return self._hold(vehicle, "every good dwell point's path crosses a teammate's reservation")
 
     def _team_done(self, vehicle: int, reason: str, outcome: Outcome) -> TeamDecision:
         self._done(reason, outcome)
-        self.final = TeamDecision(vehicle, Phase.DONE, None, reason, outcome=outcome)
+        self.final = TeamDecision(Phase.DONE, None, reason, outcome, vehicle=vehicle)
         return self.final
 
     def _again(self, vehicle: int) -> TeamDecision:
         assert self.final is not None
-        return TeamDecision(vehicle, Phase.DONE, None, self.final.reason, outcome=self.final.outcome)
+        return TeamDecision(Phase.DONE, None, self.final.reason, self.final.outcome, vehicle=vehicle)
 
     def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
         """The joint estimate from all vehicles' frames; the belief's drift density is the vehicles'

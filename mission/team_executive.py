@@ -130,8 +130,8 @@ class TeamExecutive(MissionExecutive):
                 return decision
             self.event("yield", to=crossing, attempt=attempt)
             team.set(self.t, "hold", self.current()[None, :3])
-        return TeamDecision(self.team.index, self.brain.phase, None, "hold: claims kept crossing",
-                            self.brain.team.hold_s)
+        return TeamDecision(self.brain.phase, None, "hold: claims kept crossing", vehicle=self.team.index,
+                            hold_s=self.brain.team.hold_s)
 
     def _own_pose_variance(self) -> tuple[float, float]:
         """This vehicle's reported x-y pose variance now and its growth per metre flown (from its frames),
