@@ -121,16 +121,24 @@ class Frames:
     #: walk. Not given: a frame earlier than its predecessor starts the next walk (frames of several flights
     #: concatenated flight by flight, each in time order), the one place this is inferred
     walk: np.ndarray | None = None
+    #: int, the board's frame counter (-1: not known, e.g. read from a file without the column)
+    seq: np.ndarray | None = None
+    #: int, the board's status flags (``topics.FLAG_*``; 0: none known)
+    flags: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.t)
+        if self.seq is None:
+            object.__setattr__(self, "seq", np.full(n, -1, dtype=int))
+        if self.flags is None:
+            object.__setattr__(self, "flags", np.zeros(n, dtype=int))
         if self.vehicle is None:
             object.__setattr__(self, "vehicle", np.zeros(n, dtype=int))
         if self.walk is None:
             t = np.asarray(self.t, dtype=float)
             object.__setattr__(self, "walk", np.cumsum(np.r_[False, t[1:] < t[:-1]]).astype(int) if n
                                else np.zeros(0, dtype=int))
-        for name in ("vehicle", "walk"):
+        for name in ("vehicle", "walk", "seq", "flags"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"Frames.{name} has {len(getattr(self, name))} entries for {n} frames")
 
@@ -167,15 +175,18 @@ class Frames:
         """The columns of a list of frame records (empty list: zero frames)."""
         cols = {name: np.array([getattr(r, name) for r in records], dtype=float) for name in POSE_COLUMNS}
         cols["dwell"] = np.array([r.dwell for r in records], dtype=int)
+        for name in ("vehicle", "seq", "flags"):
+            cols[name] = np.array([getattr(r, name) for r in records], dtype=int)
         counts = np.array([r.counts for r in records], dtype=COUNT_DTYPE).reshape(-1, N_CHANNELS)
         return Frames(**cols, counts=counts)
 
     def record(self, i: int, channel_edges_keV: np.ndarray | None = None) -> FrameRecord:
-        """Frame ``i`` as a record (no board sequence number or flags: frames.csv keeps them apart)."""
+        """Frame ``i`` as a record (a sequence number not known is 0)."""
         pose = {name: float(getattr(self, name)[i]) for name in POSE_COLUMNS if name not in ("duration", "dwell")}
         spectrum = Spectrum(as_counts(self.counts[i]), realtime=float(self.duration[i]),
                             bin_edges_kev=channel_edges_keV)
-        return FrameRecord(spectrum=spectrum, dwell=int(self.dwell[i]), **pose)
+        return FrameRecord(spectrum=spectrum, dwell=int(self.dwell[i]), seq=max(int(self.seq[i]), 0),
+                           flags=int(self.flags[i]), vehicle=int(self.vehicle[i]), **pose)
 
 
 @dataclass(frozen=True)

@@ -87,7 +87,8 @@ def as_counts(counts: Any) -> np.ndarray:
 class FrameRecord:
     """One row of frames.csv: the histogram's spectrum at the estimated pose, in a dwell (or -1 moving).
 
-    ``seq`` and ``flags`` are the board's; frames.csv carries them as added columns.
+    ``seq`` and ``flags`` are the board's; frames.csv carries them as added columns. ``vehicle`` is the team
+    index of the vehicle that recorded it (0 alone; each team vehicle writes its own folder).
     """
 
     t: float  # s, sim time at the frame's end
@@ -102,6 +103,7 @@ class FrameRecord:
     dwell: int  # dwell index, -1 while moving
     seq: int = 0
     flags: int = 0
+    vehicle: int = 0
 
     def __post_init__(self) -> None:
         c = self.spectrum.counts  # a frame holds the board's N_CHANNELS whole counts, as COUNT_DTYPE

@@ -298,6 +298,16 @@ def check_walls_disjoint(scenario: Scenario, file: Path) -> None:
 # ---- frames.csv
 
 _FLOAT_COLUMNS = [c for c in POSE_COLUMNS if c != "dwell"]
+#: the board's columns the recorder adds to frames.csv: read when present (``Frames.seq``, ``Frames.flags``),
+#: with their defaults (-1: not known; 0) when not, and their largest value (u32 sequence, u8 flags)
+BOARD_COLUMNS = {"seq": (-1, 2**32 - 1), "flags": (0, 255)}
+
+
+def _board_error(values: np.ndarray, column: str) -> int | None:
+    """Index of the first cell of board column ``column`` that is not a whole number in its range, else None."""
+    hi = BOARD_COLUMNS[column][1]
+    bad = ~np.isfinite(values) | (values < 0) | (values > hi) | (values != np.floor(values))
+    return int(np.argmax(bad)) if bad.any() else None
 
 
 class _Sink:
@@ -305,6 +315,7 @@ class _Sink:
 
     def __init__(self, capacity: int):
         self.cols = {c: np.empty(capacity) for c in _FLOAT_COLUMNS}
+        self.board = {c: np.full(capacity, default, dtype=np.int64) for c, (default, _) in BOARD_COLUMNS.items()}
         self.dwell = np.empty(capacity, dtype=np.int64)
         self.counts = np.empty((capacity, N_CHANNELS), dtype=COUNT_DTYPE)
         self.n = 0
@@ -317,13 +328,16 @@ class _Sink:
             return
         cap = max(need, 2 * len(self.dwell))
         self.cols = {c: np.resize(v, cap) for c, v in self.cols.items()}
+        self.board = {c: np.r_[v, np.full(cap - len(v), BOARD_COLUMNS[c][0], dtype=np.int64)]
+                      for c, v in self.board.items()}
         self.dwell = np.resize(self.dwell, cap)
         self.counts = np.resize(self.counts, (cap, N_CHANNELS))
 
     def frames(self) -> Frames:
         n = self.n
         cols = {c: v[:n] for c, v in self.cols.items()}
-        return Frames(**cols, dwell=self.dwell[:n].astype(int, copy=False), counts=self.counts[:n])
+        return Frames(**cols, dwell=self.dwell[:n].astype(int, copy=False), counts=self.counts[:n],
+                      **{c: v[:n].astype(int, copy=False) for c, v in self.board.items()})
 
 
 def _block_error(block: dict[str, np.ndarray], counts: np.ndarray, prev_t: float) -> tuple[int, str, str] | None:
@@ -365,6 +379,9 @@ def _store(sink: _Sink, block: dict[str, np.ndarray], counts: np.ndarray) -> Non
     s = slice(sink.n, sink.n + n)
     for c in _FLOAT_COLUMNS:
         sink.cols[c][s] = block[c]
+    for c in BOARD_COLUMNS:
+        if c in block:
+            sink.board[c][s] = block[c]
     sink.dwell[s] = block["dwell"]
     sink.counts[s] = counts
     sink.n += n
@@ -431,7 +448,8 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    names = [h if h in COLUMNS else f"__extra{i}" for i, h in enumerate(header)]
+    board = [c for c in BOARD_COLUMNS if c in header]
+    names = [h if h in COLUMNS or h in board else f"__extra{i}" for i, h in enumerate(header)]
     invalid: list[tuple[int, int, str]] = []
 
     def on_invalid(row: Any) -> str:
@@ -447,7 +465,8 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
     read_opts = pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=_BLOCK_BYTES, use_threads=False)
     parse_opts = pacsv.ParseOptions(invalid_row_handler=on_invalid)
     convert_opts = pacsv.ConvertOptions(
-        include_columns=list(COLUMNS), column_types={c: pa.float64() for c in COLUMNS}, null_values=[],
+        include_columns=[*COLUMNS, *board], column_types={c: pa.float64() for c in (*COLUMNS, *board)},
+        null_values=[],
         strings_can_be_null=False, quoted_strings_can_be_null=False)
     # pyarrow decodes an invalid row's text before calling on_invalid; on non-UTF-8 bytes that fails inside
     # pyarrow ("Exception ignored in on_invalid" on stderr) and the read stops, which sends the file to the exact
@@ -467,9 +486,11 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
         for batch in reader:
             if len(invalid) > 1 or (invalid and invalid[0][0] >= invalid[0][1]):
                 raise _FastPathFailed("invalid row")
-            block = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in POSE_COLUMNS}
+            block = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in (*POSE_COLUMNS, *board)}
             counts = np.column_stack([batch.column(c).to_numpy(zero_copy_only=False) for c in CHANNEL_COLUMNS])
             if counts.shape[0] and _block_error(block, counts, sink.last_t) is not None:
+                raise _FastPathFailed("invalid value")
+            if any(_board_error(block[c], c) is not None for c in board):
                 raise _FastPathFailed("invalid value")
             _store(sink, block, counts)
             if progress is not None:
@@ -490,19 +511,26 @@ def _read_exact(file: Path, header: list[str], sink: _Sink, progress: Callable[[
                 total: int, policy: str, block_rows: int = 65536) -> None:
     """Row-by-row reader (Python csv): accepts what the format allows and names the row and column of the
     first thing it does not. Slower than ``_read_fast``; used when that one stops."""
-    idx = [header.index(c) for c in COLUMNS]
-    buf = np.empty((block_rows, len(COLUMNS)))
+    board = [c for c in BOARD_COLUMNS if c in header]
+    idx = [header.index(c) for c in (*COLUMNS, *board)]
+    buf = np.empty((block_rows, len(COLUMNS) + len(board)))
     lines = np.empty(block_rows, dtype=np.int64)
     n = 0
 
     def flush() -> None:
         nonlocal n
         block = {c: buf[:n, i] for i, c in enumerate(POSE_COLUMNS)}
-        counts = buf[:n, len(POSE_COLUMNS):]
+        counts = buf[:n, len(POSE_COLUMNS):len(COLUMNS)]
         bad = _block_error(block, counts, sink.last_t)
         if bad is not None:
             r, column, what = bad
             raise _err(file, f"row {lines[r]}, column {column!r}: {what}")
+        for k, c in enumerate(board):
+            block[c] = buf[:n, len(COLUMNS) + k]
+            r = _board_error(block[c], c)
+            if r is not None:
+                raise _err(file, f"row {lines[r]}, column {c!r}: {block[c][r]:g} is not a whole number in "
+                                 f"[0, {BOARD_COLUMNS[c][1]}]")
         block["dwell"] = block["dwell"].astype(np.int64)
         _store(sink, block, counts.astype(COUNT_DTYPE))
         n = 0
@@ -526,7 +554,7 @@ def _read_exact(file: Path, header: list[str], sink: _Sink, progress: Callable[[
                         raise _err(file, f"row {lineno}: {len(row)} fields, header has {len(header)}")
                     pending = (lineno, len(row))
                     continue
-                for j, (c, i) in enumerate(zip(COLUMNS, idx, strict=True)):
+                for j, (c, i) in enumerate(zip((*COLUMNS, *board), idx, strict=True)):
                     cell = row[i].strip()
                     try:
                         buf[n, j] = float(cell)
