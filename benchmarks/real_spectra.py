@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spectra.calibrate_cli import _versus, run, run_joint
+from spectra.calibration import _versus, run, run_joint
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "real-spectra"
 BG = "bg.xml"

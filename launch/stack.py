@@ -1,4 +1,4 @@
-"""The process stack of ``radseek run`` (one vehicle, ``launch.run_cli``) and of a team run (``launch.run_team``):
+"""The process stack of ``radseek run`` (one vehicle, ``radseek_cli.run_cli``) and of a team run (``launch.run_team``):
 starting and stopping the processes, the router and the MCAP recorder, live progress, and the verdict's exit code.
 
 Both launchers import this module and neither imports the other at module level (``run_cli`` hands a team

@@ -11,24 +11,24 @@ import sys
 
 # name -> (module, one-line description)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "run": ("launch.run_cli", "fly a search mission against the mock vehicle and write a report"),
+    "run": ("radseek_cli.run_cli", "fly a search mission against the mock vehicle and write a report"),
     "router": ("radseek_cli.router_cli", "run the zenoh router on tcp/127.0.0.1:7447 (loopback only)"),
-    "detector": ("detector_fw_sim.detector_cli", "run the emulated 32-channel spectroscopy board"),
-    "vehicle": ("vehicle_sim.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
+    "detector": ("radseek_cli.detector_cli", "run the emulated 32-channel spectroscopy board"),
+    "vehicle": ("radseek_cli.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
     "mission": ("radseek_cli.mission_cli", "run the mission process (dwell control, estimator, planner)"),
     "topics": ("radseek_cli.inspect_cli", "list live radseek zenoh keys with their rates"),
     "echo": ("radseek_cli.echo_cli", "print messages on a zenoh key readably"),
     "record": ("radseek_cli.record_cli", "write an MCAP log of the zenoh topics and MAVLink (Foxglove, mcap reader)"),
     "view": ("radseek_cli.live_view", "live view of a flight in Foxglove (map, path, estimate, spectra; opt-in)"),
-    "simulate-dataset": ("detector_fw_sim.simulate_cli", "write a simulated flight in the dataset format"),
+    "simulate-dataset": ("radseek_cli.simulate_cli", "write a simulated flight in the dataset format"),
     "localize": ("radseek_cli.localize_cli", "estimate source position and strength from a dataset"),
     "compare": ("radseek_cli.compare_cli", "compare two flights' particle-filter runs (paper 000 metrics)"),
     "diagnose": ("radseek_cli.diagnose_cli", "compare model and measurements, find the missing effect"),
     "replay": ("radseek_cli.replay_cli", "re-run the estimator on a recorded flight"),
-    "plan": ("launch.plan_cli", "plan the next dwell points for a scene and print/plot them"),
-    "calibrate": ("spectra.calibrate_cli", "fit the detector response to a measured spectrum; name what it misses"),
-    "spectra": ("spectra.flight_cli", "show spectrum files; export dwell spectra as N42; import flights (CSV, NDJSON)"),
-    "campaign": ("launch.campaign_cli", "fly many seeded searches as Ray tasks (local or a cluster) into Parquet"),
+    "plan": ("radseek_cli.plan_cli", "plan the next dwell points for a scene and print/plot them"),
+    "calibrate": ("radseek_cli.calibrate_cli", "fit the detector response to a measured spectrum; name what it misses"),
+    "spectra": ("radseek_cli.flight_cli", "show spectrum files; export dwell spectra as N42; import flights"),
+    "campaign": ("radseek_cli.campaign_cli", "fly many seeded searches as Ray tasks (local or a cluster) into Parquet"),
 }
 
 

@@ -239,7 +239,7 @@ def test_the_rule_catches_a_simulator_import(tmp_path):
 
 
 @pytest.mark.parametrize("source, package, bad", [
-    ("import launch.run_cli\n", "estimator", "launch"),
+    ("import launch.run_team\n", "estimator", "launch"),
     ("from radseek_cli import main\n", "launch", "radseek_cli"),
     ("import radseek_io.dataset\n", "radseek", "radseek_io"),
     ("from reporting.truth_errors import match_errors\n", "estimator", "reporting"),
@@ -263,7 +263,7 @@ def test_the_rule_resolves_relative_imports_to_their_package(tmp_path):
     "import importlib\nm = importlib.import_module('vehicle_sim.vehicle')\n",
     "from importlib import import_module\nm = import_module('vehicle_sim')\n",
     "m = __import__('vehicle_sim.vehicle')\n",
-    "import importlib\nCMDS = {'v': 'vehicle_sim.vehicle_cli'}\nm = importlib.import_module(CMDS['v'])\n",
+    "import importlib\nCMDS = {'v': 'vehicle_sim.vehicle'}\nm = importlib.import_module(CMDS['v'])\n",
 ])
 def test_the_rule_catches_string_imports(tmp_path, source):
     _fake(tmp_path, "mission", source)

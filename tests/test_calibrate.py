@@ -107,7 +107,7 @@ def test_shape_distance_is_zero_for_the_model_itself():
 
 @pytest.fixture(scope="module")
 def detector_file(tmp_path_factory) -> Path:
-    from spectra.calibrate_cli import main
+    from radseek_cli.calibrate_cli import main
 
     out = tmp_path_factory.mktemp("det") / "rc102.json"
     rc = main([str(DATA / "Cs137_b.xml"), "--nuclide", "Cs-137", "--background", str(DATA / "bg.xml"),
@@ -118,7 +118,7 @@ def detector_file(tmp_path_factory) -> Path:
 
 @pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_cli_calibrate_writes_detector_file_and_json(detector_file, capsys):
-    from spectra.calibrate_cli import main
+    from radseek_cli.calibrate_cli import main
 
     det = read_detector_file(detector_file)
     assert "resolution_law" in det.effects and set(det.effects) <= {"resolution_law", "energy_calibration"}
@@ -163,7 +163,7 @@ def test_single_form_gives_the_figures_it_gave_before_the_joint_form(detector_fi
 def test_a_cs137_response_moves_other_nuclides_toward_the_measurement(detector_file, name, nuclide):
     """The same device's Co-60 and Eu-152 (no refit): the response calibrated on Cs-137 alone is closer to them
     than the emulator's response was, in the 32 channels and natively."""
-    from spectra.calibrate_cli import run
+    from radseek_cli.calibrate_cli import run
 
     r = run(str(DATA / name), [nuclide], str(DATA / "bg.xml"), str(detector_file), True)
     for key in ("total_variation_32", "total_variation_native"):
@@ -176,7 +176,7 @@ def test_thick_scatter_law_carries_the_cs137_scatter_to_co60(monkeypatch):
     lines by the thick-slab law (``response.scatter_share_scale``) against one share at every energy: the same
     device's Co-60 (no refit) is closer in the 32 channels (0.056 against 0.074 when measured) and in deviance."""
     from detector_fw_sim import response
-    from spectra.calibrate_cli import run
+    from radseek_cli.calibrate_cli import run
 
     det = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc102-001272.detector.json"
 
@@ -254,9 +254,9 @@ def test_detector_file_template_in_the_spectral_model(detector_file):
 def test_n42_export_of_dwells_and_flight_import(tmp_path):
     from detector_fw_sim.scene import load_scene
     from detector_fw_sim.simulate import simulate_flight
+    from radseek_cli.flight_cli import main as spectra_main
     from radseek_io.dataset import write_dataset
     from radseek_io.truth import read_dataset_with_truth
-    from spectra.flight_cli import main as spectra_main
 
     scene = load_scene()
     ds = simulate_flight(scene, "lattice", seed=2)

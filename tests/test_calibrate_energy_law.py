@@ -85,7 +85,7 @@ def test_background_outside_the_fitted_range_says_nothing():
 
 @pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check
 def test_calibrate_reports_the_energy_law(tmp_path):
-    from spectra.calibrate_cli import run
+    from radseek_cli.calibrate_cli import run
 
     r = run(str(DATA / "Cs137_b.xml"), ["Cs-137"], str(DATA / "bg.xml"), effects=["resolution_law"])
     el = r["energy_law"]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from radseek.photon_lines import equilibrium_lines, gamma_lines, source_lines
+from radseek_cli import calibrate_cli as C
 from radseek_io.detector_file import DetectorFile, DetectorFileError, read_detector_file
-from spectra import calibrate_cli as C
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 

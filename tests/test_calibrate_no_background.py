@@ -3,7 +3,7 @@
 import json
 import math
 
-from spectra.calibrate_cli import main
+from radseek_cli.calibrate_cli import main
 from tests.conftest import REPO
 
 AM241 = REPO.parent / "shared" / "real-spectra" / "data_am241.n42"

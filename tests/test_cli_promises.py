@@ -85,7 +85,7 @@ def test_plan_runs_with_no_arguments(tmp_path):
 @pytest.mark.parametrize("bad", [["--speedup", "-5"], ["--speedup", "0"], ["--speedup", "5000"],
                                  ["--max-dwells", "0"]])
 def test_run_refuses_invalid_options_before_starting_anything(bad, tmp_path, capsys):
-    from launch import run_cli
+    from radseek_cli import run_cli
 
     with pytest.raises(SystemExit) as exc:
         run_cli.main([*bad, "--out", str(tmp_path / "run")])

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from detector_fw_sim.simulate_cli import build_parser as simulate_parser
 from radseek_cli.compare_cli import _build_parser as compare_parser
+from radseek_cli.simulate_cli import build_parser as simulate_parser
 
 REPO = Path(__file__).resolve().parents[1]
 

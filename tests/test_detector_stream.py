@@ -21,12 +21,12 @@ import numpy as np
 import pytest
 
 from detector_fw_sim.board import Board
-from detector_fw_sim.detector_cli import build_parser
 from detector_fw_sim.detector_process import DetectorConfig, FaultConfig, inject
 from radseek import topics
 from radseek.board_wire import FRAME_SIZE, FrameError, decode_frame, encode_frame
 from radseek.simclock import ClockPublisher, FreeRunningClock
 from radseek.zenoh_session import open_session
+from radseek_cli.detector_cli import build_parser
 
 SPEEDUP = 10.0
 MAX_LAG_S = DetectorConfig().max_catch_up_s  # sim s: further behind than this it skips (by design)

@@ -22,12 +22,12 @@ from pathlib import Path
 
 import pytest
 
-from detector_fw_sim.simulate_cli import main as simulate_main
-from launch.run_cli import main as run_main
 from launch.stack import EXIT_SEARCH_FAILED, EXIT_USAGE
 from mission.recorder import FlightRecorder
 from mission.search import search_failure
 from radseek_cli.mission_cli import main as mission_main
+from radseek_cli.run_cli import main as run_main
+from radseek_cli.simulate_cli import main as simulate_main
 from radseek_io.dataset import read_scenario, write_json
 from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, prepare_output
 from radseek_io.truth import read_dataset_with_truth

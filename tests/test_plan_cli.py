@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from launch import plan_cli
 from planner.occupancy import OccupancyMap
 from radseek.dataset import Scenario, Wall
 from radseek.topics import Plan
+from radseek_cli import plan_cli
 from radseek_io.dataset import read_scenario, write_json
 
 

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from launch import ports as P
-from launch.run_cli import main as run_main
 from launch.stack import Stack, start_router
 from radseek import topics
+from radseek_cli.run_cli import main as run_main
 from radseek_io.dataset import read_dataset
 from radseek_io.mcap_frames import read_flight
 

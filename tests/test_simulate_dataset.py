@@ -11,8 +11,8 @@ import pytest
 from detector_fw_sim.flight_paths import FlightPathError, build_trajectory, make_path
 from detector_fw_sim.scene import load_scene
 from detector_fw_sim.simulate import simulate_flight
-from detector_fw_sim.simulate_cli import main as cli_main
 from radseek.dataset import EFFECTS, Dataset
+from radseek_cli.simulate_cli import main as cli_main
 from radseek_io.truth import read_dataset_with_truth
 
 

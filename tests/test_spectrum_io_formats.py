@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from radseek_cli import flight_cli
 from radseek_io import spectrum_io as sio
 from radseek_io.dataset import read_dataset
 from radseek_io.spectrum_io import ndjson, rcspg
-from spectra import flight_cli
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 K40 = DATA / "K40.rcspg"

@@ -16,9 +16,9 @@ import sys
 
 import pytest
 
-from launch.run_cli import main as run_main
 from launch.run_team import parse_kill, team_verdict
 from radseek import topics
+from radseek_cli.run_cli import main as run_main
 from tests.conftest import free_port
 
 RUN_TIMEOUT_S = 900

@@ -4,7 +4,7 @@ import hashlib
 
 import pytest
 
-from vehicle_sim import vehicle_cli
+from radseek_cli import vehicle_cli
 from vehicle_sim.link import load_signing_key
 
 

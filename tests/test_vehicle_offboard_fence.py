@@ -162,7 +162,7 @@ def test_orbit_circles_the_centre(setup):
 
 def test_mapped_walls_become_exclusion_fences():
     from detector_fw_sim.scene import load_scene
-    from vehicle_sim import vehicle_cli
+    from radseek_cli import vehicle_cli
     from vehicle_sim.geofence import wall_zones
 
     walls = load_scene("lattice-wall").walls  # (5.6, 3.4)-(5.6, 4.5) and (4.5, 3.4)-(5.505, 3.4), 0.19 m thick
