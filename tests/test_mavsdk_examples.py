@@ -147,6 +147,18 @@ def completes(script: str, args: list[str], expect: list[str], runner: list[str]
     return out, watch
 
 
+def test_do_orbit():
+    # at 1x: on the sped-up clock (10x) the vehicle was twice seen nowhere on the circle on a loaded machine
+    # (0 of its positions; orbit started, landed at t=84 s) - not understood yet, so the 70 s of sleeps stay
+    out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
+                                           "--- Landing"])
+    center = (47.398036222362471, 8.5450146439425509)
+    on_circle = [p for p in w.positions if abs(_dist_m(p[1], p[2], *center) - 10.0) < 0.5 and abs(p[3] - 10) < 0.5]
+    assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
+    assert (3 << 16 | 1 << 24) in w.modes  # PX4 POSCTL.ORBIT
+    assert any("Orbit: circling" in t for t in w.texts)
+
+
 def test_takeoff_and_land():
     # as at --speedup 2 with the script's own clock: its 10 s wait is 20 s of flight
     out, w = completes("takeoff_and_land.py", ["--speedup", "10"], ["-- Connected to drone!", "-- Taking off",
@@ -203,18 +215,6 @@ def test_offboard_velocity_ned():
     assert "failed" not in out
     assert w.max_alt() > 5.0  # 4 s at 2 m/s up
     assert 6 << 16 in w.modes
-
-
-def test_do_orbit():
-    # at 1x: on the sped-up clock (10x) the vehicle was twice seen nowhere on the circle on a loaded machine
-    # (0 of its positions; orbit started, landed at t=84 s) - not understood yet, so the 70 s of sleeps stay
-    out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
-                                           "--- Landing"])
-    center = (47.398036222362471, 8.5450146439425509)
-    on_circle = [p for p in w.positions if abs(_dist_m(p[1], p[2], *center) - 10.0) < 0.5 and abs(p[3] - 10) < 0.5]
-    assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
-    assert (3 << 16 | 1 << 24) in w.modes  # PX4 POSCTL.ORBIT
-    assert any("Orbit: circling" in t for t in w.texts)
 
 
 def test_grpc_api_beside_the_native_4x_in_radseek_venv():
