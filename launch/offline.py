@@ -24,7 +24,7 @@ from detector_fw_sim.emulator import DetectorEmulator
 from detector_fw_sim.scene import Scene
 from mission.client.action import ActionFailed
 from mission.client.mission_upload import DwellPoint, build_items
-from mission.executive import MissionExecutive
+from mission.executive import FRAME_S, MissionExecutive
 from mission.search import Decision, Phase, SearchBrain, SearchConfig, reproducible
 from radseek import topics
 from radseek.coordinates import Home
@@ -34,11 +34,11 @@ from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
 from radseek.pose_history import PoseHistory
 from vehicle_sim.mission_protocol import MissionItem
 from vehicle_sim.motion import MotionLimits
+from vehicle_sim.navigator import Mode
 from vehicle_sim.odometry import OdometryParams
 from vehicle_sim.vehicle import VehicleConfig
 from vehicle_sim.world import World
 
-FRAME_S = 0.1
 #: ``radseek run`` starts its vehicle with ``--max-speed 1.0`` (m/s): the leg speed the mission expects
 RUN_MAX_SPEED_M_S = 1.0
 
@@ -126,7 +126,7 @@ class InProcessVehicle:
 
     async def fly(self, points: list[DwellPoint]) -> None:
         self.nav.replace_mission(wire_items(points, self.world.vehicle.home))
-        if not self.nav.set_mode(self.nav.mode.MISSION):
+        if not self.nav.set_mode(Mode.MISSION):
             raise ActionFailed("start_mission", "ERROR")
 
     async def end_dwell(self) -> None:

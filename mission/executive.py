@@ -33,6 +33,7 @@ from radseek.estimate import SourceEstimate
 from radseek.frame_record import FrameRecord
 from radseek.outcome import Outcome
 
+FRAME_S = 0.1  # s, the board's frame period until the first histogram says otherwise
 ARRIVE_RADIUS_M = 0.12
 ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a dwell starts
 LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle

@@ -37,7 +37,7 @@ import zenoh
 
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.vehicle_link import MavsdkVehicle
-from mission.executive import MissionExecutive
+from mission.executive import FRAME_S, MissionExecutive
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Phase, SearchBrain, SearchConfig, reproducible
@@ -52,7 +52,6 @@ from radseek_io.outdir import atomic_write_json
 
 log = logging.getLogger("radseek.mission")
 
-FRAME_S = 0.1  # s, the board's frame period until the first histogram says otherwise
 FRAME_TIMEOUT_WALL_S = 10.0  # wall s of detector silence (no histogram, no status) before frames are lost
 POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone

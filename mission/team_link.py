@@ -148,9 +148,6 @@ class TeamLinkBase:
         self.reason, self.decided, self.outcome = reason, decided, outcome
         self.set(t, "done", self.reservation[-1:])
 
-    def heartbeat(self, t: float) -> None:
-        self.t = max(self.t, float(t))
-
     # -- what the teammates say
     def reserved(self) -> dict[int, Reservation]:
         """Every teammate's last reservation by team index (a failed teammate's stays: where it was last); a

@@ -98,8 +98,3 @@ class World:
     def take_events(self) -> list[SimEvent]:
         out, self.events = self.events, []
         return out
-
-    def true_pose(self) -> np.ndarray:
-        """(x, y, z, yaw) of the vehicle now (for the simulator's own records, never the flight software)."""
-        p, yaw = self.vehicle.truth()
-        return np.r_[p, yaw]
