@@ -132,9 +132,11 @@ def start_recorder(stack: Stack, out: Path, endpoint: str, gcs_port: int | None 
                    gcs_ports: dict[str, int] | None = None) -> None:
     """Start ``radseek record`` into ``out/flight.mcap``: every zenoh topic, and the MAVLink the vehicle
     sends its GCS port (the recorder is that GCS: it listens and never answers); a team's, each vehicle's
-    GCS port (``gcs_ports`` by vehicle name)."""
+    GCS port (``gcs_ports`` by vehicle name). ``out/scenario.json``, when the launcher wrote it, gives the
+    walls drawn for Foxglove."""
     ports = ([] if gcs_port is None else [str(gcs_port)]) + [f"{n}={p}" for n, p in (gcs_ports or {}).items()]
-    stack.start("recorder", _radseek("record", "--out", str(out / "flight.mcap"), "--connect", endpoint,
+    scenario = ["--scenario", str(out / "scenario.json")] if (out / "scenario.json").is_file() else []
+    stack.start("recorder", _radseek("record", "--out", str(out / "flight.mcap"), "--connect", endpoint, *scenario,
                                      *(a for p in ports for a in ("--mavlink-port", p))))
 
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from radseek import topics
+from radseek.coordinates import Home
 from radseek_cli.serve import serve_on_session
+from radseek_io.dataset import read_scenario
 from radseek_io.mcap_log import Recorder
 
 
@@ -31,6 +33,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mavlink-port", action="append", default=[], metavar="[VEHICLE=]PORT",
                    help="also record MAVLink arriving on this UDP port (e.g. the vehicle's --gcs-port), as "
                         "mavlink/<MESSAGE>; VEHICLE=PORT records it as mavlink/<VEHICLE>/<MESSAGE>; repeat for a team")
+    p.add_argument("--scenario", type=Path,
+                   help="scenario.json whose bounds and walls the log draws for Foxglove (foxglove/map)")
+    p.add_argument("--home", default="47.397742,8.545594,488.0", metavar="LAT,LON,ALT",
+                   help="home point (the vehicle's --home; default PX4 SITL's): places the estimated pose on the "
+                        "map (foxglove/<vehicle>/location) of a vehicle whose MAVLink is not recorded")
     p.add_argument("--duration", type=float, help="wall seconds to record (default: until Ctrl-C / SIGTERM)")
     add_arguments(p)
     args = p.parse_args(argv)
@@ -50,9 +57,22 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--duration must be > 0")
     if args.out.exists() and args.out.is_dir():
         p.error(f"--out {args.out} is a directory")
+    try:
+        lat, lon, alt = (float(v) for v in args.home.split(","))
+        home = Home(lat, lon, alt)
+    except ValueError as exc:
+        p.error(f"--home {args.home!r}: expected LAT,LON,ALT in degrees and metres ({exc})")
+    scenario = None
+    if args.scenario is not None:
+        try:
+            scenario = read_scenario(args.scenario)
+        except (OSError, ValueError) as exc:
+            p.error(f"--scenario {args.scenario}: {exc}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     return serve_on_session(
-        "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=unnamed, mavlink_ports=named),
+        "radseek record", args,
+        lambda session: Recorder(args.out, session, mavlink_port=unnamed, mavlink_ports=named, scenario=scenario,
+                                 home=home),
         OSError, lambda exc: f"UDP port(s) {ports} unavailable ({exc.strerror}): choose others with --mavlink-port",
         started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
         stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints

@@ -52,7 +52,7 @@ def test_recorder_logs_every_topic_and_mavlink(router, tmp_path):
     hb = next(p for ch, _, _, p in messages if ch == "mavlink/HEARTBEAT")
     assert hb["autopilot"] == 12  # PX4
     clock = [(pub, p["t"]) for ch, _, pub, p in messages if ch == topics.key(topics.SIM_CLOCK)]
-    assert all(pub == int(t * 1e9) for pub, t in clock)  # publish_time is the sim time
+    assert all(pub == round(t * 1e9) for pub, t in clock)  # publish_time is the sim time
 
 
 @pytest.mark.io

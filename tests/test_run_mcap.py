@@ -81,6 +81,9 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     clock = [topics.SimClock.from_bytes(m.data).t for _, _, m in by_topic[topics.key(topics.SIM_CLOCK)]]
     assert min(clock) < 1.0 and max(clock) >= mission["flight_time_s"]
 
+    # --- Foxglove: the well-known channels, every JSON message valid against its schema, times in sim time
+    _check_foxglove(by_topic, clock, mission, json.loads((out / "scenario.json").read_text()))
+
     # --- the frames rebuilt from the log are the ones the mission recorded (frames.csv rounds to 0.1 mm)
     ds = read_dataset(out / "dataset")
     flight = read_flight(out / "flight.mcap", ds.scenario)
@@ -110,6 +113,69 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     for key in ("x", "y"):
         assert rows[-1][key] == pytest.approx(summary["estimate"][key], abs=1e-6), key
     assert rows[-1]["error_m"] == pytest.approx(summary["error_m"], abs=1e-6)
+
+
+def _check_foxglove(by_topic, clock, mission, scenario):
+    """flight.mcap as Foxglove reads it: the well-known schemas on their channels, each JSON message valid
+    against its channel's schema, the raw frames decoded beside them, MAVLink schemas with the real fields,
+    and log times in simulation time (an N s simulated flight spans N s of log time)."""
+    import jsonschema
+
+    wanted = {"foxglove/uav0/location": "foxglove.LocationFix", "foxglove/uav0/pose": "foxglove.PoseInFrame",
+              "foxglove/uav0/truth_pose": "foxglove.PoseInFrame", "foxglove/uav0/tf": "foxglove.FrameTransform",
+              "foxglove/map": "foxglove.SceneUpdate", "foxglove/uav0/scene": "foxglove.SceneUpdate"}
+    for topic, schema_name in wanted.items():
+        assert topic in by_topic, f"{topic} not in flight.mcap"
+        encoding, schema, _ = by_topic[topic][0]
+        assert (encoding, schema.name, schema.encoding) == ("json", schema_name, "jsonschema"), topic
+    validators = {}
+    by_topic = {topic: sorted(msgs, key=lambda x: x[2].sequence) for topic, msgs in by_topic.items()}  # as written
+    for topic, msgs in by_topic.items():
+        last = -1
+        for encoding, schema, m in msgs:
+            assert m.log_time >= last, f"{topic}: log_time goes back"  # monotonic per channel
+            last = m.log_time
+            if encoding != "json":
+                continue
+            v = validators.setdefault(schema.id, jsonschema.Draft202012Validator(json.loads(schema.data)))
+            v.validate(json.loads(m.data))
+    # log time is simulation time: every stamped message at its own time, and the file spans the sim clock
+    for topic in (topics.key(topics.SIM_CLOCK), topics.key(topics.POSE), topics.key(topics.HISTOGRAM)):
+        for _, _, m in by_topic[topic]:
+            assert m.log_time == m.publish_time == round(json.loads(m.data)["t"] * 1e9), topic
+    for _, _, m in by_topic["mavlink/GLOBAL_POSITION_INT"]:
+        assert m.publish_time == json.loads(m.data)["time_boot_ms"] * 1_000_000
+    log_s = [m.log_time / 1e9 for msgs in by_topic.values() for _, _, m in msgs]
+    # the file spans the sim clock (to within one of its steps: MAVLink is stamped between them), so at
+    # least the mission's flight time, whatever the speed-up
+    assert min(log_s) <= min(clock) and max(log_s) == pytest.approx(max(clock), abs=0.1)
+    assert max(log_s) - min(log_s) >= mission["flight_time_s"]
+    # the map has the walls of the flown scene; the vehicle's scene the plan and the estimate with its ellipses
+    scene = json.loads(by_topic["foxglove/uav0/scene"][-1][2].data)
+    ids = {e["id"]: e for e in scene["entities"]}
+    assert ids["estimate"]["spheres"] and len(ids["estimate"]["lines"]) == 2 and ids["plan"]["spheres"]
+    # the map: the flight area's bounds and walls of the scenario the mission flew with (the default scene
+    # has no wall: the walls' drawing is checked in tests/test_mcap_foxglove.py)
+    first_map = {e["id"]: e for e in json.loads(by_topic["foxglove/map"][0][2].data)["entities"]}
+    assert len(first_map["walls"]["cubes"]) == len(scenario["walls"])
+    corners = [(p["x"], p["y"]) for p in first_map["bounds"]["lines"][0]["points"]]
+    (x0, y0, _), (x1, y1, _) = scenario["bounds"]["min"], scenario["bounds"]["max"]
+    assert corners == [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    # the fix is the vehicle's GLOBAL_POSITION_INT, at its time
+    fix_m = by_topic["foxglove/uav0/location"][-1][2]
+    gpi = [json.loads(m.data) for _, _, m in by_topic["mavlink/GLOBAL_POSITION_INT"]]
+    gps = next(g for g in gpi if g["time_boot_ms"] * 1_000_000 == fix_m.log_time)
+    assert json.loads(fix_m.data)["latitude"] == gps["lat"] / 1e7
+    # the decoded raw frames: one per raw frame, in order, the same counts
+    raw = by_topic[topics.key(topics.RAW_FRAME)]
+    decoded = by_topic[topics.key(topics.RAW_FRAME) + "/decoded"]
+    assert len(decoded) == len(raw) and decoded[0][1].name == "radseek.BoardFrameDecoded"
+    for (_, _, r), (_, _, d) in zip(raw, decoded, strict=True):
+        assert json.loads(d.data)["counts"] == list(decode_frame(r.data).counts)
+    # MAVLink schemas list the real fields
+    gpi_schema = json.loads(by_topic["mavlink/GLOBAL_POSITION_INT"][0][1].data)
+    assert {"lat", "lon", "alt", "relative_alt", "vx", "vy", "vz", "hdg", "time_boot_ms"} <= set(
+        gpi_schema["properties"])
 
 
 def test_the_launcher_finishes_the_log_it_started(router, tmp_path):
