@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             scenario = read_scenario(args.scenario)
         except (OSError, ValueError) as exc:
-            p.error(f"--scenario {args.scenario}: {exc}")
+            p.error(f"--scenario: {exc}")  # the reader names the file and the key
     args.out.parent.mkdir(parents=True, exist_ok=True)
     return serve_on_session(
         "radseek record", args,

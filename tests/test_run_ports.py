@@ -120,13 +120,16 @@ def _own_frames_only(out) -> np.ndarray:
     np.testing.assert_array_equal(flight.frames.counts, f.counts)
     from mcap.reader import make_reader
 
+    # in the order received (log_time is sim time: sorted by it, two vehicles' clocks would look as one)
     with open(out / "flight.mcap", "rb") as fh:
-        clock = [topics.SimClock.from_bytes(m.data).t
-                 for _, _, m in make_reader(fh).iter_messages(topics=[topics.key(topics.SIM_CLOCK)])]
+        clock = [topics.SimClock.from_bytes(m.data).t for _, _, m in sorted(
+            make_reader(fh).iter_messages(topics=[topics.key(topics.SIM_CLOCK)], log_time_order=False),
+            key=lambda x: x[2].sequence)]
     assert clock and np.all(np.diff(clock) >= 0), "two vehicles' clocks in one recording"
     with open(out / "flight.mcap", "rb") as fh:
-        boot = [json.loads(m.data)["time_boot_ms"]
-                for _, _, m in make_reader(fh).iter_messages(topics=["mavlink/LOCAL_POSITION_NED"])]
+        boot = [json.loads(m.data)["time_boot_ms"] for _, _, m in sorted(
+            make_reader(fh).iter_messages(topics=["mavlink/LOCAL_POSITION_NED"], log_time_order=False),
+            key=lambda x: x[2].sequence)]
     assert boot and np.all(np.diff(boot) >= 0), "two vehicles' MAVLink on one GCS port"
     return f.counts
 
