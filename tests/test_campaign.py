@@ -16,7 +16,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_one, open_campaign, parse_effect, summarize
+from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_error_row, fly_one, open_campaign, parse_effect, summarize
+from launch.campaign_store import ROW_GROUP_ROWS, DamagedFile, DamagedStore, load_rows, read_file, salvage, write_rows
 from radseek.estimate import SourceEstimate
 from radseek_io.outdir import OutputDirError
 
@@ -111,6 +112,102 @@ def test_output_folder_holds_one_sweep(tmp_path):
     assert not (out / "campaign.json").exists()
 
 
+# ------------------------------------------------------------------------------------------------ damaged store
+
+
+def _recorded(tmp_path: Path, seeds: int) -> tuple[Sweep, Path, list[dict]]:
+    """A campaign folder as a finished run leaves it: campaign.json and a merged flights.parquet (rows of the
+    driver's own row builder, each with a distinct number)."""
+    sweep = Sweep(scenes=["default"], strategies=["lattice"], seeds=list(range(seeds)), params=FAST_PARAMS)
+    out = open_campaign(sweep, tmp_path / "c")
+    (out / "campaign.json").write_text(json.dumps({"fingerprint": sweep.fingerprint()}))
+    rows = [{**fly_error_row(f), "error_m": 0.01 * f["seed"]} for f in sweep.flights()]
+    write_rows(out / "flights.parquet", rows)
+    return sweep, out, rows
+
+
+def _chunk_end(path: Path, group: int, column: str) -> int:
+    """The offset of the last byte of ``column``'s chunk in row group ``group`` (inside its data page)."""
+    meta = pq.ParquetFile(path).metadata
+    j = [meta.schema.column(i).name for i in range(meta.num_columns)].index(column)
+    c = meta.row_group(group).column(j)
+    return (c.dictionary_page_offset or c.data_page_offset) + c.total_compressed_size - 1
+
+
+def _flip(path: Path, offset: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def _empty(path: Path) -> str:
+    path.write_bytes(b"")
+    return "0 bytes"
+
+
+def _truncated(path: Path) -> str:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    return "truncated"
+
+
+def _corrupted(path: Path) -> str:
+    _flip(path, _chunk_end(path, 1, "error_m"))
+    return "corrupted bytes in row group 2 of 3"
+
+
+@pytest.mark.parametrize("damage", [_empty, _truncated, _corrupted])
+def test_a_damaged_flights_file_is_named_in_one_line_and_left_as_it_is(tmp_path, capsys, damage):
+    from radseek_cli.campaign_cli import main
+
+    _, out, _ = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
+    what = damage(out / "flights.parquet")
+    before = (out / "flights.parquet").read_bytes()
+    code = main(["--scenes", "default", "--seeds", str(2 * ROW_GROUP_ROWS + 6), *FAST, "--out", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(out / "flights.parquet") in err and what in err and "--salvage" in err, err
+    assert "Traceback" not in err and "rerun with --salvage" in err
+    assert (out / "flights.parquet").read_bytes() == before and sorted(p.name for p in out.iterdir()) == [
+        "campaign.json", "flights.parquet"]
+
+
+def test_corrupted_bytes_cost_only_their_row_group_and_salvage_keeps_the_rest(tmp_path):
+    sweep, out, rows = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
+    path = out / "flights.parquet"
+    _flip(path, _chunk_end(path, 1, "error_m"))  # one bit of one number: a plain read returns a wrong value
+    plain = pq.read_table(path).to_pylist()
+    assert sum(a["error_m"] != b["error_m"] for a, b in zip(plain, rows, strict=True)) == 1
+    damaged_bytes = path.read_bytes()
+    with pytest.raises(DamagedStore, match=f"{ROW_GROUP_ROWS + 6} of {2 * ROW_GROUP_ROWS + 6} rows readable"):
+        load_rows(out)  # the page checksum catches it
+    got = read_file(path)
+    assert isinstance(got, DamagedFile) and "CRC" in got.problem
+    lost = {r["key"] for r in rows[ROW_GROUP_ROWS:2 * ROW_GROUP_ROWS]}
+    assert {r["key"] for r in got.rows} == {r["key"] for r in rows} - lost
+    assert all(r["error_m"] == by["error_m"] for r, by in zip(got.rows, [x for x in rows if x["key"] not in lost],
+                                                              strict=True))
+    aside = salvage(out, got)
+    assert aside == out / "flights.parquet.damaged" and aside.read_bytes() == damaged_bytes  # kept, not deleted
+    kept = load_rows(out)
+    assert {r["key"] for r in kept} == {r["key"] for r in rows} - lost
+    todo = [f for f in sweep.flights() if f["key"] not in {r["key"] for r in kept}]
+    assert {f["key"] for f in todo} == lost  # a resume flies exactly the lost flights
+
+
+def test_a_damaged_part_file_is_moved_beside_the_parts_not_into_them(tmp_path):
+    _, out, rows = _recorded(tmp_path, 3)
+    (out / "parts").mkdir()
+    part = out / "parts" / "part-00000000000000000001-1-00001.parquet"
+    write_rows(part, rows[:2])
+    _truncated(part)
+    with pytest.raises(DamagedStore, match="part-00000000000000000001-1-00001.parquet is damaged"):
+        load_rows(out)
+    got = read_file(part)
+    assert isinstance(got, DamagedFile) and got.rows == [] and got.total_rows is None
+    assert salvage(out, got) == out / f"{part.name}.damaged"  # the parts folder is removed after a merge
+    assert {r["key"] for r in load_rows(out)} == {r["key"] for r in rows}
+
+
 # ------------------------------------------------------------------------------------------------ Ray
 
 
@@ -166,6 +263,17 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path):
 
     r = _campaign("--scenes", "default", "--seeds", "1", *FAST, "--out", str(out))  # another sweep
     assert r.returncode == 2 and "--force" in r.stderr
+
+    damaged = (out / "flights.parquet").read_bytes()[:-100]  # truncated: no footer, no row readable
+    (out / "flights.parquet").write_bytes(damaged)
+    r = _campaign(*args("1"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "flights.parquet is damaged (truncated" in r.stderr and "--salvage" in r.stderr
+    assert (out / "flights.parquet").read_bytes() == damaged
+    r = _campaign(*args("1"), "--salvage")  # seed 0 only: its 4 flights are flown again
+    assert r.returncode == 0, r.stderr
+    assert "4 flights flown, 0 already recorded" in r.stdout and "moved it to" in r.stderr
+    assert (out / "flights.parquet.damaged").read_bytes() == damaged and len(_rows(out)) == 4
 
 
 def _free_port() -> int:
