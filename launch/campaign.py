@@ -25,7 +25,6 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import signal
 import socket
 import sys
@@ -43,6 +42,7 @@ import numpy as np
 from launch.campaign_store import DamagedStore, PartWriter, load_rows, merge
 from launch.campaign_store import params_of as _params
 from launch.campaign_store import salvage as salvage_file
+from launch.ray_reaper import MARK_ENV, Reaper, start_reaper
 from radseek import __version__
 from radseek.estimate import SourceEstimate
 from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
@@ -381,9 +381,11 @@ def _is_loopback(address: str | None) -> bool:
     return host in ("localhost", "::1") or host.startswith("127.")
 
 
-def start_ray(workers: int | None, address: str | None, quiet: bool = True, niceness: int | None = None) -> str | None:
+def start_ray(workers: int | None, address: str | None, quiet: bool = True,
+              niceness: int | None = None) -> Reaper | None:
     """Connect to Ray: an embedded local cluster of ``workers`` CPUs (loopback only, no dashboard, its own
-    temporary folder, returned for removal) or the cluster at ``address``. ``niceness``: the embedded
+    temporary folder; returned: its :class:`~launch.ray_reaper.Reaper`, to close after ``ray.shutdown()``) or the
+    cluster at ``address``. ``niceness``: the embedded
     workers' nice level (Ray's default 15 yields the CPU to everything else on a shared machine)."""
     import logging
 
@@ -403,10 +405,19 @@ def start_ray(workers: int | None, address: str | None, quiet: bool = True, nice
     level = logging.ERROR if quiet else logging.WARNING
     if address is None:
         tmp = tempfile.mkdtemp(prefix="radseek-ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 chars
-        ray.init(address="local", num_cpus=workers or os.cpu_count(), include_dashboard=False,
-                 _node_ip_address="127.0.0.1", _temp_dir=tmp, object_store_memory=100 * 1024**2,
-                 log_to_driver=not quiet, logging_level=level, configure_logging=True)
-        return tmp
+        reaper = start_reaper(tmp)  # a kill -9 of this process takes the cluster and the folder with it
+        os.environ[MARK_ENV] = reaper.token  # inherited by every process of the cluster, and only by them
+        try:
+            ray.init(address="local", num_cpus=workers or os.cpu_count(), include_dashboard=False,
+                     _node_ip_address="127.0.0.1", _temp_dir=tmp, object_store_memory=100 * 1024**2,
+                     log_to_driver=not quiet, logging_level=level, configure_logging=True)
+        except BaseException:
+            ray.shutdown()
+            reaper.close()
+            raise
+        finally:
+            os.environ.pop(MARK_ENV, None)
+        return reaper
     ray.init(address=address, log_to_driver=not quiet, logging_level=level, configure_logging=True)
     return None
 
@@ -505,7 +516,7 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
 
 def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, address: str | None,
                bar: Progress, quiet_ray: bool, on_row: Callable | None, niceness: int | None = None) -> float:
-    tmp = start_ray(workers, address, quiet=quiet_ray, niceness=niceness)
+    reaper = start_ray(workers, address, quiet=quiet_ray, niceness=niceness)
     import ray
 
     writer = PartWriter(out)
@@ -553,8 +564,8 @@ def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, addre
             signal.signal(sig, handler)
         writer.flush()
         ray.shutdown()
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        if reaper is not None:
+            reaper.close()  # what ray.shutdown() left (its agents) and the temporary folder
 
 
 def fly_error_row(spec: Mapping[str, Any]) -> dict[str, Any]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -367,3 +368,91 @@ def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
         _stop(pids)
         subprocess.run(["rm", "-rf", temp_dir], check=False)
     assert pids and not _alive(pids)
+
+
+def _stat(pid: int) -> tuple[str, int, int] | None:
+    """(state, parent, start time) of a process, None if gone."""
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return f[0], int(f[1]), int(f[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _tree(root: int) -> dict[int, tuple[int, str]]:
+    """``root``'s descendants now: pid -> (start time, command line)."""
+    parents = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit() and (st := _stat(int(p.name))) is not None:
+            parents[int(p.name)] = st[1]
+    mine, grew = {root}, True
+    while grew:
+        kids = {pid for pid, ppid in parents.items() if ppid in mine} - mine
+        mine |= kids
+        grew = bool(kids)
+    out = {}
+    for pid in mine - {root}:
+        st = _stat(pid)
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if st is not None:
+            out[pid] = (st[2], cmd)
+    return out
+
+
+def _survivors(procs: dict[int, tuple[int, str]]) -> dict[int, str]:
+    """Those of ``procs`` still running (the same process: same start time; a zombie has ended)."""
+    return {pid: cmd for pid, (start, cmd) in procs.items()
+            if (st := _stat(pid)) is not None and st[2] == start and st[0] not in "ZX"}
+
+
+@pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
+def test_kill_9_of_a_campaign_leaves_no_ray_process_and_no_temporary_folder(tmp_path):
+    proc = subprocess.Popen([str(BIN / "radseek"), "campaign", "--scenes", "default", "--seeds", "60", *FAST,
+                             "--workers", "2", "--out", str(tmp_path / "c"), "-q"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    tree: dict[int, tuple[int, str]] = {}
+    try:
+        deadline = time.monotonic() + 240
+        while not any("ray::fly_one" in cmd for _, cmd in tree.values()):  # the cluster is flying flights
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, sorted(cmd[:60] for _, cmd in tree.values())
+            time.sleep(0.3)
+            tree = _tree(proc.pid)
+        tree = _tree(proc.pid)
+        cmds = " ".join(cmd for _, cmd in tree.values())
+        assert "ray::DashboardAgent" in cmds and "ray::RuntimeEnvAgent" in cmds and "raylet" in cmds, cmds
+        temp = re.search(r"/tmp/radseek-ray-[A-Za-z0-9_]+", cmds).group(0)
+        assert Path(temp).is_dir()
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 60
+        while (_survivors(tree) or Path(temp).exists()) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert not _survivors(tree), _survivors(tree)
+        assert not Path(temp).exists(), sorted(p.name for p in Path(temp).iterdir())
+        later = {pid: cmd for pid, cmd in _pids_cmdlines().items() if temp in cmd}  # started after the snapshot
+        assert not later, later
+    finally:
+        proc.kill()
+        for pid in _survivors(tree):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def _pids_cmdlines() -> dict[int, str]:
+    out = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                out[int(p.name)] = (p / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                pass
+    return out
+
