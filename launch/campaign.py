@@ -28,7 +28,6 @@ import os
 import signal
 import socket
 import sys
-import tempfile
 import threading
 import time
 import tomllib
@@ -42,19 +41,18 @@ import numpy as np
 from launch.campaign_store import DamagedStore, PartWriter, load_rows, merge
 from launch.campaign_store import params_of as _params
 from launch.campaign_store import salvage as salvage_file
-from launch.ray_reaper import MARK_ENV, Reaper, start_reaper
+from launch.ray_cluster import RayConnectError, start_ray
 from radseek import __version__
 from radseek.estimate import SourceEstimate
 from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
 
-__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "DamagedStore", "Sweep", "fly_one",
-           "load_rows", "parse_effect", "run_campaign", "summarize", "write_reports"]
+__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "DamagedStore", "RayConnectError",
+           "Sweep", "fly_one", "load_rows", "parse_effect", "run_campaign", "summarize", "write_reports"]
 
 #: chi-square 95 % quantile with 2 degrees of freedom (= -2 ln 0.05): the 95 % ellipse is d^2 <= this
 CHI2_95_2D = -2.0 * math.log(0.05)
 #: what a campaign writes in its folder (summaries first: ``--force`` removes them before the data)
 CAMPAIGN_OUTPUTS = ("summary.md", "error_vs_dwells.png", "coverage.png", "flights.parquet", "parts", "campaign.json")
-LOOPBACK_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}  # Ray's single-node mode: every server on 127.0.0.1
 
 
 # ------------------------------------------------------------------------------------------------ sweep
@@ -372,54 +370,6 @@ def _duration(s: float) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ Ray
-
-
-def _is_loopback(address: str | None) -> bool:
-    if address is None:
-        return True
-    host = address.rsplit(":", 1)[0].strip("[]")
-    return host in ("localhost", "::1") or host.startswith("127.")
-
-
-def start_ray(workers: int | None, address: str | None, quiet: bool = True,
-              niceness: int | None = None) -> Reaper | None:
-    """Connect to Ray: an embedded local cluster of ``workers`` CPUs (loopback only, no dashboard, its own
-    temporary folder; returned: its :class:`~launch.ray_reaper.Reaper`, to close after ``ray.shutdown()``) or the
-    cluster at ``address``. ``niceness``: the embedded
-    workers' nice level (Ray's default 15 yields the CPU to everything else on a shared machine)."""
-    import logging
-
-    if niceness is not None and address is None:
-        os.environ["RAY_worker_niceness"] = str(int(niceness))
-
-    if _is_loopback(address):
-        # Ray's single-node mode (as on macOS/Windows): its node address is 127.0.0.1 and every Ray server
-        # (GCS, raylet, object manager, workers) listens there instead of on all interfaces. Read by Ray at
-        # import, so set before the first ``import ray``; a remote cluster needs the default.
-        if "ray" in sys.modules and os.environ.get("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER") != "0":
-            raise RuntimeError("ray was imported before start_ray(): it would listen on every interface")
-        os.environ.update(LOOPBACK_ENV)
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    import ray
-
-    level = logging.ERROR if quiet else logging.WARNING
-    if address is None:
-        tmp = tempfile.mkdtemp(prefix="radseek-ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 chars
-        reaper = start_reaper(tmp)  # a kill -9 of this process takes the cluster and the folder with it
-        os.environ[MARK_ENV] = reaper.token  # inherited by every process of the cluster, and only by them
-        try:
-            ray.init(address="local", num_cpus=workers or os.cpu_count(), include_dashboard=False,
-                     _node_ip_address="127.0.0.1", _temp_dir=tmp, object_store_memory=100 * 1024**2,
-                     log_to_driver=not quiet, logging_level=level, configure_logging=True)
-        except BaseException:
-            ray.shutdown()
-            reaper.close()
-            raise
-        finally:
-            os.environ.pop(MARK_ENV, None)
-        return reaper
-    ray.init(address=address, log_to_driver=not quiet, logging_level=level, configure_logging=True)
-    return None
 
 
 def _remote_fly():

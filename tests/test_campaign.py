@@ -6,6 +6,7 @@ import json
 import math
 import os
 import re
+import secrets
 import signal
 import socket
 import subprocess
@@ -455,4 +456,55 @@ def _pids_cmdlines() -> dict[int, str]:
             except OSError:
                 pass
     return out
+
+
+@pytest.mark.io
+def test_an_address_where_nothing_listens_is_named_at_once(tmp_path):
+    port = _free_port()
+    r = _campaign("--address", f"127.0.0.1:{port}", "--scenes", "default", "--seeds", "1", *FAST,
+                  "--out", str(tmp_path / "c"), timeout=120)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"no Ray cluster at 127.0.0.1:{port}: nothing listens there (Connection refused)" in r.stderr
+
+
+def _client_env(home: Path, **auth: str) -> dict[str, str]:
+    """The environment of a client with only the given Ray authentication variables (and a home without a token)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")}
+    return {**env, "HOME": str(home), "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0", **auth}
+
+
+@pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
+def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
+    temp_dir = f"/tmp/rsk-tok-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
+    port, token = _free_port(), secrets.token_hex(32)
+    head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token)
+    start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
+                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "1",
+                            "--temp-dir", temp_dir, "--disable-usage-stats"],
+                           capture_output=True, text=True, timeout=180, env=head)
+    try:
+        assert start.returncode == 0, start.stdout + start.stderr
+        args = ["--address", f"127.0.0.1:{port}", "--scenes", "default", "--seeds", "1", *FAST]
+
+        def campaign(out: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+            return subprocess.run([str(BIN / "radseek"), "campaign", *args, "--out", str(tmp_path / out)],
+                                  capture_output=True, text=True, timeout=500, env=env)
+
+        r = campaign("none", _client_env(tmp_path))
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert f"the Ray cluster at 127.0.0.1:{port} wants a token" in r.stderr
+        assert "set RAY_AUTH_MODE=token" in r.stderr and "RAY_AUTH_TOKEN" in r.stderr, r.stderr
+        r = campaign("wrong", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32)))
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "refused this client's token" in r.stderr, r.stderr
+        r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token))  # what it said
+        assert r.returncode == 0, r.stderr
+        assert [x["status"] for x in _rows(tmp_path / "right")] == ["ok"]
+    finally:
+        pids = _pids_of(temp_dir)
+        _stop(pids)
+        subprocess.run(["rm", "-rf", temp_dir], check=False)
+    assert pids and not _alive(pids)
 
