@@ -4,9 +4,9 @@ A :class:`Sweep` is the cartesian product scenes x strategies x effects x swept 
 each element is one *flight*: ``launch.offline.fly_offline`` (the same brain, in-flight estimator and
 planner as ``radseek run``) run as one Ray task. :func:`run_campaign` runs a sweep on an embedded local
 Ray (loopback only, no dashboard) or on an existing cluster (``address``), writes the rows to ``--out`` as
-they come in (``parts/*.parquet``, merged into ``flights.parquet`` at the end), and on a rerun flies only
-the flights that have no row yet. A flight that raises is a row with ``status = "error"`` and the error,
-never the end of the campaign. At the end: ``summary.md`` (one line per case) and the plots
+they come in (``parts/*.parquet``, merged into ``flights.parquet`` at the end: ``launch.campaign_store``), and
+on a rerun flies only the flights that have no row yet. A flight that raises is a row with ``status = "error"``
+and the error, never the end of the campaign. At the end: ``summary.md`` (one line per case) and the plots
 ``error_vs_dwells.png`` and ``coverage.png``.
 
 This module sees the truth (``error_m``, ``covered_95``): it belongs with the launchers, not the mission.
@@ -25,11 +25,9 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import signal
 import socket
 import sys
-import tempfile
 import threading
 import time
 import tomllib
@@ -40,20 +38,21 @@ from typing import Any
 
 import numpy as np
 
+from launch.campaign_store import DamagedStore, PartWriter, load_rows, merge
+from launch.campaign_store import params_of as _params
+from launch.campaign_store import salvage as salvage_file
+from launch.ray_cluster import RayConnectError, start_ray
 from radseek import __version__
 from radseek.estimate import SourceEstimate
 from radseek_io.outdir import OutputDirError, atomic_path, atomic_write_json, atomic_write_text, prepare_output
 
-__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "Sweep", "fly_one", "load_rows",
-           "parse_effect", "run_campaign", "summarize", "write_reports"]
+__all__ = ["CAMPAIGN_OUTPUTS", "CHI2_95_2D", "CampaignResult", "CampaignStopped", "DamagedStore", "RayConnectError",
+           "Sweep", "fly_one", "load_rows", "parse_effect", "run_campaign", "summarize", "write_reports"]
 
 #: chi-square 95 % quantile with 2 degrees of freedom (= -2 ln 0.05): the 95 % ellipse is d^2 <= this
 CHI2_95_2D = -2.0 * math.log(0.05)
 #: what a campaign writes in its folder (summaries first: ``--force`` removes them before the data)
 CAMPAIGN_OUTPUTS = ("summary.md", "error_vs_dwells.png", "coverage.png", "flights.parquet", "parts", "campaign.json")
-FLUSH_ROWS = 25  # rows buffered before a part file is written
-FLUSH_S = 30.0  # s: ... or this long after the last part file
-LOOPBACK_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}  # Ray's single-node mode: every server on 127.0.0.1
 
 
 # ------------------------------------------------------------------------------------------------ sweep
@@ -318,76 +317,6 @@ def _number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-# ------------------------------------------------------------------------------------------------ storage
-
-
-def load_rows(out: str | Path) -> list[dict[str, Any]]:
-    """Every recorded row of the campaign in ``out`` (merged file and unmerged parts), one per flight key
-    (the latest wins)."""
-    import pyarrow.parquet as pq
-
-    out = Path(out)
-    files = ([out / "flights.parquet"] if (out / "flights.parquet").exists() else [])
-    files += sorted((out / "parts").glob("part-*.parquet")) if (out / "parts").is_dir() else []
-    rows: dict[str, dict[str, Any]] = {}
-    for f in files:
-        for row in pq.read_table(f).to_pylist():
-            rows[row["key"]] = row
-    return list(rows.values())
-
-
-def _table(rows: list[dict[str, Any]]):
-    import pyarrow as pa
-
-    columns: dict[str, None] = {}
-    for r in rows:
-        columns.update(dict.fromkeys(r))
-    return pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
-
-
-class _PartWriter:
-    def __init__(self, out: Path):
-        self.dir = out / "parts"
-        self.dir.mkdir(parents=True, exist_ok=True)
-        self.buffer: list[dict[str, Any]] = []
-        self.last = time.monotonic()
-        self.n = 0
-
-    def add(self, row: dict[str, Any]) -> None:
-        self.buffer.append(row)
-        if len(self.buffer) >= FLUSH_ROWS or time.monotonic() - self.last > FLUSH_S:
-            self.flush()
-
-    def flush(self) -> None:
-        import pyarrow.parquet as pq
-
-        self.last = time.monotonic()
-        if not self.buffer:
-            return
-        self.n += 1
-        path = self.dir / f"part-{time.time_ns():020d}-{os.getpid()}-{self.n:05d}.parquet"
-        with atomic_path(path) as tmp:
-            pq.write_table(_table(self.buffer), tmp)
-        self.buffer = []
-
-
-def _merge(out: Path) -> list[dict[str, Any]]:
-    """Merge parts into ``flights.parquet`` (atomically, then drop the parts); returns the rows."""
-    import pyarrow.parquet as pq
-
-    rows = load_rows(out)
-    rows.sort(key=lambda r: (r["scene"], r["strategy"], r["effect"], _canonical(_params(r)), r["seed"]))
-    if rows:
-        with atomic_path(out / "flights.parquet") as tmp:
-            pq.write_table(_table(rows), tmp)
-    shutil.rmtree(out / "parts", ignore_errors=True)
-    return rows
-
-
-def _params(row: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: row[k] for k in row if k.startswith("p.")}
-
-
 # ------------------------------------------------------------------------------------------------ progress
 
 
@@ -443,43 +372,6 @@ def _duration(s: float) -> str:
 # ------------------------------------------------------------------------------------------------ Ray
 
 
-def _is_loopback(address: str | None) -> bool:
-    if address is None:
-        return True
-    host = address.rsplit(":", 1)[0].strip("[]")
-    return host in ("localhost", "::1") or host.startswith("127.")
-
-
-def start_ray(workers: int | None, address: str | None, quiet: bool = True, niceness: int | None = None) -> str | None:
-    """Connect to Ray: an embedded local cluster of ``workers`` CPUs (loopback only, no dashboard, its own
-    temporary folder, returned for removal) or the cluster at ``address``. ``niceness``: the embedded
-    workers' nice level (Ray's default 15 yields the CPU to everything else on a shared machine)."""
-    import logging
-
-    if niceness is not None and address is None:
-        os.environ["RAY_worker_niceness"] = str(int(niceness))
-
-    if _is_loopback(address):
-        # Ray's single-node mode (as on macOS/Windows): its node address is 127.0.0.1 and every Ray server
-        # (GCS, raylet, object manager, workers) listens there instead of on all interfaces. Read by Ray at
-        # import, so set before the first ``import ray``; a remote cluster needs the default.
-        if "ray" in sys.modules and os.environ.get("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER") != "0":
-            raise RuntimeError("ray was imported before start_ray(): it would listen on every interface")
-        os.environ.update(LOOPBACK_ENV)
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    import ray
-
-    level = logging.ERROR if quiet else logging.WARNING
-    if address is None:
-        tmp = tempfile.mkdtemp(prefix="radseek-ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 chars
-        ray.init(address="local", num_cpus=workers or os.cpu_count(), include_dashboard=False,
-                 _node_ip_address="127.0.0.1", _temp_dir=tmp, object_store_memory=100 * 1024**2,
-                 log_to_driver=not quiet, logging_level=level, configure_logging=True)
-        return tmp
-    ray.init(address=address, log_to_driver=not quiet, logging_level=level, configure_logging=True)
-    return None
-
-
 def _remote_fly():
     import ray
 
@@ -509,6 +401,7 @@ class CampaignResult:
     skipped: int  # flights already in the output
     wall_s: float
     workers: float  # CPUs Ray offered
+    salvaged: list[tuple[Path, str, int, Path]] = field(default_factory=list)  # damaged file, problem, rows kept, aside
 
 
 def open_campaign(sweep: Sweep, out: str | Path, force: bool = False) -> Path:
@@ -534,17 +427,27 @@ def open_campaign(sweep: Sweep, out: str | Path, force: bool = False) -> Path:
 
 def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, address: str | None = None,
                  force: bool = False, retry_failed: bool = False, progress: bool = True, quiet_ray: bool = True,
-                 plots: bool = True, niceness: int | None = None,
+                 plots: bool = True, niceness: int | None = None, salvage: bool = False,
                  on_row: Callable[[dict[str, Any]], None] | None = None) -> CampaignResult:
     """Fly every flight of ``sweep`` not yet recorded in ``out`` (failed ones too with ``retry_failed``)
-    as Ray tasks; write rows, summary and plots. Returns every row of the campaign."""
+    as Ray tasks; write rows, summary and plots. Returns every row of the campaign. A damaged row file raises
+    :class:`DamagedStore` before anything is written, unless ``salvage``: then its readable rows are kept, it is
+    moved aside and its other flights are flown again (``CampaignResult.salvaged``)."""
     t0 = time.perf_counter()
     scenes = scene_data(sweep.scenes)
     out = open_campaign(sweep, out, force=force)
+    salvaged: list[tuple[Path, str, int, Path]] = []
+    try:
+        recorded = load_rows(out)
+    except DamagedStore as exc:
+        if not salvage:
+            raise
+        salvaged = [(d.path, d.problem, len(d.rows), salvage_file(out, d)) for d in exc.damaged]
+        recorded = load_rows(out)
     atomic_write_json(out / "campaign.json", {
         "fingerprint": sweep.fingerprint(), "sweep": sweep.to_dict(), "radseek_version": __version__,
         "address": address, "workers": workers})
-    done = {r["key"]: r for r in load_rows(out)}
+    done = {r["key"]: r for r in recorded}
     todo = [f for f in sweep.flights()
             if f["key"] not in done or (retry_failed and done[f["key"]]["status"] != "ok")]
     todo = [{**f, "scene_data": scenes[f["scene"]]} for f in todo]
@@ -554,19 +457,19 @@ def run_campaign(sweep: Sweep, out: str | Path, *, workers: int | None = None, a
     if todo:
         cpus = _run_tasks(todo, out, workers, address, Progress(total, skipped, enabled=progress), quiet_ray, on_row,
                           niceness)
-    rows = _merge(out)
+    rows = merge(out)
     keys = {f["key"] for f in sweep.flights()}
     rows_sweep = [r for r in rows if r["key"] in keys]
     write_reports(rows_sweep, out, sweep, plots=plots)
-    return CampaignResult(out, rows_sweep, len(todo), skipped, time.perf_counter() - t0, cpus)
+    return CampaignResult(out, rows_sweep, len(todo), skipped, time.perf_counter() - t0, cpus, salvaged)
 
 
 def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, address: str | None,
                bar: Progress, quiet_ray: bool, on_row: Callable | None, niceness: int | None = None) -> float:
-    tmp = start_ray(workers, address, quiet=quiet_ray, niceness=niceness)
+    reaper = start_ray(workers, address, quiet=quiet_ray, niceness=niceness)
     import ray
 
-    writer = _PartWriter(out)
+    writer = PartWriter(out)
     bar.t0 = time.monotonic()  # rate and ETA from the first task on, not from Ray's start-up
     # Ctrl-C / SIGTERM: stop cleanly (rows so far written, tasks cancelled, Ray shut down); a rerun resumes.
     # Own handlers, because a KeyboardInterrupt does not reliably get out of Ray's blocking calls.
@@ -611,8 +514,8 @@ def _run_tasks(todo: list[dict[str, Any]], out: Path, workers: int | None, addre
             signal.signal(sig, handler)
         writer.flush()
         ray.shutdown()
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        if reaper is not None:
+            reaper.close()  # what ray.shutdown() left (its agents) and the temporary folder
 
 
 def fly_error_row(spec: Mapping[str, Any]) -> dict[str, Any]:

@@ -144,6 +144,7 @@ class _Stream(_PosedHistograms):
         self.detector_t = -1.0
         self.detector_wall: float | None = None
         self.detector_hist_t = -1.0  # the latest histogram time the detector says it published
+        self.write_error: OSError | None = None  # the dataset could not be written (raised by tick)
 
     def _pose(self, pose: topics.Pose) -> bool:
         if not self.poses.add(pose):
@@ -186,7 +187,12 @@ class _Stream(_PosedHistograms):
     def _record(self, hist: topics.Histogram, pose: topics.Pose | None) -> None:
         """Record and queue a released histogram."""
         record = FrameRecord.from_histogram(hist, pose, self.dwell_index, self.recorder.channel_edges_keV)
-        if self.recorder.write(record):
+        try:
+            usable = self.recorder.write(record)
+        except OSError as exc:  # disk full, file too large: a zenoh thread cannot stop the flight, tick() does
+            self.write_error = self.write_error or exc
+            return
+        if usable:
             self.records.append(record)
         self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
 
@@ -423,6 +429,8 @@ class ZenohFrames:
                 hist = await asyncio.wait_for(stream.queue.get(), 0.05)
             except TimeoutError:
                 hist = None
+            if stream.write_error is not None:  # the flight cannot be recorded: stop, naming the cause
+                raise stream.write_error
             if hist is not None:
                 if hist.t > self.t + 1e-6:
                     self.t, self.frame_s, self._following_pose, self._losing = hist.t, hist.duration, False, False

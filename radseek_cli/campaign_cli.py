@@ -48,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", metavar="HOST:PORT", help="run on an existing Ray cluster instead")
     p.add_argument("--niceness", type=int, metavar="N",
                    help="nice level of the embedded workers (default Ray's 15: other work on the machine goes first)")
+    p.add_argument("--salvage", action="store_true",
+                   help="a damaged flights.parquet or part file: keep its readable rows, move it aside "
+                        "(NAME.damaged) and fly its other flights again")
     p.add_argument("--retry-failed", action="store_true", help="fly the recorded failed flights again")
     p.add_argument("--no-plots", action="store_true", help="summary.md only")
     p.add_argument("--dry-run", action="store_true", help="print the flights to fly and exit")
@@ -83,7 +86,7 @@ def sweep_from_args(args: argparse.Namespace):
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from detector_fw_sim.scene import SceneError
-    from launch.campaign import CampaignStopped, run_campaign
+    from launch.campaign import CampaignStopped, DamagedStore, run_campaign
     from radseek_io.outdir import OutputDirError
 
     try:
@@ -101,13 +104,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         res = run_campaign(sweep, args.out, workers=args.workers, address=args.address, force=args.force,
                            retry_failed=args.retry_failed, progress=not args.quiet, quiet_ray=not args.ray_logs,
-                           plots=not args.no_plots, niceness=args.niceness)
-    except (OutputDirError, SceneError, OSError) as exc:
+                           plots=not args.no_plots, niceness=args.niceness, salvage=args.salvage)
+    except (OutputDirError, SceneError, DamagedStore, OSError) as exc:
         print(f"radseek campaign: {exc}", file=sys.stderr)
         return 2
     except CampaignStopped as exc:
         print(f"\nradseek campaign: {exc}", file=sys.stderr)
         return 130
+    for path, problem, kept, aside in res.salvaged:
+        print(f"radseek campaign: {path} was damaged ({problem}): kept its {kept} readable rows, moved it to {aside}",
+              file=sys.stderr)
     failed = sum(r["status"] != "ok" for r in res.rows)
     print(f"{res.flown} flights flown, {res.skipped} already recorded, {failed} failed; "
           f"{res.wall_s:.0f} s on {res.workers:g} CPUs -> {res.out}/flights.parquet, summary.md")

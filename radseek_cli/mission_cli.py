@@ -18,6 +18,7 @@ exit codes (as ``radseek run``'s):
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
 import sys
@@ -33,6 +34,16 @@ from radseek_io.outdir import OutputDirError, prepare_output
 #: what a mission writes under --out, summaries first: --force removes them in this order
 MISSION_OUTPUTS = ("mission_summary.json", "truth.json", "frames.csv", "frames_flagged.csv", "mission_log.jsonl",
                    "scenario.json")
+
+
+def _write_error(exc: OSError) -> str:
+    """One line for a failed write: the file, the system's words and the errno's name."""
+    from radseek_io.dataset import FrameWriteError
+
+    if isinstance(exc, FrameWriteError) or not exc.filename:
+        return str(exc)
+    name = errno.errorcode.get(exc.errno or 0, "")
+    return f"cannot write {exc.filename}: {exc.strerror or exc}{f' ({name})' if name else ''}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -120,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_mission(session, scenario, Path(args.out), config, settings)
     except ConnectionFailed as exc:
         print(f"radseek mission: {exc} (frames recorded while waiting are in {args.out})", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a write to the dataset failed (disk full, file too large): the cause, named
+        print(f"radseek mission: {_write_error(exc)}", file=sys.stderr)
         return 1
     print(json.dumps({k: summary[k] for k in ("reason", "dwell_points", "mission_time_s", "estimate")},
                      default=float))

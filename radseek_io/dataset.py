@@ -13,8 +13,11 @@ reader (:mod:`radseek_io.truth`), which the flight software never imports.
 from __future__ import annotations
 
 import csv
+import errno
+import io
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -639,12 +642,18 @@ def read_dataset(path: str | Path, progress: Callable[[int, int], None] | None =
 # ---------------------------------------------------------------------------------------- writing
 
 
+class FrameWriteError(OSError):
+    """A frame row could not be written (disk full, file too large, I/O error): names the file, the cause and what
+    was kept. The file is cut back to its last whole row, so what was written stays a valid ``frames.csv``."""
+
+
 class FrameWriter:
-    """Append frame records to ``frames.csv`` as they arrive, flushed per row, so a crash loses nothing.
+    """Append frame records to ``frames.csv`` as they arrive, one ``write`` call per row, so a crash loses nothing.
 
     Use as a context manager; ``write`` takes one :class:`radseek.frame_record.FrameRecord`.
     ``extra_columns`` are record fields appended after the standard columns (the format allows added
-    columns; readers ignore them): the board's ``seq`` and ``flags``.
+    columns; readers ignore them): the board's ``seq`` and ``flags``. A failed write raises
+    :class:`FrameWriteError` after cutting the file back to its last whole row.
     """
 
     EXTRA_FIELDS = ("seq", "flags")
@@ -656,19 +665,47 @@ class FrameWriter:
         if unknown:
             raise ValueError(f"extra columns {sorted(unknown)} are not record fields {self.EXTRA_FIELDS}")
         self.extra_columns = tuple(extra_columns)
-        self._fh = open(self.path / filename, "w", newline="")  # noqa: SIM115 (closed in close())
-        self._csv = csv.writer(self._fh)
-        self._csv.writerow([*COLUMNS, *self.extra_columns])
+        self.file = self.path / filename
+        self._fd: int | None = os.open(self.file, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self.bytes = 0  # bytes of whole rows in the file
         self.rows = 0
+        self._line([*COLUMNS, *self.extra_columns])
 
     def write(self, record: FrameRecord) -> None:
-        self._csv.writerow([*record.csv_cells(), *(getattr(record, c) for c in self.extra_columns)])
-        self._fh.flush()
+        self._line([*record.csv_cells(), *(getattr(record, c) for c in self.extra_columns)])
         self.rows += 1
 
+    def _line(self, cells: Sequence[Any]) -> None:
+        if self._fd is None:
+            raise FrameWriteError(f"{self.file}: written to after it was closed or failed")
+        buf = io.StringIO()
+        csv.writer(buf).writerow(cells)
+        data = memoryview(buf.getvalue().encode())
+        try:
+            while data:
+                data = data[os.write(self._fd, data):]
+        except OSError as exc:
+            self._fail(exc)
+        self.bytes += len(buf.getvalue().encode())
+
+    def _fail(self, exc: OSError) -> None:
+        """Cut the file back to its last whole row, close it, and raise the cause named."""
+        fd, self._fd = self._fd, None
+        try:
+            os.ftruncate(fd, self.bytes)
+        except OSError:
+            pass
+        os.close(fd)
+        name = errno.errorcode.get(exc.errno or 0, "")
+        err = FrameWriteError(f"cannot write {self.file}: {exc.strerror or exc}{f' ({name})' if name else ''} "
+                              f"after {self.bytes} bytes; the {self.rows} rows written stay valid")
+        err.errno = exc.errno  # (no strerror/filename: OSError.__str__ would print those instead of the line)
+        raise err from exc
+
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.close()
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
     def __enter__(self) -> FrameWriter:
         return self

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
+import secrets
 import signal
 import socket
 import subprocess
@@ -16,7 +18,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_one, open_campaign, parse_effect, summarize
+from launch.campaign import CHI2_95_2D, Sweep, coverage, fly_error_row, fly_one, open_campaign, parse_effect, summarize
+from launch.campaign_store import ROW_GROUP_ROWS, DamagedFile, DamagedStore, load_rows, read_file, salvage, write_rows
 from radseek.estimate import SourceEstimate
 from radseek_io.outdir import OutputDirError
 
@@ -111,6 +114,102 @@ def test_output_folder_holds_one_sweep(tmp_path):
     assert not (out / "campaign.json").exists()
 
 
+# ------------------------------------------------------------------------------------------------ damaged store
+
+
+def _recorded(tmp_path: Path, seeds: int) -> tuple[Sweep, Path, list[dict]]:
+    """A campaign folder as a finished run leaves it: campaign.json and a merged flights.parquet (rows of the
+    driver's own row builder, each with a distinct number)."""
+    sweep = Sweep(scenes=["default"], strategies=["lattice"], seeds=list(range(seeds)), params=FAST_PARAMS)
+    out = open_campaign(sweep, tmp_path / "c")
+    (out / "campaign.json").write_text(json.dumps({"fingerprint": sweep.fingerprint()}))
+    rows = [{**fly_error_row(f), "error_m": 0.01 * f["seed"]} for f in sweep.flights()]
+    write_rows(out / "flights.parquet", rows)
+    return sweep, out, rows
+
+
+def _chunk_end(path: Path, group: int, column: str) -> int:
+    """The offset of the last byte of ``column``'s chunk in row group ``group`` (inside its data page)."""
+    meta = pq.ParquetFile(path).metadata
+    j = [meta.schema.column(i).name for i in range(meta.num_columns)].index(column)
+    c = meta.row_group(group).column(j)
+    return (c.dictionary_page_offset or c.data_page_offset) + c.total_compressed_size - 1
+
+
+def _flip(path: Path, offset: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def _empty(path: Path) -> str:
+    path.write_bytes(b"")
+    return "0 bytes"
+
+
+def _truncated(path: Path) -> str:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    return "truncated"
+
+
+def _corrupted(path: Path) -> str:
+    _flip(path, _chunk_end(path, 1, "error_m"))
+    return "corrupted bytes in row group 2 of 3"
+
+
+@pytest.mark.parametrize("damage", [_empty, _truncated, _corrupted])
+def test_a_damaged_flights_file_is_named_in_one_line_and_left_as_it_is(tmp_path, capsys, damage):
+    from radseek_cli.campaign_cli import main
+
+    _, out, _ = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
+    what = damage(out / "flights.parquet")
+    before = (out / "flights.parquet").read_bytes()
+    code = main(["--scenes", "default", "--seeds", str(2 * ROW_GROUP_ROWS + 6), *FAST, "--out", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(out / "flights.parquet") in err and what in err and "--salvage" in err, err
+    assert "Traceback" not in err and "rerun with --salvage" in err
+    assert (out / "flights.parquet").read_bytes() == before and sorted(p.name for p in out.iterdir()) == [
+        "campaign.json", "flights.parquet"]
+
+
+def test_corrupted_bytes_cost_only_their_row_group_and_salvage_keeps_the_rest(tmp_path):
+    sweep, out, rows = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
+    path = out / "flights.parquet"
+    _flip(path, _chunk_end(path, 1, "error_m"))  # one bit of one number: a plain read returns a wrong value
+    plain = pq.read_table(path).to_pylist()
+    assert sum(a["error_m"] != b["error_m"] for a, b in zip(plain, rows, strict=True)) == 1
+    damaged_bytes = path.read_bytes()
+    with pytest.raises(DamagedStore, match=f"{ROW_GROUP_ROWS + 6} of {2 * ROW_GROUP_ROWS + 6} rows readable"):
+        load_rows(out)  # the page checksum catches it
+    got = read_file(path)
+    assert isinstance(got, DamagedFile) and "CRC" in got.problem
+    lost = {r["key"] for r in rows[ROW_GROUP_ROWS:2 * ROW_GROUP_ROWS]}
+    assert {r["key"] for r in got.rows} == {r["key"] for r in rows} - lost
+    assert all(r["error_m"] == by["error_m"] for r, by in zip(got.rows, [x for x in rows if x["key"] not in lost],
+                                                              strict=True))
+    aside = salvage(out, got)
+    assert aside == out / "flights.parquet.damaged" and aside.read_bytes() == damaged_bytes  # kept, not deleted
+    kept = load_rows(out)
+    assert {r["key"] for r in kept} == {r["key"] for r in rows} - lost
+    todo = [f for f in sweep.flights() if f["key"] not in {r["key"] for r in kept}]
+    assert {f["key"] for f in todo} == lost  # a resume flies exactly the lost flights
+
+
+def test_a_damaged_part_file_is_moved_beside_the_parts_not_into_them(tmp_path):
+    _, out, rows = _recorded(tmp_path, 3)
+    (out / "parts").mkdir()
+    part = out / "parts" / "part-00000000000000000001-1-00001.parquet"
+    write_rows(part, rows[:2])
+    _truncated(part)
+    with pytest.raises(DamagedStore, match="part-00000000000000000001-1-00001.parquet is damaged"):
+        load_rows(out)
+    got = read_file(part)
+    assert isinstance(got, DamagedFile) and got.rows == [] and got.total_rows is None
+    assert salvage(out, got) == out / f"{part.name}.damaged"  # the parts folder is removed after a merge
+    assert {r["key"] for r in load_rows(out)} == {r["key"] for r in rows}
+
+
 # ------------------------------------------------------------------------------------------------ Ray
 
 
@@ -166,6 +265,17 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path):
 
     r = _campaign("--scenes", "default", "--seeds", "1", *FAST, "--out", str(out))  # another sweep
     assert r.returncode == 2 and "--force" in r.stderr
+
+    damaged = (out / "flights.parquet").read_bytes()[:-100]  # truncated: no footer, no row readable
+    (out / "flights.parquet").write_bytes(damaged)
+    r = _campaign(*args("1"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "flights.parquet is damaged (truncated" in r.stderr and "--salvage" in r.stderr
+    assert (out / "flights.parquet").read_bytes() == damaged
+    r = _campaign(*args("1"), "--salvage")  # seed 0 only: its 4 flights are flown again
+    assert r.returncode == 0, r.stderr
+    assert "4 flights flown, 0 already recorded" in r.stdout and "moved it to" in r.stderr
+    assert (out / "flights.parquet.damaged").read_bytes() == damaged and len(_rows(out)) == 4
 
 
 def _free_port() -> int:
@@ -259,3 +369,142 @@ def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
         _stop(pids)
         subprocess.run(["rm", "-rf", temp_dir], check=False)
     assert pids and not _alive(pids)
+
+
+def _stat(pid: int) -> tuple[str, int, int] | None:
+    """(state, parent, start time) of a process, None if gone."""
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return f[0], int(f[1]), int(f[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _tree(root: int) -> dict[int, tuple[int, str]]:
+    """``root``'s descendants now: pid -> (start time, command line)."""
+    parents = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit() and (st := _stat(int(p.name))) is not None:
+            parents[int(p.name)] = st[1]
+    mine, grew = {root}, True
+    while grew:
+        kids = {pid for pid, ppid in parents.items() if ppid in mine} - mine
+        mine |= kids
+        grew = bool(kids)
+    out = {}
+    for pid in mine - {root}:
+        st = _stat(pid)
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if st is not None:
+            out[pid] = (st[2], cmd)
+    return out
+
+
+def _survivors(procs: dict[int, tuple[int, str]]) -> dict[int, str]:
+    """Those of ``procs`` still running (the same process: same start time; a zombie has ended)."""
+    return {pid: cmd for pid, (start, cmd) in procs.items()
+            if (st := _stat(pid)) is not None and st[2] == start and st[0] not in "ZX"}
+
+
+@pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
+def test_kill_9_of_a_campaign_leaves_no_ray_process_and_no_temporary_folder(tmp_path):
+    proc = subprocess.Popen([str(BIN / "radseek"), "campaign", "--scenes", "default", "--seeds", "60", *FAST,
+                             "--workers", "2", "--out", str(tmp_path / "c"), "-q"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    tree: dict[int, tuple[int, str]] = {}
+    try:
+        deadline = time.monotonic() + 240
+        while not any("ray::fly_one" in cmd for _, cmd in tree.values()):  # the cluster is flying flights
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, sorted(cmd[:60] for _, cmd in tree.values())
+            time.sleep(0.3)
+            tree = _tree(proc.pid)
+        tree = _tree(proc.pid)
+        cmds = " ".join(cmd for _, cmd in tree.values())
+        assert "ray::DashboardAgent" in cmds and "ray::RuntimeEnvAgent" in cmds and "raylet" in cmds, cmds
+        temp = re.search(r"/tmp/radseek-ray-[A-Za-z0-9_]+", cmds).group(0)
+        assert Path(temp).is_dir()
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 60
+        while (_survivors(tree) or Path(temp).exists()) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert not _survivors(tree), _survivors(tree)
+        assert not Path(temp).exists(), sorted(p.name for p in Path(temp).iterdir())
+        later = {pid: cmd for pid, cmd in _pids_cmdlines().items() if temp in cmd}  # started after the snapshot
+        assert not later, later
+    finally:
+        proc.kill()
+        for pid in _survivors(tree):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def _pids_cmdlines() -> dict[int, str]:
+    out = {}
+    for p in Path("/proc").iterdir():
+        if p.name.isdigit():
+            try:
+                out[int(p.name)] = (p / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                pass
+    return out
+
+
+@pytest.mark.io
+def test_an_address_where_nothing_listens_is_named_at_once(tmp_path):
+    port = _free_port()
+    r = _campaign("--address", f"127.0.0.1:{port}", "--scenes", "default", "--seeds", "1", *FAST,
+                  "--out", str(tmp_path / "c"), timeout=120)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"no Ray cluster at 127.0.0.1:{port}: nothing listens there (Connection refused)" in r.stderr
+
+
+def _client_env(home: Path, **auth: str) -> dict[str, str]:
+    """The environment of a client with only the given Ray authentication variables (and a home without a token)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")}
+    return {**env, "HOME": str(home), "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0", **auth}
+
+
+@pytest.mark.slow
+@pytest.mark.io
+@RAY_GROUP
+def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
+    temp_dir = f"/tmp/rsk-tok-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
+    port, token = _free_port(), secrets.token_hex(32)
+    head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token)
+    start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
+                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "1",
+                            "--temp-dir", temp_dir, "--disable-usage-stats"],
+                           capture_output=True, text=True, timeout=180, env=head)
+    try:
+        assert start.returncode == 0, start.stdout + start.stderr
+        args = ["--address", f"127.0.0.1:{port}", "--scenes", "default", "--seeds", "1", *FAST]
+
+        def campaign(out: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+            return subprocess.run([str(BIN / "radseek"), "campaign", *args, "--out", str(tmp_path / out)],
+                                  capture_output=True, text=True, timeout=500, env=env)
+
+        r = campaign("none", _client_env(tmp_path))
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert f"the Ray cluster at 127.0.0.1:{port} wants a token" in r.stderr
+        assert "set RAY_AUTH_MODE=token" in r.stderr and "RAY_AUTH_TOKEN" in r.stderr, r.stderr
+        r = campaign("wrong", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32)))
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "refused this client's token" in r.stderr, r.stderr
+        r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token))  # what it said
+        assert r.returncode == 0, r.stderr
+        assert [x["status"] for x in _rows(tmp_path / "right")] == ["ok"]
+    finally:
+        pids = _pids_of(temp_dir)
+        _stop(pids)
+        subprocess.run(["rm", "-rf", temp_dir], check=False)
+    assert pids and not _alive(pids)
+
