@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from radseek import topics
+from radseek.zenoh_auth import RECORDER
 from radseek_cli.serve import serve_on_session
 from radseek_io.mcap_log import Recorder
 
@@ -55,4 +56,5 @@ def main(argv: list[str] | None = None) -> int:
         "radseek record", args, lambda session: Recorder(args.out, session, mavlink_port=unnamed, mavlink_ports=named),
         OSError, lambda exc: f"UDP port(s) {ports} unavailable ({exc.strerror}): choose others with --mavlink-port",
         started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
-        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints
+        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages",  # the session is closed before this prints
+        user=RECORDER)
