@@ -7,6 +7,7 @@ when a subscriber that received every allowed put sent with it, and waited a gra
 from __future__ import annotations
 
 import os
+import shlex
 import stat
 import subprocess
 import sys
@@ -21,6 +22,7 @@ from launch.zenoh_auth import stack_env, write_run_credentials
 from radseek import topics
 from radseek.zenoh_auth import PUTS, CredentialsError, User, find_user, put_keys, read_credentials
 from radseek.zenoh_session import RouterRefused, open_session
+from radseek_cli.inspect_cli import ZENOH_CLI_RUN_COMMAND
 from tests.conftest import free_port
 
 VEHICLES = ["uav0", "uav1"]
@@ -196,11 +198,12 @@ def test_a_forged_histogram_flood_does_not_reach_the_mission(auth_router):
 
 @pytest.mark.io
 def test_zenoh_cli_watches_with_the_observer_config(auth_router):
-    """The README's zenoh-cli recipe with the run's OUT/zenoh/observer.json5 prints the stack's messages."""
-    config = auth_router.credentials.parent / "observer.json5"
-    cli = subprocess.Popen([str(Path(sys.executable).parent / "zenoh"), "--config", str(config), "subscribe",
-                            "-k", "radseek/**", "--decoder", "json", "--line", "{key} {value}"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    """docs/topics.md's zenoh-cli recipe for a run, with the run's OUT/zenoh/observer.json5, prints the stack's
+    messages (the router refuses the recipe without credentials: test_a_session_without_...)."""
+    out = auth_router.credentials.parent.parent  # the run's OUT folder
+    cmd = shlex.split(ZENOH_CLI_RUN_COMMAND.replace("OUT/", f"{out}/"))  # the documented command
+    cmd[0] = str(Path(sys.executable).parent / "zenoh")
+    cli = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(cli.stdout), daemon=True)
     reader.start()
