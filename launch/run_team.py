@@ -88,8 +88,9 @@ def team_verdict(summaries: dict[str, dict]) -> tuple[str | None, dict | None]:
 
 def run_team(args, scene, out: Path, speedup: float, ports) -> int:
     """The team flight on ``ports`` (``launch.ports.Ports``: vehicle v on PX4 instance N + v)."""
+    from launch.zenoh_auth import stack_env, write_run_credentials
     from radseek.simclock import ZenohClock
-    from radseek.zenoh_session import open_session
+    from radseek.zenoh_session import open_session, session_user
     from radseek_io.dataset import write_json
     from radseek_io.outdir import atomic_write_json
 
@@ -108,7 +109,8 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
     scene_file.write_text(scene.model_dump_json(indent=2))
     endpoint = ports.endpoint
     port = [ports.vehicle(v) for v in range(n)]
-    stack = Stack(out / "logs")
+    credentials = write_run_credentials(out, names, endpoint)
+    stack = Stack(out / "logs", env=stack_env(credentials))
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
     print(f"radseek run: scene {scene.name!r}, {n} vehicles, speed-up {speedup:g}, output {out}", file=sys.stderr)
@@ -127,7 +129,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
         recorder = recorder_ready(stack, out) if args.mcap else None
         for name in names:
             stack.wait_for_line(f"detector-{name}", "waiting for", timeout_s=180.0)
-        with open_session(connect=endpoint) as session:
+        with open_session(connect=endpoint, user=session_user(credentials=credentials)) as session:
             up = {name: threading.Event() for name in names}
             subs = [session.declare_subscriber(topics.key(topics.MISSION_STATE, name),
                                                lambda _s, e=up[name]: e.set()) for name in names]

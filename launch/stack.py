@@ -66,14 +66,15 @@ class Stack:
     """The processes of one run; each logs to its own file and is stopped on exit (and, on Linux, when the
     run itself is killed: :func:`_die_with_parent`)."""
 
-    def __init__(self, logs: Path):
+    def __init__(self, logs: Path, env: dict[str, str] | None = None):
         self.logs = logs
         self.logs.mkdir(parents=True, exist_ok=True)
         self.procs: dict[str, subprocess.Popen] = {}
+        self.env = env or {}  # on top of the launcher's environment (the run's zenoh credentials)
 
     def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
         fh = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 (closed with the process)
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        env = {**os.environ, **self.env, "PYTHONUNBUFFERED": "1"}
         proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True,
                                 preexec_fn=_die_with_parent(os.getpid()))
         self.procs[name] = proc

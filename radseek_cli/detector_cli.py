@@ -32,7 +32,7 @@ import time
 from detector_fw_sim.detector_process import DetectorConfig, DetectorProcess, FaultConfig
 from radseek import topics
 from radseek.simclock import ClockPublisher, FreeRunningClock, ZenohClock
-from radseek.zenoh_session import add_arguments, session_from_args
+from radseek.zenoh_session import OPEN_ERRORS, add_arguments, session_from_args
 
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -138,8 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     emulator = DetectorEmulator(scene, seed=args.seed)
     try:
-        session = session_from_args(args)
-    except (TimeoutError, FileNotFoundError) as exc:
+        session = session_from_args(args, "detector")
+    except OPEN_ERRORS as exc:
         print(f"radseek detector: {exc}", file=sys.stderr)
         return 1
     config = DetectorConfig(

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from radseek import topics
-from radseek.zenoh_session import add_arguments, session_from_args
+from radseek.zenoh_session import OPEN_ERRORS, add_arguments, session_from_args
 
 BLOCKS = " ▁▂▃▄▅▆▇█"
 FLAG_NAMES = {
@@ -204,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(str(exc))
     try:
         session = session_from_args(args, wait_for_router_s=3.0)  # say so at once when no router answers
-    except (TimeoutError, FileNotFoundError) as exc:
+    except OPEN_ERRORS as exc:
         print(f"radseek echo: {exc}", file=sys.stderr)
         return 1
     inbox: queue.Queue[tuple[str, bytes, float]] = queue.Queue()

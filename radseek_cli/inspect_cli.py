@@ -16,7 +16,7 @@ import threading
 import time
 from dataclasses import dataclass, fields
 
-from radseek import topics
+from radseek import topics, zenoh_auth
 from radseek.zenoh_session import add_arguments
 from radseek_cli.serve import open_session_or_report, serve_until_stopped
 
@@ -106,6 +106,8 @@ def _field_comments(cls: type) -> dict[str, tuple[str, str]]:
 
 ZENOH_CLI_COMMAND = ("zenoh --mode peer --connect tcp/127.0.0.1:7447 --cfg 'scouting/multicast/enabled:false' "
                      "--cfg 'listen/endpoints:[]' subscribe -k 'radseek/**' --decoder json --line '{key} {value}'")
+ZENOH_CLI_RUN_COMMAND = ("zenoh --config OUT/zenoh/observer.json5 subscribe -k 'radseek/**' --decoder json "
+                         "--line '{key} {value}'")
 ZENOH_CLI_RECIPE = f"""The third-party `zenoh` command (PyPI `zenoh-cli`, installed with radseek's dev extras) shows the
 same keys. It needs the router's endpoint (without `--connect` it finds nothing: multicast scouting is off
 on radseek's loopback network) and `--decoder json` (without it payloads print as base64):
@@ -116,7 +118,56 @@ on radseek's loopback network) and `--decoder json` (without it payloads print a
 
 prints one line per message, e.g. `radseek/uav0/sim/clock {{"t": 12.3, "speedup": 1.0}}`. Narrow the key
 (`-k 'radseek/uav0/detector/histogram'`) to follow one topic; `detector/raw` is binary, leave it out of
-a JSON subscription or use `radseek echo detector/raw`. `tests/test_cli_promises.py` runs this command."""
+a JSON subscription or use `radseek echo detector/raw`. `tests/test_cli_promises.py` runs this command.
+
+The router of `radseek run` admits only the run's users (see "Authentication" below): watch it with the
+observer's client configuration the run writes, which holds the endpoint and the credentials
+(`tests/test_zenoh_auth.py` runs this command):
+
+```sh
+{ZENOH_CLI_RUN_COMMAND}
+```
+
+`radseek echo KEY --zenoh-config OUT/zenoh/observer.json5` and `radseek topics --zenoh-config ...` take the same
+file."""
+
+
+AUTH_SECTION = f"""## Authentication
+
+`radseek run` starts its router with a per-run secret: `OUT/zenoh/credentials` (mode 0600, in a 0700 folder;
+never printed) lists one random password per user, in zenoh's own `usrpwd` dictionary format
+(`USER:PASSWORD` per line). The run names it to every process it starts by the environment variable
+`{zenoh_auth.CREDENTIALS_ENV}`: the router (`radseek router`) then admits only those users
+(`transport.auth.usrpwd.dictionary_file`) and applies an `access_control` built from their names (default
+deny); every other process connects as its own user from the same file. Every user may subscribe to every
+key; a user may put only the keys its name gives it, so a put on another's key is dropped by the router and
+reaches no subscriber, and a process without the secret cannot open a session at all
+(`radseek/zenoh_auth.py`, `tests/test_zenoh_auth.py`):
+
+| user name | may put |
+| --- | --- |"""
+
+AUTH_HARDWARE = f"""`ROLE.LABEL@VEHICLE` (e.g. `detector.board7@uav0`) is a second identity with the same rights: a
+process looks for its own name (`detector@uav0`) and otherwise takes the first line of its role and vehicle
+(a reader: the first reader's line). A process given `--zenoh-config FILE` uses that file's credentials.
+
+**A hardware board or a ground station with its own credential.** Write a credentials file for the router
+with a line per user, one `USER:PASSWORD` each (no blank lines or comments: zenoh reads the file as it is),
+e.g. `detector.board7@uav0:<secret>` for the board's companion computer and `groundstation:<secret>` for a
+ground station, start the router with it and give each machine a file holding its own line:
+
+```sh
+{zenoh_auth.CREDENTIALS_ENV}=router-users radseek router --listen tcp/0.0.0.0:7447
+{zenoh_auth.CREDENTIALS_ENV}=board7 radseek detector --connect tcp/ROUTER:7447 ...   # the board's publisher
+{zenoh_auth.CREDENTIALS_ENV}=gcs radseek echo detector/histogram --connect tcp/ROUTER:7447   # ground station
+```
+
+A file with an unknown role, a repeated user or a malformed line is refused by line number; an empty one too
+(zenoh would take it as "no authentication"). Without `{zenoh_auth.CREDENTIALS_ENV}` the router is open, as
+before, to any session that reaches it (a hand-started stack on loopback). The ACL cannot be changed while
+the router runs: restart it to add a user. `usrpwd` authenticates a session; it does not encrypt its traffic:
+beyond loopback, listen and connect on zenoh's `tls/` endpoints as well. A detector on its own clock
+(`--clock own`) publishes `sim/clock`, which a `detector` user may not put: run it alone on an open router."""
 
 
 def topics_markdown() -> str:
@@ -146,7 +197,13 @@ def topics_markdown() -> str:
         payload = f"`{cls.__name__}` (JSON)" if cls else "board frame (90 bytes binary)"
         lines.append(f"| `{topics.PREFIX}/<vehicle>/{t}` | {PUBLISHERS.get(t, '?')} | {RATES.get(t, 'on change')} "
                      f"| {payload} | `{topics.encoding(t)}` |")
-    lines += ["", "## Watching with zenoh-cli", "", ZENOH_CLI_RECIPE]
+    lines += ["", "## Watching with zenoh-cli", "", ZENOH_CLI_RECIPE, "", AUTH_SECTION]
+    for role, keys in zenoh_auth.PUTS.items():
+        shared = ", ".join(f"`{k}`" for k in zenoh_auth.SHARED_PUTS.get(role, ()))
+        lines.append(f"| `{role}@VEHICLE` | " + ", ".join(f"`{topics.PREFIX}/VEHICLE/{k}`" for k in keys)
+                     + (f", {shared}" if shared else "") + " |")
+    lines.append("| any other name (`recorder`, `observer`, `groundstation`) | nothing: it only subscribes |")
+    lines += ["", AUTH_HARDWARE]
     flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
     lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]
     src = inspect.getsource(topics)

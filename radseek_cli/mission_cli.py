@@ -122,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         # --connect-timeout governs every wait: the router's as well as the autopilot's
-        session = zenoh_session.session_from_args(args, wait_for_router_s=args.connect_timeout)
-    except TimeoutError as exc:
+        session = zenoh_session.session_from_args(args, "mission", wait_for_router_s=args.connect_timeout)
+    except zenoh_session.OPEN_ERRORS as exc:
         print(f"radseek mission: {exc}", file=sys.stderr)
         return 1
     try:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from radseek import topics
 from radseek.coordinates import Home
+from radseek.zenoh_auth import RECORDER
 from radseek_cli.serve import serve_on_session
 from radseek_io.dataset import read_scenario
 from radseek_io.mcap_log import Recorder
@@ -75,4 +76,5 @@ def main(argv: list[str] | None = None) -> int:
                                  home=home),
         OSError, lambda exc: f"UDP port(s) {ports} unavailable ({exc.strerror}): choose others with --mavlink-port",
         started=lambda rec: f"recording {topics.all_keys()} to {args.out}",
-        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages")  # the session is closed before this prints
+        stop=lambda rec: f"wrote {rec.stop()}: {rec.log.count} messages",  # the session is closed before this prints
+        user=RECORDER)

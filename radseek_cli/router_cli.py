@@ -1,4 +1,9 @@
-"""``radseek router``: a zenoh router on loopback (tcp/127.0.0.1:7447), multicast scouting off."""
+"""``radseek router``: a zenoh router on loopback (tcp/127.0.0.1:7447), multicast scouting off.
+
+With RADSEEK_ZENOH_CREDENTIALS=FILE in its environment it admits only the users FILE lists (USER:PASSWORD
+lines) and lets each put only its own keys: ROLE@VEHICLE puts that role's keys of that vehicle (detector,
+vehicle, mission), any other name only reads (radseek/zenoh_auth.py, docs/topics.md "Authentication").
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,7 @@ import threading
 
 import zenoh
 
+from radseek.zenoh_auth import CredentialsError, credentials_file, read_credentials
 from radseek.zenoh_session import DEFAULT_ENDPOINT, router_config
 
 
@@ -30,11 +36,19 @@ def _in_use(endpoint: str) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="radseek router", description=__doc__)
+    p = argparse.ArgumentParser(prog="radseek router", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--listen", default=DEFAULT_ENDPOINT, help=f"endpoint to listen on (default {DEFAULT_ENDPOINT})")
     p.add_argument("--zenoh-config", metavar="FILE", help="standard zenoh JSON5 router config instead")
     args = p.parse_args(argv)
-    conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else router_config(args.listen)
+    credentials = credentials_file()
+    try:
+        conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else \
+            router_config(args.listen, credentials)
+        users = read_credentials(credentials) if credentials and not args.zenoh_config else None
+    except CredentialsError as exc:
+        print(f"radseek router: {exc}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
@@ -48,7 +62,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"radseek router: cannot listen on {args.listen}: {exc}", file=sys.stderr)
         return 1
     with session:
-        print(f"radseek router {session.zid()} listening on {args.listen}", flush=True)
+        auth = "open to any session" if users is None else \
+            f"admitting {len(users)} users of {credentials} (each puts only its own keys)"
+        print(f"radseek router {session.zid()} listening on {args.listen}, {auth}", flush=True)
         try:
             stop.wait()
         except KeyboardInterrupt:

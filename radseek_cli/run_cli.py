@@ -64,7 +64,7 @@ from radseek import topics
 from radseek.simclock import ZenohClock
 
 #: what a run writes under --out, summaries and reports first: --force removes them in this order
-RUN_OUTPUTS = ("summary.json", "report.png", "flight.mcap", "dataset", "logs", "scenario.json", "scene.json")
+RUN_OUTPUTS = ("summary.json", "report.png", "flight.mcap", "dataset", "logs", "scenario.json", "scene.json", "zenoh")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
-    from radseek.zenoh_session import open_session
+    from launch.zenoh_auth import stack_env, write_run_credentials
+    from radseek.zenoh_session import open_session, session_user
     from radseek_io.dataset import write_json
     from radseek_io.outdir import atomic_write_json
 
@@ -176,7 +177,8 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
     scene_file.write_text(scene.model_dump_json(indent=2))
     endpoint = ports.endpoint
     port = ports.vehicle(0)
-    stack = Stack(out / "logs")
+    credentials = write_run_credentials(out, [topics.DEFAULT_VEHICLE], endpoint)
+    stack = Stack(out / "logs", env=stack_env(credentials))
     if threading.current_thread() is threading.main_thread():
         # SIGTERM (kill, CI cancelling a job) stops the stack like Ctrl-C does, instead of orphaning it
         signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
@@ -196,7 +198,7 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
         # waiting for the clock, and the mission is up and recording (its first mission/state follows its
         # subscriptions), so no simulated time passes unmeasured, however slowly the processes start
         stack.wait_for_line("detector", "waiting for", timeout_s=180.0)
-        with open_session(connect=endpoint) as session:
+        with open_session(connect=endpoint, user=session_user(credentials=credentials)) as session:
             mission_up = threading.Event()
             state_sub = session.declare_subscriber(topics.key(topics.MISSION_STATE, topics.DEFAULT_VEHICLE),
                                                    lambda _sample: mission_up.set())

@@ -95,10 +95,11 @@ class _ZenohOut:
     def _open(self) -> None:
         from radseek import topics
         from radseek.simclock import ClockPublisher
-        from radseek.zenoh_session import open_session
+        from radseek.zenoh_session import open_session, session_user
 
         try:
-            session = open_session(self.cfg.zenoh_config, self.cfg.zenoh_connect, wait_for_router_s=1e9)
+            user = None if self.cfg.zenoh_config else session_user("vehicle", self.cfg.vehicle_name)
+            session = open_session(self.cfg.zenoh_config, self.cfg.zenoh_connect, user=user, wait_for_router_s=1e9)
         except Exception as exc:  # noqa: BLE001 - zenoh trouble must not stop the vehicle
             log.error("zenoh unavailable (%s): flying without zenoh topics", exc)
             return
