@@ -7,6 +7,7 @@ MAVSDK), never on wall-clock durations."""
 from __future__ import annotations
 
 import asyncio
+import math
 import socket
 from contextlib import asynccontextmanager
 
@@ -16,6 +17,7 @@ from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 pytestmark = [pytest.mark.io, pytest.mark.slow]
 WAIT_S = 240.0  # bounds waiting only
+HOME = (47.397742, 8.545594)  # the vehicle's default home (PX4 SITL's)
 
 
 def free_tcp_port() -> int:
@@ -73,3 +75,64 @@ def test_unknown_parameter_fails_fast_with_does_not_exist():
     assert unknown_get._result.result == ParamResult.Result.DOES_NOT_EXIST
     assert out_of_range._result.result == ParamResult.Result.VALUE_OUT_OF_RANGE
     assert value == pytest.approx(4.0)
+
+
+async def _position(drone) -> tuple[float, float, float]:
+    """(north m, east m, up m) about home, from MAVSDK's position telemetry."""
+    async for p in drone.telemetry.position():
+        n = math.radians(p.latitude_deg - HOME[0]) * 6378137.0
+        e = math.radians(p.longitude_deg - HOME[1]) * 6378137.0 * math.cos(math.radians(HOME[0]))
+        return n, e, p.relative_altitude_m
+
+
+async def _heading(drone) -> float:
+    async for h in drone.telemetry.heading():
+        return h.heading_deg
+
+
+async def _fly_sticks(drone, sticks: tuple[float, float, float, float], done, limit: int = 400) -> tuple:
+    """Send the sticks at 10 Hz (x forward, y right, z throttle 0..1, r yaw) until ``done(position)``."""
+    for _ in range(limit):  # bounds waiting only
+        await drone.manual_control.set_manual_control_input(*sticks)
+        pos = await _position(drone)
+        if done(pos):
+            return pos
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"sticks {sticks} never got there: at {pos}")
+
+
+def test_manual_control_sticks_as_px4_reads_them():
+    async def session(api):
+        async with drone_on(api) as drone:
+            await drone.manual_control.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
+            await drone.action.arm()
+            await drone.action.takeoff()
+            for _ in range(400):
+                if (await _position(drone))[2] > 2.3:
+                    break
+                await asyncio.sleep(0.1)
+            await drone.manual_control.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
+            await drone.manual_control.start_position_control()
+            mode = await anext(aiter(drone.telemetry.flight_mode()))
+            n0, e0, u0 = await _position(drone)
+            h0 = await _heading(drone)  # north: forward is north, right is east
+            fwd = await _fly_sticks(drone, (1.0, 0.0, 0.5, 0.0), lambda p: p[0] - n0 > 4.0)
+            right = await _fly_sticks(drone, (0.0, 1.0, 0.5, 0.0), lambda p: p[1] - e0 > 4.0)
+            up = await _fly_sticks(drone, (0.0, 0.0, 1.0, 0.0), lambda p: p[2] - u0 > 2.0)
+            # centred: brakes and holds; then full right yaw turns clockwise
+            held = [await _fly_sticks(drone, (0.0, 0.0, 0.5, 0.0), lambda p: True) for _ in range(30)]
+            for _ in range(10):
+                await drone.manual_control.set_manual_control_input(0.0, 0.0, 0.5, 1.0)
+                await asyncio.sleep(0.1)
+            h1 = await _heading(drone)
+            return str(mode), (n0, e0, u0), h0, fwd, right, up, held, h1
+
+    mode, start, h0, fwd, right, up, held, h1 = run(session)
+    assert mode == "POSCTL"
+    assert abs(h0) < 5 or abs(h0 - 360) < 5
+    assert abs(fwd[1] - start[1]) < 1.0 and abs(fwd[2] - start[2]) < 0.5  # forward = north only, height kept
+    assert abs(right[2] - start[2]) < 0.5  # right = east, height kept
+    assert up[2] - start[2] > 2.0
+    last = held[-10:]  # stopped: the last second of centred sticks within 0.3 m, no height lost
+    assert max(math.dist(a, b) for a in last for b in last) < 0.3
+    assert (h1 - h0) % 360 > 20  # clockwise

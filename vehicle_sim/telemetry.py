@@ -21,7 +21,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
-from vehicle_sim.navigator import Mode, px4_custom_mode
+from vehicle_sim.navigator import MANUAL_MODES, Mode, px4_custom_mode
 
 GRAVITY = 9.80665
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
@@ -91,7 +91,9 @@ def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
 
 def heartbeat(s: Snapshot):
     base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED | M.MAV_MODE_FLAG_GUIDED_ENABLED
-    if s.mode is not Mode.POSCTL:
+    if s.mode in MANUAL_MODES:
+        base |= M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    else:
         base |= M.MAV_MODE_FLAG_AUTO_ENABLED
     if s.armed:
         base |= M.MAV_MODE_FLAG_SAFETY_ARMED
