@@ -61,6 +61,7 @@ class Watch:
     mode_since: dict = field(default_factory=dict)  # custom mode -> sim s of the last position before it
     texts: list = field(default_factory=list)
     armed_seen: bool = False
+    gps_fix: list = field(default_factory=list)  # GPS_RAW_INT fix types in order
 
     def near(self, lat: float, lon: float, alt: float, tol_m: float) -> bool:
         return any(_dist_m(p[1], p[2], lat, lon) < tol_m and abs(p[3] - alt) < tol_m for p in self.positions)
@@ -87,6 +88,8 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
                 watch.armed_seen |= bool(m.base_mode & 128)
             elif kind == "STATUSTEXT":
                 watch.texts.append(m.text)
+            elif kind == "GPS_RAW_INT":
+                watch.gps_fix.append(m.fix_type)
 
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,

@@ -21,6 +21,7 @@ from radseek.coordinates import Home, geodetic_to_enu
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
 from vehicle_sim.failsafe import FailsafeParams
+from vehicle_sim.failure_injection import Failures
 from vehicle_sim.follow_target import FollowTarget
 from vehicle_sim.geofence import Geofence, zones_from_items
 from vehicle_sim.link import Endpoint, Link
@@ -157,6 +158,7 @@ class Vehicle(SimVehicle):
         self.offboard = offboard.OffboardStream()
         self.follow = self.nav.follow = FollowTarget(cfg.home, lambda p: self.fence.contains(p))
         self.manual = self.nav.manual = ManualControl()
+        self.failures = Failures()
         self._refused_sp: np.ndarray | None = None
         self._proto_ep: Endpoint | None = None
         self.link = Link(
@@ -219,6 +221,7 @@ class Vehicle(SimVehicle):
             Param("FLW_TGT_RS", fp.responsiveness, 0, 1, "", set_follow("responsiveness")),
             Param("FLW_TGT_ALT_M", fp.alt_mode, 0, 2, "", set_follow("alt_mode", int), INT32),
             Param("FLW_TGT_MAX_VEL", fp.max_vel, 0, 20, "m/s", set_follow("max_vel")),
+            Param("SYS_FAILURE_EN", 0, 0, 1, "", lambda v: setattr(self.failures, "enabled", bool(v)), INT32),
         ])
 
     # -- validation (mission items and go-to targets) -------------------------------------------
@@ -291,7 +294,7 @@ class Vehicle(SimVehicle):
         return telemetry.Snapshot(
             self.t, nav.pos, nav.vel, nav.accel, nav.yaw, self._yaw_rate, self.odo.var, nav.armed, nav.landed,
             landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
-            seq, len(items), nav.mission_state, self.failsafe_active)
+            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active))
 
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
@@ -304,6 +307,14 @@ class Vehicle(SimVehicle):
             return False
         self.scheduler.set_interval(name, interval_us)
         return True
+
+    def inject_failure(self, unit: int, ftype: int, instance: int) -> int:
+        result, text = self.failures.inject(unit, ftype, instance)
+        self.statustext(text, M.MAV_SEVERITY_WARNING if result == M.MAV_RESULT_ACCEPTED else M.MAV_SEVERITY_INFO)
+        return result
+
+    def takeoff_note(self, text: str) -> None:
+        self.statustext(text, M.MAV_SEVERITY_CRITICAL)  # PX4 logs it as critical
 
     def offboard_alive(self) -> bool:
         return self.offboard.alive(time.monotonic())
