@@ -136,3 +136,41 @@ def test_manual_control_sticks_as_px4_reads_them():
     last = held[-10:]  # stopped: the last second of centred sticks within 0.3 m, no height lost
     assert max(math.dist(a, b) for a in last for b in last) < 0.3
     assert (h1 - h0) % 360 > 20  # clockwise
+
+
+def test_failure_injection_battery_off_and_back():
+    from mavsdk_grpc.failure import FailureError, FailureResult, FailureType, FailureUnit
+
+    async def battery(drone):
+        async for b in drone.telemetry.battery():
+            return b.remaining_percent, b.voltage_v
+
+    async def session(api):
+        async with drone_on(api) as drone:
+            # MAVSDK's failure plugin reads SYS_FAILURE_EN once, when first used (it refuses locally while 0): set it
+            # before, as the upstream failure_injection.py does
+            await drone.param.set_param_int("SYS_FAILURE_EN", 1)
+            before = await battery(drone)
+            await drone.failure.inject(FailureUnit.SYSTEM_BATTERY, FailureType.OFF, 0)
+            for _ in range(100):  # the next BATTERY_STATUS (1 Hz) carries the failure
+                off = await battery(drone)
+                if off[0] < 0:
+                    break
+            with pytest.raises(FailureError) as unsupported:
+                await drone.failure.inject(FailureUnit.SENSOR_MAG, FailureType.GARBAGE, 0)
+            await drone.failure.inject(FailureUnit.SYSTEM_BATTERY, FailureType.OK, 0)
+            for _ in range(100):
+                back = await battery(drone)
+                if back[0] >= 0:
+                    break
+            await drone.param.set_param_int("SYS_FAILURE_EN", 0)  # the vehicle now denies (MAVSDK still sends)
+            with pytest.raises(FailureError) as denied:
+                await drone.failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+            return before, off, unsupported.value, back, denied.value
+
+    before, off, unsupported, back, denied = run(session)
+    assert 90 < before[0] <= 100 and before[1] > 10
+    assert off[0] < 0 and off[1] == 0  # monitor off: MAVLink's unknown charge (-1) and no voltage
+    assert unsupported._result.result == FailureResult.Result.UNSUPPORTED
+    assert 90 < back[0] <= 100 and back[1] > 10
+    assert denied._result.result == FailureResult.Result.DENIED
