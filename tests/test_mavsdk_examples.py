@@ -58,8 +58,10 @@ class Watch:
 
     positions: list = field(default_factory=list)  # (t_s, lat, lon, rel_alt_m)
     modes: set = field(default_factory=set)  # PX4 custom modes seen in HEARTBEATs
+    mode_since: dict = field(default_factory=dict)  # custom mode -> sim s of the last position before it
     texts: list = field(default_factory=list)
     armed_seen: bool = False
+    gps_fix: list = field(default_factory=list)  # GPS_RAW_INT fix types in order
 
     def near(self, lat: float, lon: float, alt: float, tol_m: float) -> bool:
         return any(_dist_m(p[1], p[2], lat, lon) < tol_m and abs(p[3] - alt) < tol_m for p in self.positions)
@@ -82,9 +84,12 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
                 watch.positions.append((m.time_boot_ms / 1000, m.lat / 1e7, m.lon / 1e7, m.relative_alt / 1000))
             elif kind == "HEARTBEAT":
                 watch.modes.add(m.custom_mode)
+                watch.mode_since.setdefault(m.custom_mode, watch.positions[-1][0] if watch.positions else 0.0)
                 watch.armed_seen |= bool(m.base_mode & 128)
             elif kind == "STATUSTEXT":
                 watch.texts.append(m.text)
+            elif kind == "GPS_RAW_INT":
+                watch.gps_fix.append(m.fix_type)
 
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
@@ -226,3 +231,39 @@ def test_grpc_api_beside_the_native_4x_in_radseek_venv():
     shim = Path(__file__).parent / "support" / "run_as_mavsdk_grpc.py"
     out, w = completes("mission_raw.py", [], ["-- Uploading mission", "-- Done"],
                        runner=[sys.executable, "-u", str(shim)])
+
+
+FOLLOW_TARGET_MODE = 4 << 16 | 8 << 24  # PX4 AUTO.FOLLOW_TARGET
+
+
+def test_follow_me_follows_the_target():
+    # the example sets FLW_TGT_* (the altitude mode is an INT32), takes off, starts follow-me and sends three
+    # target positions 2 s apart, the first 33 m north of home, the next two 43 m west of it, at 480 m AMSL
+    out, w = completes("follow_me_example.py", [], ["-- Starting Follow Me Mode", "-- Following Target",
+                                                    "-- Stopping Follow Me Mode", "-- Landing"])
+    assert FOLLOW_TARGET_MODE in w.modes
+    start = next(p for p in w.positions if p[3] > 2.0)  # in the air, before following
+    # 3D tracking (TARGET_GPS): 8 m above a target 8 m below home is home's height, so PX4's 1 m minimum safety
+    # altitude holds it; towards the targets, north then west
+    north = max((p for p in w.positions), key=lambda p: p[1])
+    west = min((p for p in w.positions), key=lambda p: p[2])
+    assert _dist_m(north[1], start[2], start[1], start[2]) > 5.0, "never went north towards the target"
+    assert _dist_m(start[1], west[2], start[1], start[2]) > 2.0, "never went west towards the target"
+    assert min(p[3] for p in w.positions if p[0] > start[0] + 10) < 2.0  # down towards the 1 m floor
+
+
+def test_manual_control_moves_the_vehicle_in_position_mode():
+    # the example flies random stick inputs forever at 10 Hz in POSCTL (x forward, y right, z throttle 0..1000
+    # with 500 holding the altitude, r yaw): stopped once the sticks have moved the vehicle 2 m from where they began
+    def moved(out, w):
+        t0 = w.mode_since.get(3 << 16)
+        if "-- Starting manual control" not in out or t0 is None:
+            return False
+        start = next((p for p in w.positions if p[0] >= t0), None)
+        return start is not None and any(_dist_m(p[1], p[2], start[1], start[2]) > 2.0 or abs(p[3] - start[3]) > 2.0
+                                         for p in w.positions if p[0] > t0)
+
+    out, w, code = run_example("manual_control.py", [], expect=["-- Taking off", "-- Starting manual control"],
+                               until=moved)
+    assert 3 << 16 in w.modes  # PX4 POSCTL
+    assert moved(out, w), "the sticks never moved the vehicle"

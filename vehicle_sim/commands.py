@@ -125,6 +125,12 @@ class Services(Protocol):
     def offboard_alive(self) -> bool:  # a setpoint stream is on (offboard.OffboardStream.alive)
         ...
 
+    def inject_failure(self, unit: int, ftype: int, instance: int) -> int:  # MAV_RESULT (failure_injection)
+        ...
+
+    def takeoff_note(self, text: str) -> None:  # tell the operator (STATUSTEXT)
+        ...
+
 
 def _alt_to_enu_z(cmd: Command, home: Home) -> float:
     rel = cmd.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
@@ -148,6 +154,11 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
         if not nav.armed:
             return M.MAV_RESULT_TEMPORARILY_REJECTED, []
         alt = _alt_to_enu_z(cmd, svc.home) if _optional(cmd, 7) is not None else None
+        if alt is not None and alt < nav.p.takeoff_alt:
+            # PX4 (navigator/takeoff.cpp): an altitude below home + MIS_TAKEOFF_ALT is raised to it and the command
+            # accepted; what MAVProxy's `takeoff 5` sends (5 m in param7, read as AMSL) takes off to MIS_TAKEOFF_ALT
+            svc.takeoff_note(f"Using minimum takeoff altitude: {nav.p.takeoff_alt:.2f} m")
+            alt = nav.p.takeoff_alt
         if alt is not None and not svc.fence.contains(np.array([nav.pos[0], nav.pos[1], alt])):
             return denied, []
         return (ok if nav.takeoff(alt) else denied), []
@@ -196,6 +207,8 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
     if c == M.MAV_CMD_REQUEST_MESSAGE:
         msg = svc.message_by_id(int(_required(cmd, 1)))
         return (ok, [msg]) if msg is not None else (M.MAV_RESULT_UNSUPPORTED, [])
+    if c == M.MAV_CMD_INJECT_FAILURE:
+        return svc.inject_failure(int(_required(cmd, 1)), int(_required(cmd, 2)), int(_required(cmd, 3))), []
     if c == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
         return ok, [svc.message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)]
     log.info("command %d unsupported", c)

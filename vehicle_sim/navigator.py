@@ -2,8 +2,9 @@
 and steps the kinematics (``motion.step``) in fixed sim steps.
 
 Modes are PX4's (the autopilot type we announce), so MAVSDK and QGroundControl name them right:
-HOLD (AUTO.LOITER), TAKEOFF, MISSION, RTL, LAND, POSCTL (treated as hold), OFFBOARD (setpoints from
-``offboard``) and ORBIT (MAV_CMD_DO_ORBIT; PX4 reports it as POSCTL sub-mode ORBIT). The navigator works in
+HOLD (AUTO.LOITER), TAKEOFF, MISSION, RTL, LAND, POSCTL and ALTCTL (virtual sticks from ``manual_control``;
+without sticks ever received POSCTL holds), OFFBOARD (setpoints from ``offboard``), ORBIT (MAV_CMD_DO_ORBIT; PX4
+reports it as POSCTL sub-mode ORBIT) and FOLLOW (AUTO.FOLLOW_TARGET, from ``follow_target``). The navigator works in
 the vehicle's *estimated* local ENU frame: it flies on its own (drifting) estimate, like a real
 GPS-denied vehicle. Mission items are converted from lat/lon here with ``frames``.
 
@@ -36,17 +37,22 @@ class Mode(Enum):
     LAND = "LAND"
     OFFBOARD = "OFFBOARD"
     ORBIT = "ORBIT"
+    ALTCTL = "ALTCTL"
+    FOLLOW = "FOLLOW"
 
 
 # PX4 custom_mode = main_mode << 16 | sub_mode << 24
-PX4_MAIN_POSCTL, PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 3, 4, 6
+PX4_MAIN_ALTCTL, PX4_MAIN_POSCTL, PX4_MAIN_AUTO, PX4_MAIN_OFFBOARD = 2, 3, 4, 6
 PX4_SUB_POSCTL_ORBIT = 1
-PX4_SUB = {Mode.TAKEOFF: 2, Mode.HOLD: 3, Mode.MISSION: 4, Mode.RTL: 5, Mode.LAND: 6}
+PX4_SUB = {Mode.TAKEOFF: 2, Mode.HOLD: 3, Mode.MISSION: 4, Mode.RTL: 5, Mode.LAND: 6, Mode.FOLLOW: 8}
+MANUAL_MODES = (Mode.POSCTL, Mode.ALTCTL)
 
 
 def px4_custom_mode(mode: Mode) -> int:
     if mode is Mode.POSCTL:
         return PX4_MAIN_POSCTL << 16
+    if mode is Mode.ALTCTL:
+        return PX4_MAIN_ALTCTL << 16
     if mode is Mode.ORBIT:
         return (PX4_MAIN_POSCTL << 16) | (PX4_SUB_POSCTL_ORBIT << 24)
     if mode is Mode.OFFBOARD:
@@ -60,6 +66,8 @@ def mode_from_px4(main_mode: int, sub_mode: int) -> Mode | None:
         return Mode.OFFBOARD
     if main_mode == PX4_MAIN_POSCTL:
         return Mode.POSCTL
+    if main_mode == PX4_MAIN_ALTCTL:
+        return Mode.ALTCTL
     if main_mode == PX4_MAIN_AUTO:
         for mode, sub in PX4_SUB.items():
             if sub == sub_mode:
@@ -126,6 +134,8 @@ class Navigator:
         self.events: list[tuple[str, object]] = []  # ("reached", seq) | ("text", str) | ("mode", Mode)
         self.offboard_setpoint = None  # offboard.Setpoint, set by the vehicle from the stream
         self.orbit: Orbit | None = None
+        self.follow = None  # follow_target.FollowTarget, set by the vehicle (FOLLOW holds without one)
+        self.manual = None  # manual_control.ManualControl, set by the vehicle
         self.rally_points: list[np.ndarray] = []  # ENU; RTL goes to the nearest of home and these
         self._rtl_home = np.zeros(2)
         self.launch_xy = np.zeros(2)  # ENU x-y where the vehicle started: RTL's home (the frame origin by default)
@@ -251,8 +261,23 @@ class Navigator:
         return {
             Mode.HOLD: self.hold, Mode.POSCTL: self._posctl, Mode.MISSION: self.start_mission, Mode.RTL: self.rtl,
             Mode.LAND: self.land, Mode.TAKEOFF: lambda: self.takeoff(None), Mode.OFFBOARD: self.start_offboard,
-            Mode.ORBIT: lambda: False,
+            Mode.ORBIT: lambda: False, Mode.ALTCTL: self._altctl, Mode.FOLLOW: self.start_follow,
         }[mode]()
+
+    def start_follow(self) -> bool:
+        """AUTO.FOLLOW_TARGET: only in the air (a target that was never heard: hold where it is)."""
+        if not self.armed or self.landed:
+            return False
+        if self.follow is not None:
+            self.follow.reset()
+        self._set_mode(Mode.FOLLOW)
+        self.target, self.target_yaw = self._stop_point(), None
+        return True
+
+    def _altctl(self) -> bool:
+        self.hold()
+        self._set_mode(Mode.ALTCTL)
+        return True
 
     def start_offboard(self) -> bool:
         """Switch to OFFBOARD (the caller checked the setpoint stream is alive)."""
@@ -272,7 +297,7 @@ class Navigator:
 
     def _posctl(self) -> bool:
         self.hold()
-        self.mode = Mode.POSCTL
+        self._set_mode(Mode.POSCTL)
         return True
 
     def set_current(self, seq: int) -> bool:
@@ -435,6 +460,8 @@ class Navigator:
                 self._descend_step()
             elif self.mode is Mode.ORBIT:
                 return self._orbit_step(dt)
+            elif self.mode is Mode.FOLLOW and self.follow is not None:
+                self.target, self.target_yaw = self.follow.step(self.pos, dt)
         if self.landed and self.armed and self._landed_at is not None:
             if t - self._landed_at >= self.p.disarm_after_land_s:
                 self.disarm()
@@ -443,6 +470,8 @@ class Navigator:
                 self.target = self.pos.copy()
         if self.mode is Mode.OFFBOARD and self.armed and self.offboard_setpoint is not None:
             return self._offboard_step(dt)
+        if self.mode in MANUAL_MODES and self.armed and self.manual is not None and self.manual.count:
+            return self._manual_step(dt)
         if not self.armed or self.landed:
             self.accel[:] = 0
             return 0.0
@@ -482,6 +511,31 @@ class Navigator:
                                                          self.limits, dt)
         self.accel = (self.vel - old_vel) / dt
         if self.pos[2] <= 0.02 and not wants_up and abs(self.vel[2]) < 0.05:
+            self.pos[2], self.vel[:] = 0.0, 0.0
+            self.landed, self._landed_at = True, self._t
+            self.events.append(("text", "Landing detected"))
+        return float(np.linalg.norm(self.pos - old))
+
+    def _manual_step(self, dt: float) -> float:
+        """Fly the virtual sticks (``manual_control``): velocities in POSCTL/ALTCTL; throttle up lifts off."""
+        from vehicle_sim.manual_control import VEL_MANUAL, command
+        from vehicle_sim.offboard import velocity_step
+
+        s = self.manual.sticks
+        climbing = s is not None and s.throttle > 0
+        if self.landed:
+            if not climbing:
+                self.accel[:] = 0
+                return 0.0
+            self.landed, self._landed_at = False, None
+        v, yaw_rate = command(s, self.yaw, self.vel, self.limits.max_speed_up, self.limits.max_speed_down,
+                              self.mode is Mode.POSCTL, dt)
+        old, old_vel = self.pos, self.vel
+        self.pos, self.vel, self.yaw = velocity_step(self.pos, self.vel, self.yaw, v, None, yaw_rate,
+                                                     self.limits.with_speed_xy(VEL_MANUAL), dt)
+        self.accel = (self.vel - old_vel) / dt
+        self.target, self.target_yaw = self.pos.copy(), None  # a switch to an auto mode holds here
+        if self.pos[2] <= 0.02 and not climbing and abs(self.vel[2]) < 0.05:
             self.pos[2], self.vel[:] = 0.0, 0.0
             self.landed, self._landed_at = True, self._t
             self.events.append(("text", "Landing detected"))

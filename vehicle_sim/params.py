@@ -1,15 +1,28 @@
-"""A minimal parameter protocol: a fixed table of named REAL32 parameters with bounds, PX4 names."""
+"""The parameter protocol as PX4 answers it: a fixed table of named REAL32 / INT32 parameters with bounds and PX4
+names; INT32 values travel bytewise in PARAM_VALUE's float (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, as
+PX4 and MAVSDK do).
+
+A request that cannot be served is answered with PARAM_ERROR (MAVLink common, id 345) so that a client fails fast
+instead of retrying into a timeout: an unknown name or index (MAV_PARAM_ERROR_DOES_NOT_EXIST), a value out of the
+parameter's bounds or not finite (MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE, followed by the unchanged PARAM_VALUE the
+protocol asks for), a read-only parameter (MAV_PARAM_ERROR_READ_ONLY, same). MAVSDK maps these to
+``ParamResult.Result.DOES_NOT_EXIST`` / ``VALUE_OUT_OF_RANGE`` / ``READ_ONLY``.
+"""
 
 from __future__ import annotations
 
 import logging
 import math
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as M
 
 log = logging.getLogger(__name__)
+REAL32, INT32 = M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_INT32
+_INT_TYPES = {M.MAV_PARAM_TYPE_INT8, M.MAV_PARAM_TYPE_INT16, M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_UINT8,
+              M.MAV_PARAM_TYPE_UINT16, M.MAV_PARAM_TYPE_UINT32}
 
 
 @dataclass
@@ -20,6 +33,25 @@ class Param:
     hi: float
     unit: str
     apply: Callable[[float], None] | None = None
+    ptype: int = REAL32  # MAV_PARAM_TYPE: REAL32 or INT32
+
+    @property
+    def read_only(self) -> bool:
+        return self.lo == self.hi
+
+
+def encode(value: float, ptype: int) -> float:
+    """PARAM_VALUE's float field for ``value``: INT32 bytewise (PX4), REAL32 as is."""
+    if ptype == INT32:
+        return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+    return float(value)
+
+
+def decode(raw: float, ptype: int) -> float:
+    """The value a PARAM_SET carries: integer types bytewise (PX4, MAVSDK), REAL32 as is."""
+    if ptype in _INT_TYPES:
+        return float(struct.unpack("<i", struct.pack("<f", raw))[0])
+    return float(raw)
 
 
 class ParamTable:
@@ -31,38 +63,60 @@ class ParamTable:
         return len(self._params)
 
     def value_msg(self, p: Param):
-        return M.MAVLink_param_value_message(p.name.encode(), float(p.value), M.MAV_PARAM_TYPE_REAL32,
+        return M.MAVLink_param_value_message(p.name.encode(), encode(p.value, p.ptype), p.ptype,
                                              len(self._params), self._params.index(p))
 
     def get(self, name: str) -> float:
         return self._by_name[name].value
+
+    def set(self, name: str, value: float) -> None:
+        """Set a parameter from inside the vehicle (its apply hook runs, as for a PARAM_SET)."""
+        p = self._by_name[name]
+        if p.apply is not None:
+            p.apply(value)
+        p.value = value
 
     def handle(self, msg) -> list:
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
             return [self.value_msg(p) for p in self._params]
         if kind == "PARAM_REQUEST_READ":
+            name = _name(msg.param_id)
             if msg.param_index >= 0:
-                return [self.value_msg(self._params[msg.param_index])] if msg.param_index < len(self._params) else []
-            p = self._by_name.get(_name(msg.param_id))
-            return [self.value_msg(p)] if p else []
+                if msg.param_index < len(self._params):
+                    return [self.value_msg(self._params[msg.param_index])]
+                return [_error(msg, name, msg.param_index, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)]
+            p = self._by_name.get(name)
+            return [self.value_msg(p)] if p else [_error(msg, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)]
         if kind == "PARAM_SET":
-            p = self._by_name.get(_name(msg.param_id))
+            name = _name(msg.param_id)
+            p = self._by_name.get(name)
             if p is None:
-                log.info("PARAM_SET of unknown parameter %r ignored", msg.param_id)
-                return []
-            v = float(msg.param_value)
-            if math.isfinite(v) and p.lo <= v <= p.hi:
-                try:
-                    if p.apply is not None:
-                        p.apply(v)
-                    p.value = v
-                except ValueError as exc:
-                    log.warning("PARAM_SET %s=%g refused: %s", p.name, v, exc)
-            else:
+                log.info("PARAM_SET of unknown parameter %r: PARAM_ERROR does-not-exist", name)
+                return [_error(msg, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)]
+            v = decode(float(msg.param_value), int(msg.param_type))
+            index = self._params.index(p)
+            if p.read_only and v != p.value:
+                log.warning("PARAM_SET %s=%g refused: read-only", p.name, v)
+                return [_error(msg, name, index, M.MAV_PARAM_ERROR_READ_ONLY), self.value_msg(p)]
+            if not (math.isfinite(v) and p.lo <= v <= p.hi):
                 log.warning("PARAM_SET %s=%g out of [%g, %g]: refused", p.name, v, p.lo, p.hi)
-            return [self.value_msg(p)]  # the (possibly unchanged) value confirms or refuses
+                return [_error(msg, name, index, M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE), self.value_msg(p)]
+            try:
+                if p.apply is not None:
+                    p.apply(v)
+                p.value = v
+            except ValueError as exc:
+                log.warning("PARAM_SET %s=%g refused: %s", p.name, v, exc)
+                return [_error(msg, name, index, M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE), self.value_msg(p)]
+            return [self.value_msg(p)]  # the new value confirms
         return []
+
+
+def _error(msg, name: str, index: int, error: int):
+    """PARAM_ERROR back to the sender of ``msg``."""
+    return M.MAVLink_param_error_message(msg.get_srcSystem(), msg.get_srcComponent(), name.encode()[:16],
+                                         int(index), error)
 
 
 def _name(raw) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
-from vehicle_sim.navigator import Mode, px4_custom_mode
+from vehicle_sim.navigator import MANUAL_MODES, Mode, px4_custom_mode
 
 GRAVITY = 9.80665
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
@@ -66,6 +66,7 @@ class Snapshot:
     mission_state: int
     failsafe: bool
     reset_counter: int = 0
+    failures: frozenset = frozenset()  # units turned off by failure injection ("gps", "battery")
 
 
 def _ms(t: float) -> int:
@@ -91,7 +92,9 @@ def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
 
 def heartbeat(s: Snapshot):
     base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED | M.MAV_MODE_FLAG_GUIDED_ENABLED
-    if s.mode is not Mode.POSCTL:
+    if s.mode in MANUAL_MODES:
+        base |= M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    else:
         base |= M.MAV_MODE_FLAG_AUTO_ENABLED
     if s.armed:
         base |= M.MAV_MODE_FLAG_SAFETY_ARMED
@@ -101,11 +104,19 @@ def heartbeat(s: Snapshot):
 
 
 def sys_status(s: Snapshot):
-    return M.MAVLink_sys_status_message(SENSORS, SENSORS, SENSORS, 200, int(s.voltage * 1000), 1000 if s.armed else 50,
+    sensors = SENSORS & ~(M.MAV_SYS_STATUS_SENSOR_GPS if "gps" in s.failures else 0)
+    health = sensors & ~(M.MAV_SYS_STATUS_SENSOR_BATTERY if "battery" in s.failures else 0)
+    if "battery" in s.failures:  # monitor off: MAVLink's unknown voltage, current and charge
+        return M.MAVLink_sys_status_message(sensors, sensors, health, 200, 65535, -1, -1, 0, 0, 0, 0, 0, 0)
+    return M.MAVLink_sys_status_message(sensors, sensors, health, 200, int(s.voltage * 1000), 1000 if s.armed else 50,
                                         int(round(s.battery * 100)), 0, 0, 0, 0, 0, 0)
 
 
 def battery_status(s: Snapshot):
+    if "battery" in s.failures:  # monitor off: no cell voltages, current or charge known
+        return M.MAVLink_battery_status_message(0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO, 32767,
+                                                [65535] * 10, -1, -1, -1, -1, 0, M.MAV_BATTERY_CHARGE_STATE_UNHEALTHY,
+                                                [0, 0, 0, 0], 0, 0)
     cells = int(round(s.voltage / 4.0)) or 1
     per_cell = int(s.voltage / cells * 1000)
     volts = [per_cell] * cells + [65535] * (10 - cells)
@@ -156,7 +167,8 @@ def odometry(s: Snapshot):
 def gps_raw_int(s: Snapshot):
     """The GPS receiver as it is in a GPS-denied flight: connected, no fix, nothing known."""
     unknown16 = 65535
-    return M.MAVLink_gps_raw_int_message(int(s.t * 1e6), M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0, unknown16, unknown16,
+    fix = M.GPS_FIX_TYPE_NO_GPS if "gps" in s.failures else M.GPS_FIX_TYPE_NO_FIX  # injected off: no receiver
+    return M.MAVLink_gps_raw_int_message(int(s.t * 1e6), fix, 0, 0, 0, unknown16, unknown16,
                                          unknown16, unknown16, 0, 0, 0, 0, 0, 0, 0)
 
 

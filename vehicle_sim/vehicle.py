@@ -21,13 +21,16 @@ from radseek.coordinates import Home, geodetic_to_enu
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
 from vehicle_sim.failsafe import FailsafeParams
+from vehicle_sim.failure_injection import Failures
+from vehicle_sim.follow_target import FollowTarget
 from vehicle_sim.geofence import Geofence, zones_from_items
 from vehicle_sim.link import Endpoint, Link
+from vehicle_sim.manual_control import ManualControl, sticks_from_msg
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
-from vehicle_sim.navigator import Mode, NavParams
+from vehicle_sim.navigator import MANUAL_MODES, Mode, NavParams
 from vehicle_sim.odometry import OdometryParams
-from vehicle_sim.params import Param, ParamTable
+from vehicle_sim.params import INT32, Param, ParamTable
 from vehicle_sim.sim_vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -154,6 +157,9 @@ class Vehicle(SimVehicle):
         self.protocol = MissionProtocol(self._validate_item, sysid=cfg.sysid, compid=cfg.compid,
                                         validate_list=self._validate_list)
         self.offboard = offboard.OffboardStream()
+        self.follow = self.nav.follow = FollowTarget(cfg.home, lambda p: self.fence.contains(p))
+        self.manual = self.nav.manual = ManualControl()
+        self.failures = Failures()
         self._refused_sp: np.ndarray | None = None
         self._proto_ep: Endpoint | None = None
         self.link = Link(
@@ -190,6 +196,11 @@ class Vehicle(SimVehicle):
         def set_fs(v):
             self.failsafe.params = dataclasses.replace(self.failsafe.params, link_loss_timeout_s=v)
 
+        fp = self.follow.p
+
+        def set_follow(name, conv=float):
+            return lambda v: setattr(fp, name, conv(v))
+
         c = self.cfg
         return ParamTable([
             Param("MIS_TAKEOFF_ALT", c.nav.takeoff_alt, 0.5, 100, "m", set_nav("takeoff_alt")),
@@ -204,6 +215,14 @@ class Vehicle(SimVehicle):
             Param("BAT_LOW_THR", c.battery.low_threshold, 0, 1, "", None),
             Param("BAT_CRIT_THR", c.battery.critical_threshold, 0, 1, "", None),
             Param("SIM_SPEEDUP", c.speedup, c.speedup, c.speedup, "", None),  # read-only: fixed at start
+            # FollowMe (PX4's follow_target_params.c; heights down to PX4's 1 m minimum safety altitude)
+            Param("FLW_TGT_HT", fp.height, 1, 100, "m", set_follow("height")),
+            Param("FLW_TGT_DST", fp.distance, 1, 100, "m", set_follow("distance")),
+            Param("FLW_TGT_FA", fp.angle_deg, -180, 180, "deg", set_follow("angle_deg")),
+            Param("FLW_TGT_RS", fp.responsiveness, 0, 1, "", set_follow("responsiveness")),
+            Param("FLW_TGT_ALT_M", fp.alt_mode, 0, 2, "", set_follow("alt_mode", int), INT32),
+            Param("FLW_TGT_MAX_VEL", fp.max_vel, 0, 20, "m/s", set_follow("max_vel")),
+            Param("SYS_FAILURE_EN", 0, 0, 1, "", lambda v: setattr(self.failures, "enabled", bool(v)), INT32),
         ])
 
     # -- validation (mission items and go-to targets) -------------------------------------------
@@ -276,7 +295,7 @@ class Vehicle(SimVehicle):
         return telemetry.Snapshot(
             self.t, nav.pos, nav.vel, nav.accel, nav.yaw, self._yaw_rate, self.odo.var, nav.armed, nav.landed,
             landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
-            seq, len(items), nav.mission_state, self.failsafe_active)
+            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active))
 
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
@@ -289,6 +308,14 @@ class Vehicle(SimVehicle):
             return False
         self.scheduler.set_interval(name, interval_us)
         return True
+
+    def inject_failure(self, unit: int, ftype: int, instance: int) -> int:
+        result, text = self.failures.inject(unit, ftype, instance)
+        self.statustext(text, M.MAV_SEVERITY_WARNING if result == M.MAV_RESULT_ACCEPTED else M.MAV_SEVERITY_INFO)
+        return result
+
+    def takeoff_note(self, text: str) -> None:
+        self.statustext(text, M.MAV_SEVERITY_CRITICAL)  # PX4 logs it as critical
 
     def offboard_alive(self) -> bool:
         return self.offboard.alive(time.monotonic())
@@ -347,6 +374,11 @@ class Vehicle(SimVehicle):
                 if self._for_us(msg):
                     for m in self.params.handle(msg):
                         self.link.send(m, ep)
+            elif kind == "FOLLOW_TARGET":
+                self.follow.receive(msg, self.t, now_wall)
+            elif kind == "MANUAL_CONTROL":
+                if msg.target in (0, self.cfg.sysid):
+                    self.manual.receive(sticks_from_msg(msg), now_wall)
             elif kind == "PING":
                 if msg.target_system == 0:
                     self.link.send(M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
@@ -385,6 +417,13 @@ class Vehicle(SimVehicle):
             self.nav.hold()
             self.statustext(f"Failsafe: offboard setpoints lost for {self.offboard.loss_timeout_s:g} s, holding",
                             M.MAV_SEVERITY_CRITICAL)
+
+    def _check_streams(self, now_wall: float) -> None:
+        """A follow target or the virtual sticks gone quiet: hold where it is (PX4: target / RC lost)."""
+        if self.follow.expire(now_wall) and self.nav.mode is Mode.FOLLOW:
+            self.statustext("Follow target lost, holding position", M.MAV_SEVERITY_WARNING)
+        if self.manual.expire(now_wall) and self.nav.mode in MANUAL_MODES:
+            self.statustext("Manual control lost, holding position", M.MAV_SEVERITY_CRITICAL)
 
     def _react_to_mission_change(self) -> None:
         if self.protocol.changed:
@@ -473,6 +512,7 @@ class Vehicle(SimVehicle):
                 for m in self.protocol.poll(now_wall):
                     self.link.send(m, self._proto_ep)
                 self._check_offboard(now_wall)
+                self._check_streams(now_wall)
                 last = self.link.last_rx_wall
                 link_age = None if last is None else now_wall - last
                 target = clock.now()
