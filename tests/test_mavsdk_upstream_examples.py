@@ -1,7 +1,6 @@
 """MAVSDK-Python's upstream examples beyond ../shared (github.com/mavlink/MAVSDK-Python, examples/, BSD-3),
-unchanged, against `radseek vehicle`: the examples are taken from the MAVSDK-Python checkout named by
-RADSEEK_MAVSDK_PYTHON_EXAMPLES (a folder holding them), never copied into this repository. Without that folder the
-tests fail, naming it: they are not skipped.
+unchanged, against `radseek vehicle`: the examples are the copies in tests/mavsdk_upstream/ (byte for byte, with
+their licence and source commit), or those of the MAVSDK-Python checkout named by RADSEEK_MAVSDK_PYTHON_EXAMPLES.
 
 They run as tests/test_mavsdk_examples.py runs the shared ones (same runner, same fixed ports 14540 / 50051, so
 the same machine-wide lock): a pymavlink listener on the vehicle's GCS port records what the vehicle did."""
@@ -16,7 +15,7 @@ import pytest
 from tests import test_mavsdk_examples as ex
 
 pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")]
-UPSTREAM = Path(os.environ.get("RADSEEK_MAVSDK_PYTHON_EXAMPLES", "/tmp/px4-up"))
+UPSTREAM = Path(os.environ.get("RADSEEK_MAVSDK_PYTHON_EXAMPLES", Path(__file__).parent / "mavsdk_upstream"))
 
 
 @pytest.fixture(autouse=True)
