@@ -24,7 +24,7 @@ model's free parameters: the Fisher information of Poisson counts is sum_i grad(
 from __future__ import annotations
 
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -765,11 +765,14 @@ def fit(
     seed: int = 0,
     pose_uncertainty: bool = True,
     init: dict[str, float] | None = None,
+    more_inits: Sequence[dict[str, float]] = (),
     warm_start: bool = False,
 ) -> FitResult:
     """Multi-start bounded Poisson MLE (MIGRAD + HESSE, errordef 0.5).
 
-    Starts: ``init`` (if given) first, then grid starts for the source (and for a second source),
+    Starts: ``init`` (if given) first, then ``more_inits`` (other given starts, e.g. an unmapped wall's runner-up
+    placements: screened without pose offsets with the rest, so only the best basins are searched in full), then
+    grid starts for the source (and for a second source),
     then random perturbations of the best start, up to ``n_starts`` in all. With pose offsets every start is
     first run without them (:func:`_screen`), and the profiled search goes on from the best basins found
     (``warm_start``: ``init`` is a refit's last optimum, searched alone when its basin is the best).
@@ -784,6 +787,7 @@ def fit(
     base_starts: list[dict[str, float]] = []
     if init:
         base_starts.append({**defaults, **{k: v for k, v in init.items() if k in defaults}})
+    base_starts += [{**defaults, **{k: v for k, v in st.items() if k in defaults}} for st in more_inits]
     base_starts += [{**defaults, **g} for g in grid_starts(model, frames)]
     if "second_source" in model.effects and not (init and "second_source.x" in init):
         ref = base_starts[0]
