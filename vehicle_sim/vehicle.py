@@ -12,6 +12,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,10 +23,13 @@ from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
 from vehicle_sim.failsafe import FailsafeParams
 from vehicle_sim.failure_injection import Failures
+from vehicle_sim.flight_log import FlightLog
 from vehicle_sim.follow_target import FollowTarget
 from vehicle_sim.geofence import Geofence, zones_from_items
 from vehicle_sim.link import Endpoint, Link
+from vehicle_sim.log_transfer import LogServer
 from vehicle_sim.manual_control import ManualControl, sticks_from_msg
+from vehicle_sim.mavftp import FtpServer, VirtualFile, VirtualFs
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
 from vehicle_sim.navigator import MANUAL_MODES, Mode, NavParams
@@ -39,6 +43,9 @@ MISSION_MSGS = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_RE
                 "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_ACK"}
 PARAM_MSGS = {"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"}
 SETPOINT_MSGS = {"SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"}
+LOG_MSGS = {"LOG_REQUEST_LIST", "LOG_REQUEST_DATA", "LOG_REQUEST_END", "LOG_ERASE"}
+LOG_DIR = "/fs/microsd/log"  # PX4's log folder, as its FTP server shows it
+BULK_PER_TURN = 64  # file-transfer packets sent per loop turn (a burst must not overflow a client's socket)
 
 
 @dataclass
@@ -167,6 +174,14 @@ class Vehicle(SimVehicle):
              ("gcs", (cfg.bind_host, cfg.gcs_local_port), (cfg.remote_host, cfg.gcs_port))],
             sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
             seed=cfg.seed, wall_time_s=time.time())
+        self.flight_log = FlightLog(cfg.sysid, cfg.compid)
+        self.link.tap = lambda msg: self.flight_log.record(msg, self.t)
+        fs = VirtualFs()
+        fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
+        self.ftp = FtpServer(fs)
+        self.logs = LogServer(self.flight_log)
+        self._log_ep: Endpoint | None = None
+        self._bulk: deque = deque()  # (message, endpoint) of file transfers, paced by flush_bulk
         self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
         self.params = self._make_params()
         self._text_id = 0
@@ -379,6 +394,16 @@ class Vehicle(SimVehicle):
             elif kind == "MANUAL_CONTROL":
                 if msg.target in (0, self.cfg.sysid):
                     self.manual.receive(sticks_from_msg(msg), now_wall)
+            elif kind == "FILE_TRANSFER_PROTOCOL":
+                if self._for_us(msg) and msg.target_network == 0:
+                    src = (msg.get_srcSystem(), msg.get_srcComponent())
+                    for payload in self.ftp.handle(msg.payload, src):
+                        self._bulk.append((M.MAVLink_file_transfer_protocol_message(0, *src, list(payload)), ep))
+            elif kind in LOG_MSGS:
+                if self._for_us(msg):
+                    self._log_ep = ep
+                    for m in self.logs.handle(msg):
+                        self.link.send(m, ep)
             elif kind == "PING":
                 if msg.target_system == 0:
                     self.link.send(M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
@@ -391,6 +416,15 @@ class Vehicle(SimVehicle):
         except Exception as exc:  # noqa: BLE001 - bad input is ignored and logged, never fatal
             log.warning("%s from %d/%d ignored: %s: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(),
                         type(exc).__name__, exc)
+
+    def flush_bulk(self, n: int = BULK_PER_TURN) -> None:
+        """Send up to ``n`` queued file-transfer packets (FTP replies first, then the log download's)."""
+        while self._bulk and n > 0:
+            self.link.send(*self._bulk.popleft())
+            n -= 1
+        if n > 0 and self._log_ep is not None:
+            for m in self.logs.pending(n):
+                self.link.send(m, self._log_ep)
 
     def _on_setpoint(self, msg, now_wall: float) -> None:
         try:
@@ -511,6 +545,7 @@ class Vehicle(SimVehicle):
                     self.dispatch(ep, msg, now_wall)
                 for m in self.protocol.poll(now_wall):
                     self.link.send(m, self._proto_ep)
+                self.flush_bulk()
                 self._check_offboard(now_wall)
                 self._check_streams(now_wall)
                 last = self.link.last_rx_wall
