@@ -21,9 +21,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
+from vehicle_sim.imu import tilt
 from vehicle_sim.navigator import MANUAL_MODES, Mode, px4_custom_mode
 
-GRAVITY = 9.80665
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_FTP)
@@ -75,11 +75,7 @@ def _ms(t: float) -> int:
 
 def _tilt(s: Snapshot) -> tuple[float, float]:
     """Roll and pitch (NED body FRD) of a multicopter accelerating by ``accel``: small-angle model."""
-    yaw = yaw_enu_to_ned(s.yaw)
-    a_n, a_e = float(s.accel[1]), float(s.accel[0])
-    fwd = a_n * math.cos(yaw) + a_e * math.sin(yaw)
-    right = -a_n * math.sin(yaw) + a_e * math.cos(yaw)
-    return math.atan2(right, GRAVITY), -math.atan2(fwd, GRAVITY)
+    return tilt(s.accel, yaw_enu_to_ned(s.yaw))
 
 
 def _quat(roll: float, pitch: float, yaw: float) -> list[float]:

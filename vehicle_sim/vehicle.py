@@ -18,14 +18,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from radseek.coordinates import Home, geodetic_to_enu
+from radseek.coordinates import Home, geodetic_to_enu, yaw_enu_to_ned
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
+from vehicle_sim import imu as imu_model
 from vehicle_sim.failsafe import FailsafeParams
 from vehicle_sim.failure_injection import Failures
 from vehicle_sim.flight_log import FlightLog
 from vehicle_sim.follow_target import FollowTarget
 from vehicle_sim.geofence import Geofence, zones_from_items
+from vehicle_sim.imu import ImuStream, tilt
 from vehicle_sim.link import Endpoint, Link
 from vehicle_sim.log_transfer import LogServer
 from vehicle_sim.manual_control import ManualControl, sticks_from_msg
@@ -180,6 +182,7 @@ class Vehicle(SimVehicle):
         fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
         self.ftp = FtpServer(fs)
         self.logs = LogServer(self.flight_log)
+        self.imu = ImuStream(cfg.home, cfg.speedup)
         self._log_ep: Endpoint | None = None
         self._bulk: deque = deque()  # (message, endpoint) of file transfers, paced by flush_bulk
         self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
@@ -314,10 +317,19 @@ class Vehicle(SimVehicle):
 
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
+        if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+            nav, yaw = self.nav, yaw_enu_to_ned(self.nav.yaw)
+            return self.imu.sample(self.t, (*tilt(nav.accel, yaw), yaw), (0.0, 0.0, -self._yaw_rate), nav.accel,
+                                   self.home.alt_m + float(nav.pos[2]))
         name = telemetry.MSG_IDS.get(msg_id)
         return None if name is None else telemetry.BUILDERS[name](self.snapshot())
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
+        if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+            self.imu.set_interval(interval_us)
+            log.info("HIGHRES_IMU: %g Hz asked, %g Hz of sim time sent (at most %g a wall second)",
+                     self.imu.requested_hz, self.imu.rate_hz, imu_model.MAX_WALL_HZ)
+            return True
         name = telemetry.MSG_IDS.get(msg_id)
         if name is None or name == "AUTOPILOT_VERSION":
             return False
@@ -478,6 +490,10 @@ class Vehicle(SimVehicle):
     def step(self, dt: float, link_age: float | None) -> list:
         """One sim step (``SimVehicle.step``), its events told over MAVLink."""
         events = super().step(dt, link_age)
+        nav = self.nav
+        for m in self.imu.step(self.t, dt, nav.accel, nav.yaw, self._yaw_rate, self.home.alt_m + float(nav.pos[2]),
+                               float(nav.vel[2])):
+            self.link.send(m)
         for ev in events:
             if ev.kind == "reached":
                 self.link.send(M.MAVLink_mission_item_reached_message(int(ev.data)))
