@@ -106,3 +106,23 @@ def test_highres_imu_streams_at_the_requested_200_hz():
     assert np.median(steps) == 5000 and (steps > 0).all() and np.mean(steps == 5000) > 0.95
     z = [float(line.split(":")[1]) for line in out.splitlines() if line.startswith("Z Acceleration")]
     assert np.allclose(z, -9.80665, atol=1e-4)  # standing on the ground: the specific force is -g on z
+
+
+def test_offboard_attitude_flies_the_commanded_tilts():
+    # arm, attitude offboard: 2 s level at 70 % thrust (up), 2 s rolled 30 deg right at 60 %, 2 s rolled 30 deg
+    # left, 2 s level at 60 % (MPC_THR_HOVER), stop, land; on a 5x clock, each phase still 2 s of flight
+    out, w = ex.completes("offboard_attitude.py", ["--speedup", "5"], ["-- Starting offboard", "-- Go up at 70% thrust",
+                                                                        "-- Roll -30 at 60% thrust",
+                                                                        "-- Stopping offboard"],
+                          runner=ex.sped_up(5))
+    assert "failed" not in out
+    assert 6 << 16 in w.modes  # PX4 OFFBOARD
+    home = w.positions[0]
+    east = [ex._dist_m(home[1], p[2], home[1], home[2]) * (1 if p[2] > home[2] else -1) for p in w.positions]
+    north = [ex._dist_m(p[1], home[2], home[1], home[2]) for p in w.positions]
+    top = max(range(len(east)), key=east.__getitem__)
+    print(f"east at most {east[top]:.1f} m, then back to {min(east[top:]):.1f} m; up to {w.max_alt():.1f} m")
+    assert w.max_alt() > 1.0  # 70 % thrust climbed
+    assert east[top] > 3.0, "rolling right never took it east"
+    assert min(east[top:]) < east[top] - 3.0, "rolling left never brought it back west"
+    assert max(north) < 0.5  # a roll about the north-pointing body x axis: no motion north or south

@@ -86,10 +86,11 @@ class ImuStream:
         self.requested_hz = 1e6 / interval_us if interval_us > 0 else 0.0
 
     def step(self, t: float, dt: float, accel_enu: np.ndarray, yaw_enu: float, yaw_rate_enu: float,
-             alt_amsl: float, climb_rate: float) -> list:
-        """The samples whose instants fall in (t - dt, t], for the step that ended at sim time ``t``."""
+             alt_amsl: float, climb_rate: float, tilt_flown: tuple[float, float] | None = None) -> list:
+        """The samples whose instants fall in (t - dt, t], for the step that ended at sim time ``t``;
+        ``tilt_flown`` the roll and pitch when the vehicle flies an attitude (else the tilt of the acceleration)."""
         yaw1 = yaw_enu_to_ned(yaw_enu)
-        t1 = tilt(accel_enu, yaw1)
+        t1 = tilt(accel_enu, yaw1) if tilt_flown is None else tuple(tilt_flown)
         t0 = self._last_tilt if self._last_tilt is not None else t1
         self._last_tilt = t1
         hz = self.rate_hz

@@ -67,6 +67,7 @@ class Snapshot:
     failsafe: bool
     reset_counter: int = 0
     failures: frozenset = frozenset()  # units turned off by failure injection ("gps", "battery")
+    tilt: tuple[float, float] | None = None  # roll, pitch flown (attitude offboard); else from the acceleration
 
 
 def _ms(t: float) -> int:
@@ -75,7 +76,7 @@ def _ms(t: float) -> int:
 
 def _tilt(s: Snapshot) -> tuple[float, float]:
     """Roll and pitch (NED body FRD) of a multicopter accelerating by ``accel``: small-angle model."""
-    return tilt(s.accel, yaw_enu_to_ned(s.yaw))
+    return s.tilt if s.tilt is not None else tilt(s.accel, yaw_enu_to_ned(s.yaw))
 
 
 def _quat(roll: float, pitch: float, yaw: float) -> list[float]:

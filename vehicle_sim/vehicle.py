@@ -227,6 +227,7 @@ class Vehicle(SimVehicle):
             Param("NAV_ACC_RAD", c.nav.acceptance_radius, 0.01, 10, "m", set_nav("acceptance_radius")),
             Param("MPC_XY_CRUISE", c.limits.max_speed_xy, 0.1, 20, "m/s", set_lim("max_speed_xy")),
             Param("MPC_ACC_HOR", c.limits.max_accel, 0.1, 10, "m/s^2", set_lim("max_accel")),
+            Param("MPC_THR_HOVER", c.nav.hover_thrust, 0.1, 0.9, "", set_nav("hover_thrust")),
             Param("COM_DL_LOSS_T", c.failsafe.link_loss_timeout_s, 0.5, 600, "s", set_fs),
             Param("COM_OF_LOSS_T", self.offboard.loss_timeout_s, 0.1, 60, "s",
                   lambda v: setattr(self.offboard, "loss_timeout_s", v)),
@@ -313,7 +314,8 @@ class Vehicle(SimVehicle):
         return telemetry.Snapshot(
             self.t, nav.pos, nav.vel, nav.accel, nav.yaw, self._yaw_rate, self.odo.var, nav.armed, nav.landed,
             landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
-            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active))
+            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active),
+            tilt=None if nav.attitude is None else nav.attitude[:2])
 
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
@@ -397,6 +399,9 @@ class Vehicle(SimVehicle):
             elif kind in SETPOINT_MSGS:
                 if self._for_us(msg):
                     self._on_setpoint(msg, now_wall)
+            elif kind == "SET_ATTITUDE_TARGET":
+                if self._for_us(msg):
+                    self._on_attitude(msg, now_wall)
             elif kind in PARAM_MSGS:
                 if self._for_us(msg):
                     for m in self.params.handle(msg):
@@ -453,6 +458,15 @@ class Vehicle(SimVehicle):
         self.offboard.receive(sp, now_wall)
         self.nav.offboard_setpoint = sp
 
+    def _on_attitude(self, msg, now_wall: float) -> None:
+        try:
+            sp = offboard.attitude_setpoint_from_msg(msg)
+        except offboard.SetpointError as exc:
+            log.info("SET_ATTITUDE_TARGET ignored: %s", exc)
+            return
+        self.offboard.receive(sp, now_wall)
+        self.nav.offboard_setpoint = sp
+
     def _check_offboard(self, now_wall: float) -> None:
         """The setpoint stream must go on while in OFFBOARD: lost for COM_OF_LOSS_T -> HOLD."""
         if self.offboard.setpoint is None or self.offboard.alive(now_wall):
@@ -492,7 +506,7 @@ class Vehicle(SimVehicle):
         events = super().step(dt, link_age)
         nav = self.nav
         for m in self.imu.step(self.t, dt, nav.accel, nav.yaw, self._yaw_rate, self.home.alt_m + float(nav.pos[2]),
-                               float(nav.vel[2])):
+                               float(nav.vel[2]), None if nav.attitude is None else nav.attitude[:2]):
             self.link.send(m)
         for ev in events:
             if ev.kind == "reached":
