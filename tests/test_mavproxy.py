@@ -74,3 +74,50 @@ def test_mavproxy_lists_the_uploaded_mission():
     modes = out.split("Available modes:", 1)[1].splitlines()[0]
     assert "LOITER" in modes and "MISSION" in modes  # PX4 mode names from our custom modes
     assert "fence breach" not in out
+
+
+def test_mavproxy_lists_and_downloads_the_flight_log_by_log_protocol_and_ftp(tmp_path):
+    # MAVProxy's `log` (LOG_REQUEST_LIST / LOG_REQUEST_DATA) and `ftp` modules (loaded by default); its
+    # `ftp get @PARAM/param.pck` (what it tries on ArduPilot) fails at once on the NAK instead of timing out
+    exe = str(MAVPROXY) if MAVPROXY.exists() else shutil.which("mavproxy.py")
+    assert exe, "MAVProxy missing: `make` installs it with pip --no-deps (see Makefile)"
+    api, gcs_port = free_udp_port(), free_udp_port()
+    with VehicleProcess(api, gcs_port, []):
+        mavproxy = subprocess.Popen([exe, f"--master=udpin:127.0.0.1:{gcs_port}", "--no-state"], cwd=tmp_path,
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True)
+        reader.start()
+
+        def run(command: str, cond, what: str) -> None:
+            mavproxy.stdin.write(command + "\n")
+            mavproxy.stdin.flush()
+            deadline = time.monotonic() + WAIT_S
+            while not cond("".join(lines)):
+                assert mavproxy.poll() is None, f"MAVProxy exited waiting for {what}:\n{''.join(lines)}"
+                assert time.monotonic() < deadline, f"MAVProxy: no {what} in {WAIT_S} s:\n{''.join(lines)}"
+                time.sleep(0.05)
+
+        try:
+            run("", lambda out: "Detected vehicle 1:1" in out and "parameters" in out, "vehicle and parameters")
+            run("log list", lambda out: "numLogs 1" in out, "log list")
+            run("log download 0 flight.tlog", lambda out: "Finished downloading flight.tlog" in out, "log download")
+            run("ftp list /fs/microsd/log", lambda out: "Total size" in out.split("Listing /fs/microsd/log")[-1],
+                "ftp listing")
+            run("ftp get @PARAM/param.pck", lambda out: "ftp open failed" in out, "ftp refusal")
+        finally:
+            mavproxy.stdin.close()
+            try:
+                mavproxy.wait(30)
+            except subprocess.TimeoutExpired:
+                mavproxy.kill()
+                mavproxy.wait()
+            reader.join(10)
+    out = "".join(lines)
+    print(out)
+    assert "Log 0  numLogs 1 lastLog 0 size" in out and "0 retries" in out
+    day = out.split("Listing /fs/microsd/log")[1].split("Total size")[0].split()
+    assert day[0] == "D" and len(day[1]) == 10  # one folder, YYYY-MM-DD
+    data = (tmp_path / "flight.tlog").read_bytes()
+    assert len(data) > 1000 and data[8] == 0xFD  # timestamped MAVLink 2 frames

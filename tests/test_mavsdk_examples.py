@@ -93,17 +93,19 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
 
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
-                timeout: float = WAIT_S, runner: list[str] | None = None) -> tuple[str, Watch, int | None]:
-    """Run ``script`` unchanged (cwd = the examples folder) against a fresh vehicle. Returns its output,
-    the vehicle's watch and the exit code (None when stopped by us after ``until(output, watch)``).
-    ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in radseek's own venv)."""
+                timeout: float = WAIT_S, runner: list[str] | None = None,
+                cwd: Path | None = None) -> tuple[str, Watch, int | None]:
+    """Run ``script`` unchanged (cwd = the examples folder, or ``cwd`` for one that writes files) against a fresh
+    vehicle. Returns its output, the vehicle's watch and the exit code (None when stopped by us after
+    ``until(output, watch)``). ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in
+    radseek's own venv)."""
     runner = runner or [str(grpc_python()), "-u"]
     gcs_port = free_udp_port()
     watch, stop = Watch(), threading.Event()
     with VehicleProcess(14540, gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
         listener = threading.Thread(target=_listen, args=(gcs, watch, stop), daemon=True)
         listener.start()
-        proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=EXAMPLES, stdout=subprocess.PIPE,
+        proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=cwd or EXAMPLES, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
@@ -145,8 +147,9 @@ def sped_up(factor: int) -> list[str]:
     return [str(grpc_python()), "-u", str(Path(__file__).parent / "support" / "run_sped_up.py"), str(factor)]
 
 
-def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None) -> tuple[str, Watch]:
-    out, watch, code = run_example(script, args, expect=expect, runner=runner)
+def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None,
+              cwd: Path | None = None) -> tuple[str, Watch]:
+    out, watch, code = run_example(script, args, expect=expect, runner=runner, cwd=cwd)
     assert code == 0, f"{script} did not complete (exit {code})"
     assert "Traceback" not in out, out
     return out, watch

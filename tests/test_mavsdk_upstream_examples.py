@@ -7,10 +7,14 @@ the same machine-wide lock): a pymavlink listener on the vehicle's GCS port reco
 
 from __future__ import annotations
 
+import contextlib
 import os
+import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
+from pymavlink import mavutil
 
 from tests import test_mavsdk_examples as ex
 
@@ -35,3 +39,90 @@ def test_failure_injection_gps_off():
     assert w.max_alt() > 15.0  # flew up before the failure
     # the receiver, connected without a fix (GPS-denied) before, reports no GPS once failed
     assert w.gps_fix[0] == 1 and w.gps_fix[-1] == 0 and 1 in w.gps_fix[:w.gps_fix.index(0)]
+
+
+@contextlib.contextmanager
+def mavsdk_server():
+    """MAVSDK's own mavsdk_server (the example venv's binary) on the examples' ports, for an example written to
+    attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``)."""
+    py = ex.grpc_python()
+    where = subprocess.run([str(py), "-c", "import mavsdk, os; print(os.path.dirname(mavsdk.__file__))"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    proc = subprocess.Popen([str(Path(where) / "bin" / "mavsdk_server"), "-p", "50051", "udpin://0.0.0.0:14540"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_ftp_list_dir_lists_the_vehicle_root():
+    # the example attaches to a running mavsdk_server (its own connect() address, a serial port, is then unused)
+    with mavsdk_server():
+        out, w = ex.completes("ftp_list_dir.py", [], ["-- Connected to drone!", "directory list"])
+    assert "directory list ListDirectoryData: [dirs: ['fs'], files: []]" in out
+
+
+def test_logfile_download_fetches_the_flight_log(tmp_path):
+    # the example writes ./log-<date>.ulog: run it in a scratch folder. It prints progress only between MAVSDK's
+    # 46 kB chunks, and the log of a vehicle up for a second or two is one chunk: no "%" line is expected
+    out, w = ex.completes("logfile_download.py", [], ["-- Connected to drone!", "Log 0 from", "Downloading: log 0"],
+                          cwd=tmp_path)
+    logs = list(tmp_path.glob("log-*.ulog"))
+    assert len(logs) == 1, f"no log written: {list(tmp_path.iterdir())}"
+    data = logs[0].read_bytes()
+    # the vehicle's telemetry log (a .tlog despite the example's name for it), whole: timestamped MAVLink 2 frames
+    # end to end, the last one complete
+    ofs, frames = 0, 0
+    while ofs < len(data):
+        assert data[ofs + 8] == 0xFD, f"no MAVLink 2 frame at {ofs + 8}"
+        signed = data[ofs + 8 + 2] & 0x01
+        ofs += 8 + 12 + data[ofs + 8 + 1] + (13 if signed else 0)
+        frames += 1
+    assert ofs == len(data) and frames > 10
+    mlog = mavutil.mavlink_connection(str(logs[0]), dialect="common")
+    kinds = set()
+    while (m := mlog.recv_match()) is not None:
+        kinds.add((m.get_type(), m.get_srcSystem()))
+    assert {("HEARTBEAT", 1), ("GLOBAL_POSITION_INT", 1), ("ATTITUDE", 1)} <= kinds
+
+
+def test_highres_imu_streams_at_the_requested_200_hz():
+    # the example asks 200 Hz (set_rate_imu) and prints samples forever: stopped after 200 of them
+    def enough(out, w):
+        return out.count("HIGHRES_IMU (105)") >= 200
+
+    out, w, code = ex.run_example("highres_imu.py", [], expect=["Drone is connected!", "Fetching IMU data..."],
+                                  until=enough)
+    assert "Traceback" not in out and enough(out, w)
+    stamps = [int(line.split(":")[1]) for line in out.splitlines() if line.startswith("Time (us):")]
+    steps = np.diff(stamps)
+    # MAVSDK hands on every sample; at 1x the vehicle keeps 200 Hz of simulated time (loopback loses none)
+    assert np.median(steps) == 5000 and (steps > 0).all() and np.mean(steps == 5000) > 0.95
+    z = [float(line.split(":")[1]) for line in out.splitlines() if line.startswith("Z Acceleration")]
+    assert np.allclose(z, -9.80665, atol=1e-4)  # standing on the ground: the specific force is -g on z
+
+
+def test_offboard_attitude_flies_the_commanded_tilts():
+    # arm, attitude offboard: 2 s level at 70 % thrust (up), 2 s rolled 30 deg right at 60 %, 2 s rolled 30 deg
+    # left, 2 s level at 60 % (MPC_THR_HOVER), stop, land; on a 5x clock, each phase still 2 s of flight
+    out, w = ex.completes("offboard_attitude.py", ["--speedup", "5"], ["-- Starting offboard", "-- Go up at 70% thrust",
+                                                                        "-- Roll -30 at 60% thrust",
+                                                                        "-- Stopping offboard"],
+                          runner=ex.sped_up(5))
+    assert "failed" not in out
+    assert 6 << 16 in w.modes  # PX4 OFFBOARD
+    home = w.positions[0]
+    east = [ex._dist_m(home[1], p[2], home[1], home[2]) * (1 if p[2] > home[2] else -1) for p in w.positions]
+    north = [ex._dist_m(p[1], home[2], home[1], home[2]) for p in w.positions]
+    top = max(range(len(east)), key=east.__getitem__)
+    print(f"east at most {east[top]:.1f} m, then back to {min(east[top:]):.1f} m; up to {w.max_alt():.1f} m")
+    assert w.max_alt() > 1.0  # 70 % thrust climbed
+    assert east[top] > 3.0, "rolling right never took it east"
+    assert min(east[top:]) < east[top] - 3.0, "rolling left never brought it back west"
+    assert max(north) < 0.5  # a roll about the north-pointing body x axis: no motion north or south

@@ -176,7 +176,7 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
         if mode is None:
             return M.MAV_RESULT_UNSUPPORTED, []
         if mode is Mode.OFFBOARD and not svc.offboard_alive():
-            raise Refused("offboard needs a setpoint stream first (SET_POSITION_TARGET_*, > 1 Hz)")
+            raise Refused("offboard needs a setpoint stream first (SET_POSITION_TARGET_*, SET_ATTITUDE_TARGET; > 1 Hz)")
         return (ok if nav.set_mode(mode) else denied), []
     if c == M.MAV_CMD_DO_ORBIT:
         return _orbit(cmd, svc), []

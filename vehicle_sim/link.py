@@ -201,6 +201,7 @@ class Link:
         self.drop_rate = drop_rate
         self._rng = np.random.default_rng(seed + 7919)
         self.stats = LinkStats()
+        self.tap: Callable[[object], None] | None = None  # sees each sent message once (the flight log)
 
     def _drop(self) -> bool:
         return self.drop_rate > 0 and self._rng.random() < self.drop_rate
@@ -259,6 +260,8 @@ class Link:
                         msg.get_srcSystem(), msg.get_srcComponent(), addr, reason, n)
 
     def send(self, msg, endpoint: Endpoint | None = None) -> None:
+        if self.tap is not None:
+            self.tap(msg)
         for ep in [endpoint] if endpoint is not None else self.endpoints:
             if ep.signature is not None:
                 ep.signing_now()  # outgoing timestamps follow real time, not just the message count

@@ -83,6 +83,7 @@ class NavParams:
     acceptance_radius: float = 0.2  # m, (0.01, 10] [NAV_ACC_RAD]
     disarm_after_land_s: float = 2.0  # s, [0, 60] [COM_DISARM_LAND]
     pass_radius: float = 0.5  # m, [0, 5]: a waypoint without hold followed by another is passed within this
+    hover_thrust: float = 0.5  # [0.1, 0.9], the thrust that holds altitude in attitude offboard [MPC_THR_HOVER]
 
 
 class MissionState:  # MAV_MISSION_STATE
@@ -133,6 +134,7 @@ class Navigator:
         self._t = 0.0
         self.events: list[tuple[str, object]] = []  # ("reached", seq) | ("text", str) | ("mode", Mode)
         self.offboard_setpoint = None  # offboard.Setpoint, set by the vehicle from the stream
+        self.attitude: tuple[float, float, float] | None = None  # roll, pitch, yaw NED flown in attitude offboard
         self.orbit: Orbit | None = None
         self.follow = None  # follow_target.FollowTarget, set by the vehicle (FOLLOW holds without one)
         self.manual = None  # manual_control.ManualControl, set by the vehicle
@@ -448,6 +450,7 @@ class Navigator:
     def step(self, t: float, dt: float) -> float:
         """Advance to sim time ``t + dt``; returns the distance flown (for the odometry)."""
         self._t = t
+        attitude, self.attitude = self.attitude, None  # kept only while attitude offboard flies
         if self.armed and not self.landed:
             if self.mode is Mode.MISSION:
                 self._mission_step()
@@ -469,6 +472,8 @@ class Navigator:
                     self._set_mode(Mode.HOLD)
                 self.target = self.pos.copy()
         if self.mode is Mode.OFFBOARD and self.armed and self.offboard_setpoint is not None:
+            if self.offboard_setpoint.attitude is not None:
+                return self._attitude_step(attitude, dt)
             return self._offboard_step(dt)
         if self.mode in MANUAL_MODES and self.armed and self.manual is not None and self.manual.count:
             return self._manual_step(dt)
@@ -513,6 +518,32 @@ class Navigator:
         if self.pos[2] <= 0.02 and not wants_up and abs(self.vel[2]) < 0.05:
             self.pos[2], self.vel[:] = 0.0, 0.0
             self.landed, self._landed_at = True, self._t
+            self.events.append(("text", "Landing detected"))
+        return float(np.linalg.norm(self.pos - old))
+
+    def _attitude_step(self, attitude: tuple[float, float, float] | None, dt: float) -> float:
+        """Fly an attitude (or body-rate) and thrust setpoint (``offboard.attitude_step``); lifts off once the
+        thrust overcomes gravity, lands when it sets the vehicle down."""
+        from vehicle_sim.offboard import attitude_step, lifts_off
+
+        target = self.offboard_setpoint.attitude
+        yaw_ned = math.pi / 2 - self.yaw
+        up = lifts_off(target, self.p.hover_thrust)
+        if self.landed:
+            self.attitude = (0.0, 0.0, yaw_ned)
+            if not up:
+                self.accel[:] = 0
+                return 0.0
+            self.landed, self._landed_at = False, None
+        old, old_vel = self.pos, self.vel
+        self.pos, self.vel, self.attitude = attitude_step(self.pos, self.vel, attitude or (0.0, 0.0, yaw_ned),
+                                                          target, self.p.hover_thrust, dt)
+        self.yaw = yaw_ned_to_enu(self.attitude[2])
+        self.accel = (self.vel - old_vel) / dt
+        self.target, self.target_yaw = self.pos.copy(), None  # a switch to an auto mode holds here
+        if self.pos[2] <= 0.0 and not up:
+            self.landed, self._landed_at = True, self._t
+            self.attitude = (0.0, 0.0, self.attitude[2])
             self.events.append(("text", "Landing detected"))
         return float(np.linalg.norm(self.pos - old))
 

@@ -1,6 +1,14 @@
 """Offboard control as PX4 has it: SET_POSITION_TARGET_LOCAL_NED / SET_POSITION_TARGET_GLOBAL_INT
-setpoints (position, velocity, or both; yaw or yaw rate), a setpoint stream required before the switch
-to OFFBOARD and all along it, and a failsafe when the stream stops.
+setpoints (position, velocity, or both; yaw or yaw rate) and SET_ATTITUDE_TARGET (attitude quaternion or body
+rates, with a collective thrust), a setpoint stream required before the switch to OFFBOARD and all along it,
+and a failsafe when the stream stops.
+
+Attitude and rate setpoints fly a point-mass multicopter (``attitude_step``): the attitude is reached at once
+(the attitude loop is fast next to the motion; a rate setpoint integrates the body rates into it), the thrust
+accelerates along the body's -z axis by g * thrust / MPC_THR_HOVER, gravity pulls down, and a linear drag
+(``DRAG_PER_S``) bounds the speed: a tilt becomes a horizontal acceleration, a thrust above the hover thrust a
+climb. The ground stops a descent and holds the vehicle (landed) while the thrust cannot lift it. The hover
+thrust is PX4's MPC_THR_HOVER (0.5 by default, as PX4's).
 
 - The stream counts as alive while the last setpoint is younger than COM_OF_LOSS_T (1 s, PX4's default),
   measured on the link clock like the GCS link loss: the companion computer streams in wall time
@@ -37,14 +45,33 @@ GLOBAL_FRAMES = {M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.
                  M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT}
 
 
+GRAVITY = 9.80665
+DRAG_PER_S = 0.5  # linear drag, 1/s: terminal speed g tan(tilt) / DRAG_PER_S (10 m/s at 30 deg)
+MAX_SPEED = 20.0  # m/s, any axis, in attitude control
+ATT_TYPEMASK_RATES = 0b111  # body roll / pitch / yaw rate ignored
+ATT_TYPEMASK_THRUST = 1 << 6  # THROTTLE_IGNORE
+ATT_TYPEMASK_ATTITUDE = 1 << 7  # ATTITUDE_IGNORE
+
+
+@dataclass(frozen=True)
+class AttitudeTarget:
+    """SET_ATTITUDE_TARGET: attitude (roll, pitch, yaw NED rad) or body rates (FRD rad/s), and thrust (0..1)."""
+
+    attitude: tuple[float, float, float] | None
+    rates: tuple[float, float, float] | None
+    thrust: float | None
+
+
 @dataclass(frozen=True)
 class Setpoint:
-    """One offboard setpoint in local ENU: position and/or velocity; yaw (ENU rad) or yaw rate (rad/s)."""
+    """One offboard setpoint in local ENU: position and/or velocity; yaw (ENU rad) or yaw rate (rad/s); or an
+    attitude target (the rest None)."""
 
     pos: np.ndarray | None
     vel: np.ndarray | None
     yaw: float | None
     yaw_rate: float | None
+    attitude: AttitudeTarget | None = None
 
 
 class SetpointError(ValueError):
@@ -95,6 +122,67 @@ def setpoint_from_msg(msg, home: Home, yaw_enu_now: float) -> Setpoint:
     if not mask & IGNORE_YAW_RATE and math.isfinite(float(msg.yaw_rate)):
         yaw_rate = -float(msg.yaw_rate)  # NED rate (clockwise) -> ENU (counter-clockwise)
     return Setpoint(pos, vel, yaw, yaw_rate)
+
+
+def euler_from_quaternion(q) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (ZYX, rad) of the rotation body -> NED given as w, x, y, z."""
+    w, x, y, z = (float(c) for c in q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not math.isfinite(n) or n < 1e-6:
+        raise SetpointError(f"quaternion {list(q)} is not a rotation")
+    w, x, y, z = w / n, x / n, y / n, z / n
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def attitude_setpoint_from_msg(msg) -> Setpoint:
+    """Decode SET_ATTITUDE_TARGET; raises SetpointError if unusable."""
+    mask = int(msg.type_mask)
+    att = None if mask & ATT_TYPEMASK_ATTITUDE else euler_from_quaternion(msg.q)
+    rates = None
+    if mask & ATT_TYPEMASK_RATES != ATT_TYPEMASK_RATES:
+        rates = tuple(0.0 if mask & (1 << k) else float(v)
+                      for k, v in enumerate((msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)))
+        if not all(math.isfinite(r) for r in rates):
+            raise SetpointError(f"non-finite body rates {rates}")
+    if att is None and rates is None:
+        raise SetpointError("neither attitude nor body rates")
+    thrust = None if mask & ATT_TYPEMASK_THRUST else float(msg.thrust)
+    if thrust is not None and not (math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
+        raise SetpointError(f"thrust {thrust} not in [0, 1]")
+    return Setpoint(None, None, None, None, AttitudeTarget(att, None if att is not None else rates, thrust))
+
+
+def attitude_step(pos: np.ndarray, vel: np.ndarray, att: tuple[float, float, float], target: AttitudeTarget,
+                  hover_thrust: float, dt: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float]]:
+    """One fixed step of the point-mass multicopter under an attitude target; returns position, velocity (ENU)
+    and the attitude flown (roll, pitch, yaw NED)."""
+    if target.attitude is not None:
+        roll, pitch, yaw = target.attitude
+    else:  # body rates, small angles: Euler rates ~ body rates
+        p, q, r = target.rates
+        roll, pitch, yaw = att[0] + p * dt, att[1] + q * dt, wrap_pi(att[2] + r * dt)
+    thrust = hover_thrust if target.thrust is None else target.thrust
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw),
+                              math.sin(yaw))
+    body_z_ned = np.array([cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp])  # body +z (down) in NED
+    a_ned = -GRAVITY * thrust / hover_thrust * body_z_ned + np.array([0.0, 0.0, GRAVITY])
+    a = enu_to_ned(a_ned) - DRAG_PER_S * vel
+    new_vel = np.clip(vel + a * dt, -MAX_SPEED, MAX_SPEED)
+    new_pos = pos + (vel + new_vel) / 2 * dt
+    if new_pos[2] <= 0.0:  # on the ground: it stops there
+        new_pos[2] = 0.0
+        new_vel = np.zeros(3) if new_vel[2] <= 0 else np.array([0.0, 0.0, new_vel[2]])
+    return new_pos, new_vel, (roll, pitch, yaw)
+
+
+def lifts_off(target: AttitudeTarget, hover_thrust: float) -> bool:
+    """Whether the target's thrust, at its tilt, overcomes gravity."""
+    thrust = hover_thrust if target.thrust is None else target.thrust
+    roll, pitch = target.attitude[:2] if target.attitude is not None else (0.0, 0.0)
+    return thrust / hover_thrust * math.cos(roll) * math.cos(pitch) > 1.0 + 1e-6
 
 
 class OffboardStream:

@@ -21,12 +21,12 @@ import numpy as np
 from pymavlink.dialects.v20 import common as M
 
 from radseek.coordinates import Home, enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
+from vehicle_sim.imu import tilt
 from vehicle_sim.navigator import MANUAL_MODES, Mode, px4_custom_mode
 
-GRAVITY = 9.80665
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_FTP)
 FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # announces PX4-compatible 1.14.0 release
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
            | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS
@@ -67,6 +67,7 @@ class Snapshot:
     failsafe: bool
     reset_counter: int = 0
     failures: frozenset = frozenset()  # units turned off by failure injection ("gps", "battery")
+    tilt: tuple[float, float] | None = None  # roll, pitch flown (attitude offboard); else from the acceleration
 
 
 def _ms(t: float) -> int:
@@ -75,11 +76,7 @@ def _ms(t: float) -> int:
 
 def _tilt(s: Snapshot) -> tuple[float, float]:
     """Roll and pitch (NED body FRD) of a multicopter accelerating by ``accel``: small-angle model."""
-    yaw = yaw_enu_to_ned(s.yaw)
-    a_n, a_e = float(s.accel[1]), float(s.accel[0])
-    fwd = a_n * math.cos(yaw) + a_e * math.sin(yaw)
-    right = -a_n * math.sin(yaw) + a_e * math.cos(yaw)
-    return math.atan2(right, GRAVITY), -math.atan2(fwd, GRAVITY)
+    return s.tilt if s.tilt is not None else tilt(s.accel, yaw_enu_to_ned(s.yaw))
 
 
 def _quat(roll: float, pitch: float, yaw: float) -> list[float]:

@@ -12,20 +12,26 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from pymavlink.dialects.v20 import common as M
 
-from radseek.coordinates import Home, geodetic_to_enu
+from radseek.coordinates import Home, geodetic_to_enu, yaw_enu_to_ned
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
+from vehicle_sim import imu as imu_model
 from vehicle_sim.failsafe import FailsafeParams
 from vehicle_sim.failure_injection import Failures
+from vehicle_sim.flight_log import FlightLog
 from vehicle_sim.follow_target import FollowTarget
 from vehicle_sim.geofence import Geofence, zones_from_items
+from vehicle_sim.imu import ImuStream, tilt
 from vehicle_sim.link import Endpoint, Link
+from vehicle_sim.log_transfer import LogServer
 from vehicle_sim.manual_control import ManualControl, sticks_from_msg
+from vehicle_sim.mavftp import FtpServer, VirtualFile, VirtualFs
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
 from vehicle_sim.navigator import MANUAL_MODES, Mode, NavParams
@@ -39,6 +45,9 @@ MISSION_MSGS = {"MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_RE
                 "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_ACK"}
 PARAM_MSGS = {"PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"}
 SETPOINT_MSGS = {"SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"}
+LOG_MSGS = {"LOG_REQUEST_LIST", "LOG_REQUEST_DATA", "LOG_REQUEST_END", "LOG_ERASE"}
+LOG_DIR = "/fs/microsd/log"  # PX4's log folder, as its FTP server shows it
+BULK_PER_TURN = 64  # file-transfer packets sent per loop turn (a burst must not overflow a client's socket)
 
 
 @dataclass
@@ -167,6 +176,15 @@ class Vehicle(SimVehicle):
              ("gcs", (cfg.bind_host, cfg.gcs_local_port), (cfg.remote_host, cfg.gcs_port))],
             sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
             seed=cfg.seed, wall_time_s=time.time())
+        self.flight_log = FlightLog(cfg.sysid, cfg.compid)
+        self.link.tap = lambda msg: self.flight_log.record(msg, self.t)
+        fs = VirtualFs()
+        fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
+        self.ftp = FtpServer(fs)
+        self.logs = LogServer(self.flight_log)
+        self.imu = ImuStream(cfg.home, cfg.speedup)
+        self._log_ep: Endpoint | None = None
+        self._bulk: deque = deque()  # (message, endpoint) of file transfers, paced by flush_bulk
         self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
         self.params = self._make_params()
         self._text_id = 0
@@ -209,6 +227,7 @@ class Vehicle(SimVehicle):
             Param("NAV_ACC_RAD", c.nav.acceptance_radius, 0.01, 10, "m", set_nav("acceptance_radius")),
             Param("MPC_XY_CRUISE", c.limits.max_speed_xy, 0.1, 20, "m/s", set_lim("max_speed_xy")),
             Param("MPC_ACC_HOR", c.limits.max_accel, 0.1, 10, "m/s^2", set_lim("max_accel")),
+            Param("MPC_THR_HOVER", c.nav.hover_thrust, 0.1, 0.9, "", set_nav("hover_thrust")),
             Param("COM_DL_LOSS_T", c.failsafe.link_loss_timeout_s, 0.5, 600, "s", set_fs),
             Param("COM_OF_LOSS_T", self.offboard.loss_timeout_s, 0.1, 60, "s",
                   lambda v: setattr(self.offboard, "loss_timeout_s", v)),
@@ -295,14 +314,24 @@ class Vehicle(SimVehicle):
         return telemetry.Snapshot(
             self.t, nav.pos, nav.vel, nav.accel, nav.yaw, self._yaw_rate, self.odo.var, nav.armed, nav.landed,
             landed_state, nav.mode, self.battery, battery_model.voltage(self.battery, self.cfg.battery), self.home,
-            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active))
+            seq, len(items), nav.mission_state, self.failsafe_active, failures=frozenset(self.failures.active),
+            tilt=None if nav.attitude is None else nav.attitude[:2])
 
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
+        if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+            nav, yaw = self.nav, yaw_enu_to_ned(self.nav.yaw)
+            return self.imu.sample(self.t, (*tilt(nav.accel, yaw), yaw), (0.0, 0.0, -self._yaw_rate), nav.accel,
+                                   self.home.alt_m + float(nav.pos[2]))
         name = telemetry.MSG_IDS.get(msg_id)
         return None if name is None else telemetry.BUILDERS[name](self.snapshot())
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
+        if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+            self.imu.set_interval(interval_us)
+            log.info("HIGHRES_IMU: %g Hz asked, %g Hz of sim time sent (at most %g a wall second)",
+                     self.imu.requested_hz, self.imu.rate_hz, imu_model.MAX_WALL_HZ)
+            return True
         name = telemetry.MSG_IDS.get(msg_id)
         if name is None or name == "AUTOPILOT_VERSION":
             return False
@@ -370,6 +399,9 @@ class Vehicle(SimVehicle):
             elif kind in SETPOINT_MSGS:
                 if self._for_us(msg):
                     self._on_setpoint(msg, now_wall)
+            elif kind == "SET_ATTITUDE_TARGET":
+                if self._for_us(msg):
+                    self._on_attitude(msg, now_wall)
             elif kind in PARAM_MSGS:
                 if self._for_us(msg):
                     for m in self.params.handle(msg):
@@ -379,6 +411,16 @@ class Vehicle(SimVehicle):
             elif kind == "MANUAL_CONTROL":
                 if msg.target in (0, self.cfg.sysid):
                     self.manual.receive(sticks_from_msg(msg), now_wall)
+            elif kind == "FILE_TRANSFER_PROTOCOL":
+                if self._for_us(msg) and msg.target_network == 0:
+                    src = (msg.get_srcSystem(), msg.get_srcComponent())
+                    for payload in self.ftp.handle(msg.payload, src):
+                        self._bulk.append((M.MAVLink_file_transfer_protocol_message(0, *src, list(payload)), ep))
+            elif kind in LOG_MSGS:
+                if self._for_us(msg):
+                    self._log_ep = ep
+                    for m in self.logs.handle(msg):
+                        self.link.send(m, ep)
             elif kind == "PING":
                 if msg.target_system == 0:
                     self.link.send(M.MAVLink_ping_message(msg.time_usec, msg.seq, msg.get_srcSystem(),
@@ -392,6 +434,15 @@ class Vehicle(SimVehicle):
             log.warning("%s from %d/%d ignored: %s: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(),
                         type(exc).__name__, exc)
 
+    def flush_bulk(self, n: int = BULK_PER_TURN) -> None:
+        """Send up to ``n`` queued file-transfer packets (FTP replies first, then the log download's)."""
+        while self._bulk and n > 0:
+            self.link.send(*self._bulk.popleft())
+            n -= 1
+        if n > 0 and self._log_ep is not None:
+            for m in self.logs.pending(n):
+                self.link.send(m, self._log_ep)
+
     def _on_setpoint(self, msg, now_wall: float) -> None:
         try:
             sp = offboard.setpoint_from_msg(msg, self.home, self.nav.yaw)
@@ -403,6 +454,15 @@ class Vehicle(SimVehicle):
                 self._refused_sp = sp.pos
                 self.statustext(f"offboard setpoint {np.round(sp.pos, 1).tolist()} m outside the geofence: ignored",
                                 M.MAV_SEVERITY_WARNING)
+            return
+        self.offboard.receive(sp, now_wall)
+        self.nav.offboard_setpoint = sp
+
+    def _on_attitude(self, msg, now_wall: float) -> None:
+        try:
+            sp = offboard.attitude_setpoint_from_msg(msg)
+        except offboard.SetpointError as exc:
+            log.info("SET_ATTITUDE_TARGET ignored: %s", exc)
             return
         self.offboard.receive(sp, now_wall)
         self.nav.offboard_setpoint = sp
@@ -444,6 +504,10 @@ class Vehicle(SimVehicle):
     def step(self, dt: float, link_age: float | None) -> list:
         """One sim step (``SimVehicle.step``), its events told over MAVLink."""
         events = super().step(dt, link_age)
+        nav = self.nav
+        for m in self.imu.step(self.t, dt, nav.accel, nav.yaw, self._yaw_rate, self.home.alt_m + float(nav.pos[2]),
+                               float(nav.vel[2]), None if nav.attitude is None else nav.attitude[:2]):
+            self.link.send(m)
         for ev in events:
             if ev.kind == "reached":
                 self.link.send(M.MAVLink_mission_item_reached_message(int(ev.data)))
@@ -511,6 +575,7 @@ class Vehicle(SimVehicle):
                     self.dispatch(ep, msg, now_wall)
                 for m in self.protocol.poll(now_wall):
                     self.link.send(m, self._proto_ep)
+                self.flush_bulk()
                 self._check_offboard(now_wall)
                 self._check_streams(now_wall)
                 last = self.link.last_rx_wall

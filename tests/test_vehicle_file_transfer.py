@@ -1,0 +1,136 @@
+"""MAVLink FTP and the log protocol against the vehicle over real UDP, with a bare pymavlink ground station:
+every request answered (ACK or the spec's NAK code), and the flight log read both ways is the same file, a
+telemetry log pymavlink reads back as the vehicle's own messages."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as M
+
+from vehicle_sim.harness import Gcs, VehicleThread, free_udp_port, thread_config
+from vehicle_sim.mavftp import HEADER
+
+pytestmark = pytest.mark.io
+
+
+@pytest.fixture
+def link():
+    gcs_port = free_udp_port()
+    with VehicleThread(thread_config(free_udp_port(), gcs_port, speedup=10.0)) as vehicle, Gcs(gcs_port) as gcs:
+        gcs.wait_vehicle()
+        yield vehicle, gcs
+
+
+class Ftp:
+    """A minimal FTP client: one request, its reply (header fields and data)."""
+
+    def __init__(self, gcs: Gcs):
+        self.gcs, self.seq = gcs, 0
+
+    def request(self, opcode: int, data: bytes = b"", *, session: int = 0, offset: int = 0, size: int | None = None,
+                seq: int | None = None) -> dict:
+        self.seq = self.seq + 1 if seq is None else seq
+        head = HEADER.pack(self.seq, session, opcode, len(data) if size is None else size, 0, 0, 0, offset)
+        payload = head + data + bytes(251 - len(head) - len(data))
+        self.gcs.send(M.MAVLink_file_transfer_protocol_message(0, 1, 1, list(payload)))
+        m = self.gcs.recv("FILE_TRANSFER_PROTOCOL", lambda m: _decode(m)["req_opcode"] == opcode, timeout=30)
+        return _decode(m)
+
+
+def _decode(m) -> dict:
+    raw = bytes(m.payload) + bytes(251)
+    seq, session, opcode, size, req_opcode, burst, _, offset = HEADER.unpack_from(raw)
+    return {"seq": seq, "session": session, "opcode": opcode, "size": size, "req_opcode": req_opcode,
+            "burst_complete": burst, "offset": offset, "data": raw[HEADER.size:HEADER.size + size],
+            "target": (m.target_system, m.target_component)}
+
+
+def _list(ftp: Ftp, path: str) -> list[str]:
+    entries: list[str] = []
+    while True:
+        r = ftp.request(M.MAV_FTP_OPCODE_LISTDIRECTORY, path.encode(), offset=len(entries))
+        if r["opcode"] == M.MAV_FTP_OPCODE_NAK:
+            assert r["data"][0] == M.MAV_FTP_ERR_EOF
+            return entries
+        entries += [e.decode() for e in r["data"].split(b"\x00") if e]
+
+
+def test_ftp_lists_the_log_folder_and_reads_the_flight_log(link, tmp_path):
+    vehicle, gcs = link
+    ftp = Ftp(gcs)
+    assert _list(ftp, "/") == ["Dfs"]
+    days = _list(ftp, "/fs/microsd/log")
+    assert len(days) == 1 and days[0].startswith("D")
+    files = _list(ftp, f"/fs/microsd/log/{days[0][1:]}")
+    assert len(files) == 1 and files[0].startswith("F")  # F<name><TAB><size>
+    name, size = files[0][1:].split("\t")
+    assert name.endswith(".tlog") and int(size) > 0
+    path = f"/fs/microsd/log/{days[0][1:]}/{name}".encode()
+    r = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path)
+    assert r["opcode"] == M.MAV_FTP_OPCODE_ACK and r["seq"] == ftp.seq + 1 and r["target"] == (255, 190)
+    session, length = r["session"], struct.unpack("<I", r["data"])[0]
+    assert length >= int(size)
+    content = b""
+    while True:
+        r = ftp.request(M.MAV_FTP_OPCODE_READFILE, session=session, offset=len(content), size=239)
+        if r["opcode"] == M.MAV_FTP_OPCODE_NAK:
+            assert r["data"][0] == M.MAV_FTP_ERR_EOF
+            break
+        assert r["offset"] == len(content)
+        content += r["data"]
+    assert len(content) == length
+    assert ftp.request(M.MAV_FTP_OPCODE_TERMINATESESSION, session=session)["opcode"] == M.MAV_FTP_OPCODE_ACK
+    assert vehicle.flight_log.read(0, length) == content  # the log as it was at opening
+    (tmp_path / "flight.tlog").write_bytes(content)
+    mlog = mavutil.mavlink_connection(str(tmp_path / "flight.tlog"))
+    kinds = []
+    while (m := mlog.recv_match()) is not None:
+        kinds.append((m.get_type(), m.get_srcSystem()))
+    assert ("HEARTBEAT", 1) in kinds and ("GLOBAL_POSITION_INT", 1) in kinds
+    assert not any(k == "FILE_TRANSFER_PROTOCOL" for k, _ in kinds)  # the transfer does not feed the log
+
+
+@pytest.mark.parametrize(("opcode", "data", "error"), [
+    (M.MAV_FTP_OPCODE_OPENFILERO, b"@PARAM/param.pck", M.MAV_FTP_ERR_FILENOTFOUND),  # MAVProxy's / QGC's first try
+    (M.MAV_FTP_OPCODE_LISTDIRECTORY, b"/fs/nowhere", M.MAV_FTP_ERR_FILENOTFOUND),
+    (M.MAV_FTP_OPCODE_READFILE, b"", M.MAV_FTP_ERR_INVALIDSESSION),
+    (M.MAV_FTP_OPCODE_CREATEFILE, b"/fs/microsd/x.txt", M.MAV_FTP_ERR_FILEPROTECTED),
+    (M.MAV_FTP_OPCODE_REMOVEDIRECTORY, b"/fs/microsd/log", M.MAV_FTP_ERR_FILEPROTECTED),
+    (M.MAV_FTP_OPCODE_CALCFILECRC, b"/fs", M.MAV_FTP_ERR_UNKNOWNCOMMAND),
+    (42, b"", M.MAV_FTP_ERR_UNKNOWNCOMMAND),
+])
+def test_ftp_refusals_carry_the_spec_error_code(link, opcode, data, error):
+    _, gcs = link
+    r = Ftp(gcs).request(opcode, data, session=3)
+    assert r["opcode"] == M.MAV_FTP_OPCODE_NAK and r["size"] == 1 and r["data"][0] == error
+
+
+def test_ftp_resend_gets_the_same_answer_without_a_second_session(link):
+    vehicle, gcs = link
+    ftp = Ftp(gcs)
+    days = _list(ftp, "/fs/microsd/log")
+    name = _list(ftp, f"/fs/microsd/log/{days[0][1:]}")[0][1:].split("\t")[0]
+    path = f"/fs/microsd/log/{days[0][1:]}/{name}".encode()
+    first = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path, seq=100)
+    again = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path, seq=100)  # the reply was "lost": same seq
+    assert first == again and len(vehicle.ftp.sessions) == 1
+
+
+def test_log_protocol_lists_one_log_and_serves_it_whole(link):
+    vehicle, gcs = link
+    gcs.send(M.MAVLink_log_request_list_message(1, 1, 0, 0xFFFF))
+    entry = gcs.recv("LOG_ENTRY")
+    assert (entry.id, entry.num_logs, entry.last_log_num) == (0, 1, 0) and entry.size > 0
+    assert abs(entry.time_utc - vehicle.flight_log.boot_wall_s) < 1
+    gcs.send(M.MAVLink_log_request_data_message(1, 1, 0, 0, entry.size))
+    got: dict[int, bytes] = {}
+    while sum(len(v) for v in got.values()) < entry.size:
+        d = gcs.recv("LOG_DATA")
+        got[d.ofs] = bytes(d.data[:d.count])
+    data = b"".join(got[k] for k in sorted(got))
+    assert data == vehicle.flight_log.read(0, entry.size)
+    gcs.send(M.MAVLink_log_request_data_message(1, 1, 0, entry.size + 1000, 90))  # past the end: count 0
+    assert gcs.recv("LOG_DATA", lambda d: d.ofs == entry.size + 1000).count == 0
