@@ -24,7 +24,11 @@ warm-starts from. The policy, in order:
    (:data:`SECOND_SOURCE_LR`); a first try is tested without pose offsets first and ends there if it fails (the
    offsets absorb part of what a second source explains, so that ratio bounds the profiled one); the record
    is the strongest source's, the other's position in ``params``;
-6. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues);
+6. repair the position covariance (non-finite -> 0, symmetrise, clip negative eigenvalues), scale it by the
+   misfit factor (``estimator.modes.misfit_factor``: deviance per dof when above 1) and widen it to cover the
+   likelihood's other modes over the search area (``estimator.modes.mode_covariance``; one-source fits): the
+   fit's covariance is the curvature of the one mode it sits in, and lattice-clean after 4 dwells sat in a
+   mirror mode 2.5 m off with a local 1-sigma of 0.149 m (now 2.1 m);
 7. :func:`sigma_m`: the one definition of the estimate's 1-sigma; the record also carries the fit's
    goodness-of-fit ``p_value`` (below :data:`GOOD_FIT_P` the model misses something: :func:`gof_warning`).
 
@@ -47,12 +51,15 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimator.localizers.base import Localizer, make_localizer
+from estimator.localizers.mle import covering_covariance
 from estimator.mle import pooled
+from estimator.modes import misfit_factor, mode_covariance
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, semi_major_axis
 
-__all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "GOOD_FIT_P", "MIN_SIGMA_M", "InflightEstimator", "bound_m",
-           "drift_floor_m", "ellipse", "gof_warning", "pose_sd_m", "repair_covariance", "sigma_m"]
+__all__ = ["DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "ERROR_SIGMAS_FLAG", "GOOD_FIT_P", "MIN_SIGMA_M",
+           "InflightEstimator", "bound_m", "drift_floor_m", "ellipse", "error_sigmas", "gof_warning",
+           "honest_covariance", "pose_sd_m", "repair_covariance", "sigma_m"]
 
 DEFAULT_LOCALIZER = "mle"
 #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
@@ -86,6 +93,8 @@ WALL_LR = float(chi2.isf(GOOD_FIT_P, 1))
 #: a weak second source read as background leaves p ~ 0.002 once the deviance is the profile's maximum (the
 #: two-source scene: one-source fit 0.45 m off, background 80 cps against 30); fits that fit well rarely pay
 SECOND_SOURCE_TRY_P = 0.01
+#: an estimate names another likelihood mode (``other_mode``) when that mode holds more than this share
+OTHER_MODE_SHARE = 0.05
 _BASE_PARAMS = ("x", "y", "z", "cps_at_1m", "background_cps")
 _FIT_ERRORS = (ValueError, np.linalg.LinAlgError, RuntimeError)
 
@@ -166,13 +175,54 @@ def repair_covariance(covariance: Any) -> np.ndarray:
     return (v * np.clip(w, 0, None)) @ v.T
 
 
+def honest_covariance(scenario: Scenario, frames: Frames, source: Mapping[str, Any], local: np.ndarray,
+                      check: bool = True, phi: float = 1.0) -> tuple[np.ndarray, dict[str, float] | None]:
+    """The covariance to report: the fit's local one (drift-aware, already times the misfit factor ``phi``)
+    widened to cover the likelihood's other modes over the search area (``estimator.modes``, when ``check``: a
+    trustworthy one-source fit; ``source`` has ``x``, ``y``, ``z`` and the fit's ``params``), and the best other
+    mode when it holds more than :data:`OTHER_MODE_SHARE` of the probability (``x``, ``y``, ``delta_nll`` above
+    the estimate's, ``share``), else None."""
+    local = np.asarray(local, dtype=float)
+    if not check or not math.isfinite(sigma_m(local)):
+        return local, None
+    try:
+        m = mode_covariance(scenario, frames, dict(source), local, phi)
+    except _FIT_ERRORS:
+        return local, None
+    cov = local.copy()
+    cov[:2, :2] = covering_covariance(local[:2, :2], m.covariance)
+    other = None if not m.far_share > OTHER_MODE_SHARE else \
+        {"x": m.best_x, "y": m.best_y, "delta_nll": m.best_delta, "share": m.far_share}
+    return cov, other
+
+
+def error_sigmas(covariance: Any, dx: float, dy: float) -> float:
+    """How many 1-sigmas an error (``dx``, ``dy``) lies outside the x-y ellipse of ``covariance``: its
+    Mahalanobis distance (inf for an untrustworthy or degenerate covariance)."""
+    c = np.asarray(covariance, dtype=float)[:2, :2]
+    if not np.isfinite(c).all():
+        return math.inf
+    e = np.array([dx, dy])
+    try:
+        return float(math.sqrt(max(float(e @ np.linalg.solve(c, e)), 0.0)))
+    except np.linalg.LinAlgError:
+        return math.inf
+
+
+#: an error vs truth more than this many 1-sigmas outside the ellipse is flagged: chi2 with 2 dof at GOOD_FIT_P
+ERROR_SIGMAS_FLAG = float(math.sqrt(chi2.isf(GOOD_FIT_P, 2)))
+
+
 class InflightEstimator:
     """Feed it the frames recorded so far after each dwell; it returns the estimate record (or None).
 
     ``estimates`` is its history, one record per successful fit; ``localizer`` the last fitted localizer
     (for publishing the full ``estimate`` message). A record has ``dwell`` (the caller's dwell count),
     ``x``, ``y``, ``z`` (m), ``cps_at_1m``, ``background_cps`` (cps), ``covariance`` ((3, 3) position
-    covariance in m^2, repaired, as nested lists), ``sigma_m`` (:func:`sigma_m`), ``effects`` (the fitted
+    covariance in m^2, repaired, misfit-scaled and covering the other modes, as nested lists), ``sigma_m``
+    (:func:`sigma_m` of it), ``sigma_local_m`` (the fit's own curvature alone), ``misfit_factor``,
+    ``other_mode`` (the best other likelihood mode when it holds over :data:`OTHER_MODE_SHARE`, else None),
+    ``effects`` (the fitted
     model's), ``params`` (the fitted effects' parameters, e.g. ``wall_attenuation.mu_per_m``), ``converged``
     ``p_value`` (goodness of fit, nan if the localizer reports none), ``drift_floor_m``
     (:func:`drift_floor_m`) and ``pose_sd_m`` (:func:`pose_sd_m`). :meth:`finalize` adds ``bound_m``
@@ -247,12 +297,16 @@ class InflightEstimator:
         info = getattr(loc, "info_", {})
         converged = bool(info.get("converged", True))
         k = self._primary = _primary(loc)
-        cov = repair_covariance(_block(loc.covariance_, k))
+        local = repair_covariance(_block(loc.covariance_, k))
         params = {n: float(v) for n, v in info.get("values", {}).items() if n not in _BASE_PARAMS}
         if k:  # the second source is the stronger: the record's source is it, its params name the other
             params.update({f"second_source.{n}": float(v) for n, v in loc.sources_[0].items()})
+        phi = misfit_factor(info.get("deviance_per_dof"))
+        cov, modes = honest_covariance(self.scenario, frames, {**loc.sources_[k], "params": params}, local * phi,
+                                       converged and "second_source" not in getattr(loc, "effects", ()), phi)
         record = {"dwell": int(dwell), **loc.sources_[k], "background_cps": float(loc.background_),
                   "covariance": cov.tolist(), "sigma_m": sigma_m(cov, converged),
+                  "sigma_local_m": sigma_m(local, converged), "misfit_factor": phi, "other_mode": modes,
                   "effects": list(getattr(loc, "effects", ())), "params": params,
                   "converged": converged, "p_value": float(info.get("p_value", math.nan)),
                   "drift_floor_m": drift_floor_m(_block(getattr(loc, "crlb_pose_", None), k)),

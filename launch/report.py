@@ -137,7 +137,23 @@ def _emptiest_corner(ax, frames, src: dict[str, float]) -> list[float]:
         return int(inside.sum())
 
     x0, y0 = min(INSET_CORNERS, key=lambda c: (1000 * hidden(*c, cen) + 10_000 * hidden(*c, est) + hidden(*c, xy)))
+    if hidden(x0, y0, cen) or hidden(x0, y0, est):
+        # every corner hides a dwell point (a flight over the whole map): make room instead, widening the map to
+        # the left by an empty band the inset fits in, so it hides nothing (the flight's points move right)
+        lo, hi = ax.get_xlim()
+        band = INSET_SIZE + 0.06
+        ax.set_xlim(lo - (hi - lo) * band / (1.0 - band), hi)
+        return [0.02, 0.02, INSET_SIZE, INSET_SIZE]
     return [x0, y0, INSET_SIZE, INSET_SIZE]
+
+
+def wrapped_title(text: str, width_in: float, fontsize: float) -> str:
+    """``text`` broken into lines that fit ``width_in`` inches at ``fontsize`` points (a run's stop reason runs
+    to 200 characters: lattice-wall's ran off the image)."""
+    import textwrap
+
+    chars = max(int(0.95 * width_in * 72 / (0.55 * fontsize)), 20)  # an average glyph is ~0.55 em wide
+    return "\n".join(textwrap.wrap(text, chars)) or text
 
 
 def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: SourceEstimate, truth) -> None:
@@ -262,7 +278,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     ax.set_xlabel("sim time (s)")
     ax.set_ylabel("total count rate (cps)")
     ax.set_title("count rate (dwells shaded)")
-    fig.suptitle(f"radseek run: {mission.get('reason', '')}", fontsize=11)
+    fig.suptitle(wrapped_title(f"radseek run: {mission.get('reason', '')}", fig.get_figwidth(), 11), fontsize=11)
     fig.tight_layout()
     with atomic_path(out / "report.png") as tmp:  # a reader never sees half a PNG
         fig.savefig(tmp, dpi=110, format="png")
@@ -392,7 +408,9 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
     if truth:
         ax.plot(truth.sources[0].x, truth.sources[0].y, "r*", ms=14, label="truth")
     _map_frame(ax, any_ds.scenario)
-    ax.set_title(f"{len(names)} vehicles: error {err:.3f} m; {mission.get('reason', '')}"[:110], fontsize=9)
+    ax.set_title(wrapped_title(f"{len(names)} vehicles: error {err:.3f} m; {mission.get('reason', '')}",
+                               ax.get_position().width * fig.get_figwidth(), 9),
+                 fontsize=9)
     ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     with atomic_path(out / "report.png") as tmp:

@@ -42,11 +42,22 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
     on, as the mission did; any other name fits that localizer with ``settings`` afresh after every dwell.
     Rows: ``dwells`` (count), ``dwell`` (index),
     ``t``, ``x``, ``y``, ``cps_at_1m``, ``background_cps``, ``sigma_m`` (``estimator.inflight.sigma_m``),
-    ``p_value`` (goodness of fit, nan if the localizer has none), ``error_m`` with truth; ``error`` instead
-    when there is no estimate.
+    ``sigma_local_m`` (the fit's own curvature: ``sigma_m`` is it misfit-scaled and covering the likelihood's
+    other modes, ``estimator.inflight.honest_covariance``), ``misfit_factor``, ``other_mode``,
+    ``p_value`` (goodness of fit, nan if the localizer has none), ``error_m`` and ``error_sigmas`` (how many
+    1-sigmas outside the ellipse the error lies) with truth; ``error`` instead when there is no estimate.
     """
-    from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, InflightEstimator, sigma_m
+    from estimator.inflight import (
+        DEFAULT_LOCALIZER,
+        DEFAULT_SETTINGS,
+        InflightEstimator,
+        error_sigmas,
+        honest_covariance,
+        repair_covariance,
+        sigma_m,
+    )
     from estimator.localizers.base import make_localizer
+    from estimator.modes import misfit_factor
 
     f = dataset.frames
     inflight = InflightEstimator(dataset.scenario, localizer or DEFAULT_LOCALIZER,
@@ -64,9 +75,9 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
             if est is None:
                 rows.append({**row, "error": "no estimate (too few frames, or the fit failed)"})
                 continue
-            s = est
-            row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "effects",
-                                                  "converged", "p_value")})
+            s, cov = est, est["covariance"]
+            row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "sigma_local_m",
+                                                  "misfit_factor", "other_mode", "effects", "converged", "p_value")})
         else:
             loc = make_localizer(method, **(settings or {}))
             try:
@@ -75,15 +86,42 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
                 rows.append({**row, "error": str(exc)})
                 continue
             s = loc.sources_[0]
-            converged = bool(getattr(loc, "info_", {}).get("converged", True))
+            info = getattr(loc, "info_", {})
+            converged = bool(info.get("converged", True))
+            # the same honesty as in flight: misfit-scaled, covering the likelihood's other modes
+            local = repair_covariance(np.asarray(loc.covariance_, dtype=float)[:4, :4]) \
+                if np.isfinite(np.asarray(loc.covariance_, dtype=float)[:2, :2]).all() else np.full((2, 2), np.nan)
+            phi = misfit_factor(info.get("deviance_per_dof"))
+            effects = tuple(getattr(loc, "effects", ()) or ())
+            cov, other = honest_covariance(dataset.scenario, upto, {**s, "params": dict(info.get("values", {}))},
+                                           local * phi, converged and "second_source" not in effects, phi)
             row.update({"x": s["x"], "y": s["y"], "cps_at_1m": s["cps_at_1m"], "background_cps": float(loc.background_),
-                        "sigma_m": sigma_m(loc.covariance_, converged),
-                        "p_value": float(getattr(loc, "info_", {}).get("p_value", math.nan))})
+                        "sigma_m": sigma_m(cov, converged), "sigma_local_m": sigma_m(local, converged),
+                        "misfit_factor": phi, "other_mode": other, "p_value": float(info.get("p_value", math.nan))})
         if dataset.truth is not None:
             tr = dataset.truth.sources[0]
             row["error_m"] = math.hypot(s["x"] - tr.x, s["y"] - tr.y)
+            # an untrustworthy estimate (sigma inf) claims no ellipse, so no error lies outside it
+            row["error_sigmas"] = error_sigmas(cov, s["x"] - tr.x, s["y"] - tr.y) \
+                if math.isfinite(row["sigma_m"]) else 0.0
         rows.append(row)
     return rows
+
+
+def outside_warning(rows: list[dict]) -> str | None:
+    """The warning for the dwells whose error vs truth lies more than ``ERROR_SIGMAS_FLAG`` 1-sigmas outside
+    their ellipse (an error the reported uncertainty does not allow), else None."""
+    from estimator.inflight import ERROR_SIGMAS_FLAG
+
+    bad = [r for r in rows if r.get("error_sigmas", 0.0) > ERROR_SIGMAS_FLAG]
+    if not bad:
+        return None
+    worst = max(bad, key=lambda r: r["error_sigmas"])
+    return (f"at {len(bad)} of {len(rows)} dwells the error vs truth is more than {ERROR_SIGMAS_FLAG:.1f} sigma "
+            f"outside the reported ellipse (dwells {', '.join(str(r['dwells']) for r in bad)}; worst: dwell "
+            f"{worst['dwells']}, error {worst['error_m']:.3f} m at 1-sigma {worst['sigma_m']:.3f} m, "
+            f"{worst['error_sigmas']:.1f} sigma): a bias the model does not know of (an unmodelled effect, "
+            f"see `radseek diagnose`), or a mode the fit sits in wrongly")
 
 
 def flown_first_dwell(path: str | Path) -> int | None:
@@ -174,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = p.parse_args(argv)
 
-    from estimator.inflight import gof_warning
+    from estimator.inflight import ERROR_SIGMAS_FLAG, gof_warning
     from radseek.dataset import DatasetError
     from radseek_io.mcap_frames import McapFrameError
     from radseek_io.truth import read_dataset_with_truth
@@ -216,22 +254,34 @@ def main(argv: list[str] | None = None) -> int:
     # the last estimate is the one the flight ended with: say so when its model does not fit the data
     last = next((r for r in reversed(rows) if "error" not in r), None)
     warning = gof_warning(last.get("p_value"), args.dataset) if last else None
+    outside = outside_warning(rows)
     if args.json:
         print(json.dumps(rows, indent=2))
         if warning:
             print(f"radseek replay: warning: {warning}", file=sys.stderr)
+        if outside:
+            print(f"radseek replay: warning: {outside}", file=sys.stderr)
     else:
+        truth = any("error_m" in r for r in rows)
         print(f"{'dwells':>6} {'t (s)':>8} {'x (m)':>7} {'y (m)':>7} {'cps@1m':>8} {'sigma (m)':>9} {'error (m)':>9} "
-              f"{'p (fit)':>8}")
+              f"{'p (fit)':>8}" + (f" {'err/sigma':>9}" if truth else ""))
         for r in rows:
             if "error" in r:
                 print(f"{r['dwells']:>6} {r['t']:>8.1f}  fit failed: {r['error']}")
                 continue
             err = f"{r['error_m']:9.3f}" if "error_m" in r else f"{'-':>9}"
-            print(f"{r['dwells']:>6} {r['t']:>8.1f} {r['x']:7.2f} {r['y']:7.2f} {r['cps_at_1m']:8.0f} "
-                  f"{r['sigma_m']:9.3f} {err} {r.get('p_value', math.nan):8.2g}")
+            line = (f"{r['dwells']:>6} {r['t']:>8.1f} {r['x']:7.2f} {r['y']:7.2f} {r['cps_at_1m']:8.0f} "
+                    f"{r['sigma_m']:9.3f} {err} {r.get('p_value', math.nan):8.2g}")
+            if "error_sigmas" in r:
+                line += f" {r['error_sigmas']:9.1f}" + (" !" if r["error_sigmas"] > ERROR_SIGMAS_FLAG else "")
+            if r.get("other_mode"):
+                o = r["other_mode"]
+                line += f"  (another mode at ({o['x']:.2f}, {o['y']:.2f}) holds {o['share']:.0%})"
+            print(line)
         if warning:
             print(f"THE MODEL MISSES SOMETHING HERE: {warning}")
+        if outside:
+            print(f"THE UNCERTAINTY IS NOT HONEST HERE: {outside}")
     if args.plot:
         import matplotlib
 

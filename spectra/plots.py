@@ -7,6 +7,26 @@ from pathlib import Path
 import numpy as np
 
 
+def energy_upper_keV(problem, res) -> float:
+    """The energy axis's upper end (keV): the spectrum's end (1.4 x the energy below which 99.5 % of its net counts
+    lie), far enough to show every channel the model misses by more than 3 sigma and every still-missing window the
+    text names (``spectra.fit.residual_regions``: the plot stopped at 1 MeV while the text named 1.7-2.1 MeV)."""
+    from spectra.fit import residual_regions
+
+    b = problem.boundaries
+    centre = 0.5 * (b[1:] + b[:-1])
+    net = problem.net()
+    m = problem.mask & (centre > 0)
+    upper = 1.4 * float(centre[m][np.argmax(np.cumsum(net[m]) > 0.995 * net[m].sum())])
+    mu = np.maximum(res.expected, 1e-9)
+    missed = m & (np.abs((problem.n - mu) / np.sqrt(mu)) > 3)
+    if missed.any():
+        upper = max(upper, 1.05 * float(centre[missed].max()))
+    for w in residual_regions(problem, res):
+        upper = max(upper, 1.03 * float(w["to_keV"]))
+    return float(min(b[-1], max(upper, 200.0)))
+
+
 def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     """Three panels: native spectrum (measured net, calibrated model, emulator's response) on a log scale;
     Pearson residuals of the calibrated model; the 32 board channels above 60 keV as normalised shapes."""
@@ -15,7 +35,7 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from spectra.fit import TV_MIN_KEV, _rebin_signed, reference_edges, shape_distances
+    from spectra.fit import TV_MIN_KEV, _rebin_signed, reference_edges, residual_regions, shape_distances
 
     b = problem.boundaries
     centre = 0.5 * (b[1:] + b[:-1])
@@ -34,13 +54,10 @@ def plot_fit(problem, res, base, path: str | Path, title: str = "") -> Path:
     ax[0].set_ylabel("counts / keV / s")
     mu = np.maximum(res.expected, 1e-9)
     pr = (problem.n - mu) / np.sqrt(mu)
-    # up to the spectrum's end (99.5 % of its counts), and far enough to show every channel the model misses by
-    # more than 3 sigma (the text names those windows: the plot must show them)
-    upper = 1.4 * float(centre[m][np.argmax(np.cumsum(net[m]) > 0.995 * net[m].sum())])
-    missed = m & (np.abs(pr) > 3)
-    if missed.any():
-        upper = max(upper, 1.05 * float(centre[missed].max()))
-    ax[0].set_xlim(0, min(b[-1], max(upper, 200.0)))
+    ax[0].set_xlim(0, energy_upper_keV(problem, res))
+    for i, w in enumerate(residual_regions(problem, res)):  # the windows the text names as still missing
+        ax[0].axvspan(w["from_keV"], w["to_keV"], color="C1", alpha=0.12, lw=0,
+                      label="still missing (named in the text)" if i == 0 else None)
     ax[0].legend(fontsize=8)
     ax[0].set_title(title)
     ax[1].plot(centre[m], np.clip(pr[m], -8, 8), ".", ms=2, color="C3")

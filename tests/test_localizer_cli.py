@@ -130,3 +130,52 @@ def test_nan_pose_and_negative_counts_are_rejected_with_row_and_column(tmp_path,
     (path / "frames.csv").write_text("\n".join(lines) + "\n")
     assert localize_cli.main([str(path), "--method", "sphere"]) == 2
     assert "'c03'" in capsys.readouterr().err
+
+
+def test_compare_refuses_two_different_flights(shared_datasets, tmp_path, capsys):
+    """Issue 35: compare took lattice-clean and two-sources without comment. It now names both fingerprints and
+    what differs, exits 2 and writes nothing; --allow-different draws them with a warning."""
+    a, b = shared_datasets / "lattice-clean", shared_datasets / "two-sources"
+    out = tmp_path / "cmp.png"
+    assert compare_cli.main([str(a), str(b), "--out", str(out), "--n-particles", "2000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not the same flight" in err and "9 dwells vs 14" in err
+    da, db = (compare_cli.read_dataset(p) for p in (a, b))
+    assert compare_cli.fingerprint(da) in err and compare_cli.fingerprint(db) in err
+    assert not out.exists()
+    assert compare_cli.main([str(a), str(b), "--out", str(out), "--n-particles", "2000", "--json",
+                             "--allow-different"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
+    assert summary["same_flight"] is False and summary["differences"] and "warning" in cap.err and out.exists()
+
+
+def test_same_flight_recorded_twice_has_one_fingerprint():
+    """A flight and its 'simulated twin' (same poses, another source strength and counts) are one flight."""
+    a, b = lattice_flight(1), lattice_flight(1, cps_at_1m=1300.0)
+    assert compare_cli.flight_differences(a, b) == [] and compare_cli.fingerprint(a) == compare_cli.fingerprint(b)
+    c = lattice_flight(2)  # another random source: the lattice is flown elsewhere
+    assert compare_cli.flight_differences(a, c) and compare_cli.fingerprint(a) != compare_cli.fingerprint(c)
+
+
+def test_compare_flags_a_collapsed_particle_cloud(shared_datasets, tmp_path, capsys):
+    """lattice-wall through the wall-less filter (20000 particles, seed 0): the cloud's total variance falls to
+    ~1e-6 m², decades below the Cramér-Rao floor of its counts. It is flagged with the time it happened, the
+    warning says what it means, and the floor only falls as counts accrue. lattice-clean's cloud is not flagged."""
+    ds = compare_cli.read_dataset(shared_datasets / "lattice-wall")
+    pf = compare_cli.replay_filter(ds, n_particles=20000)
+    floor = compare_cli.crlb_floor(ds, pf)
+    assert np.all(np.diff(floor) <= 1e-12 * floor[:-1])  # information only accumulates
+    tv = np.array([h["total_variance"] for h in pf.history_])
+    assert tv[-1] < compare_cli.COLLAPSE_FRACTION * floor[-1]
+    out = tmp_path / "cmp.png"
+    p = str(shared_datasets / "lattice-wall")
+    assert compare_cli.main([p, p, "--out", str(out), "--n-particles", "20000", "--json"]) == 0
+    cap = capsys.readouterr()
+    s = json.loads(cap.out)
+    assert s["collapsed_at"][0] is not None and s["final_total_variance"][0] < 0.1 * s["floor_total_variance"][0]
+    assert "collapsed" in cap.err and "not certainty" in cap.err
+    clean = str(shared_datasets / "lattice-clean")
+    assert compare_cli.main([clean, clean, "--out", str(out), "--n-particles", "20000", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["collapsed_at"] == [None, None] and s["final_total_variance"][0] >= s["floor_total_variance"][0]

@@ -5,6 +5,7 @@ In-process: the flight of ``launch.offline.fly_offline`` (the same brain and in-
 mission process) written as `radseek run` leaves it (dataset + mission_summary.json), then the report writer.
 """
 
+import dataclasses
 import json
 import math
 import shutil
@@ -131,4 +132,55 @@ def test_the_zoom_inset_takes_the_corner_that_hides_no_dwell(shared_datasets):
         m = f.dwell == k
         cx, cy = to_axes(ax.transData.transform([[f.x[m].mean(), f.y[m].mean()]]))[0]
         assert not (x0 <= cx <= x0 + w and y0 <= cy <= y0 + h), f"dwell {k} under the inset"
+    plt.close(fig)
+
+
+def test_the_zoom_inset_hides_no_dwell_when_every_corner_has_one(shared_datasets):
+    """A flight whose dwells sit in every corner of the map (the issue's report hid dwells 2-4 of five): the
+    map makes room, and in display coordinates, once drawn, no dwell point lies under the inset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from launch.report import _emptiest_corner, _map_frame
+    from radseek_io.dataset import read_dataset
+
+    ds = read_dataset(shared_datasets / "lattice-clean")
+    f = ds.frames
+    fig, ax = plt.subplots(figsize=(6.5, 5))
+    _map_frame(ax, ds.scenario)
+    lo, hi = ds.scenario.bounds_min, ds.scenario.bounds_max
+    corners = np.array([[lo[0] + 0.3, lo[1] + 0.3], [hi[0] - 0.3, lo[1] + 0.3], [lo[0] + 0.3, hi[1] - 0.3],
+                        [hi[0] - 0.3, hi[1] - 0.3], [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2]])
+    k = np.arange(len(f)) * len(corners) // len(f)  # five dwells, one per corner and one in the middle
+    frames = dataclasses.replace(f, x=corners[k, 0], y=corners[k, 1], dwell=k)
+    ax.scatter(corners[:, 0], corners[:, 1])
+    ins = ax.inset_axes(_emptiest_corner(ax, frames, {"x": corners[4, 0], "y": corners[4, 1]}))
+    fig.canvas.draw()
+    box = ins.get_window_extent()
+    for x, y in ax.transData.transform(corners):
+        assert not box.contains(x, y), (x, y, box)
+    plt.close(fig)
+
+
+def test_a_long_stop_reason_wraps_inside_the_figure():
+    """lattice-wall's stop reason (~200 characters) ran off report.png; wrapped, the title's extent lies within
+    the figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from launch.report import wrapped_title
+
+    reason = ("source found: 1-sigma 0.021 m, drift-limited (stopped falling at the odometry-drift floor 0.019 m; "
+              "the 0.02 m target is below what this flight's drift allows); the model misses something, fit p = 0.0004")
+    fig, axes = plt.subplots(2, 2, figsize=(13, 10))
+    t = fig.suptitle(wrapped_title(f"radseek run: {reason}", fig.get_figwidth(), 11), fontsize=11)
+    fig.tight_layout()
+    fig.canvas.draw()
+    ext, whole = t.get_window_extent(), fig.bbox
+    assert "\n" in t.get_text()
+    assert whole.x0 <= ext.x0 and ext.x1 <= whole.x1 and ext.y1 <= whole.y1, (ext, whole)
     plt.close(fig)

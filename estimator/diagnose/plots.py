@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from estimator.diagnose.features import unit_of  # noqa: E402
-from estimator.diagnose.residuals import group_mean  # noqa: E402
+from estimator.diagnose.residuals import broken_at_gaps, group_mean  # noqa: E402
 
 if TYPE_CHECKING:
     from estimator.diagnose.runner import ModelReport
@@ -41,7 +41,9 @@ def plot_features(rep: ModelReport, path: Path, title: str = "") -> Path:
         tr = rep.trends[name]
         x_seg = group_mean(lab, feats[name], mu)
         ax.scatter(x_seg, srel, s=4, color="0.75", label="per segment")
-        ax.errorbar(tr.centres, tr.rel, yerr=tr.rel_err, fmt="o-", color="C3" if tr.p_value < 0.01 else "C0",
+        # the line breaks across empty bins (no frames there): NaN between the segments
+        cx, rel, err = broken_at_gaps(tr, tr.centres, tr.rel, tr.rel_err)
+        ax.errorbar(cx, rel, yerr=err, fmt="o-", color="C3" if tr.p_value < 0.01 else "C0",
                     ms=4, label=f"binned, chi2 {tr.chi2:.0f}/{tr.dof}")
         ax.axhline(0, color="k", lw=0.8)
         lim = max(0.05, float(np.nanmax(np.abs(tr.rel) + 2 * tr.rel_err)) * 1.3)

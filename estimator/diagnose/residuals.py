@@ -152,6 +152,8 @@ class Trend:
     dof: int
     p_value: float
     slope_z: float  # z-score of the linear trend of the relative residual across the bins (by rank)
+    #: indices i of bins followed by empty bins (no frames between bin i and bin i + 1): a plot breaks its line there
+    gaps_after: tuple[int, ...] = ()
 
     @property
     def rel(self) -> np.ndarray:
@@ -204,7 +206,15 @@ def trend(name: str, feature: np.ndarray, n: np.ndarray, mu: np.ndarray, n_bins:
     sxx = (w * (x - xm) ** 2).sum()
     slope = (w * (x - xm) * r).sum() / sxx if sxx > 0 else 0.0
     slope_z = float(slope * np.sqrt(sxx))
-    return Trend(name, centres, obs, exp, chi2, dof, float(stats.chi2.sf(chi2, dof)), slope_z)
+    gaps = tuple(int(i) for i in np.flatnonzero(np.diff(np.flatnonzero(keep)) > 1))
+    return Trend(name, centres, obs, exp, chi2, dof, float(stats.chi2.sf(chi2, dof)), slope_z, gaps)
+
+
+def broken_at_gaps(t: Trend, *series: np.ndarray) -> list[np.ndarray]:
+    """Each of ``series`` (one value per bin of ``t``) with NaN inserted after every bin followed by empty bins,
+    so a plotted line breaks where there is no data instead of joining across it."""
+    at = np.asarray(t.gaps_after, dtype=int) + 1
+    return [np.insert(np.asarray(v, dtype=float), at, np.nan) for v in series]
 
 
 def describe_trend(t: Trend, unit: str = "", alpha: float = 0.01) -> str:
