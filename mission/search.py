@@ -192,7 +192,7 @@ class SearchBrain:
             return self._explore(current, "no estimate yet: keep exploring")
         var_now = (np.array([frames.var_x[-1], frames.var_y[-1], frames.var_z[-1]], dtype=float) if len(frames.t)
                    else np.zeros(3))
-        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.planner,
+        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self._planner(),
                                rng=self.rng, frames=frames, pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
         if not plan.ok:
             # every tree node inside the belief's ellipse or predicted too weak (a broad early belief covers
@@ -242,6 +242,15 @@ class SearchBrain:
         if not plan.ok:
             return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)
+
+    def _planner(self) -> NextBestConfig:
+        """The planner's settings for the next dwell: the information planner predicts the rate through the
+        walls with the attenuation the in-flight fit estimated (the localizers' model, ``wall_attenuation``)."""
+        cfg = self.config.planner
+        mu = self.estimate.params.get("wall_attenuation.mu_per_m") if self.estimate is not None else None
+        if cfg.gain_kind == "info" and mu is not None and math.isfinite(mu) and mu > 0 and self.occ.walls:
+            cfg = dataclasses.replace(cfg, wall_mu_per_m=float(mu))
+        return cfg
 
     def _misfit(self) -> str:
         """A note when the last estimate's goodness of fit fails (p < ``GOOD_FIT_P``: the model misses

@@ -11,7 +11,7 @@ from estimator.mle import fisher_information
 from estimator.model import MeasurementModel
 from launch.campaign import coverage
 from launch.offline import fly_offline
-from mission.search import SearchConfig
+from mission.search import SearchBrain, SearchConfig
 from planner.belief import SourceBelief
 from planner.information import (
     InfoConfig,
@@ -145,3 +145,24 @@ def test_info_planner_finds_the_default_source():
             assert abs(f.duration[f.dwell == k].sum() - t) < 0.15, (k, t)
     assert found >= 6
     assert covered >= 6
+
+
+def test_behind_a_wall_the_info_planner_predicts_the_attenuated_rate():
+    # the planner's rate is the localizers' model: through a wall of mu 3 /m and 0.19 m, exp(-0.57) of the rate
+    from radseek.dataset import Wall
+
+    wall = Wall(start=(1.0, -1.0), end=(1.0, 1.0), thickness=0.19, height=2.0)
+    pts = np.array([[2.0, 0.0, ALT], [-2.0, 0.0, ALT]])
+    rate, _ = rate_and_gradient(pts, belief(), [wall], 3.0)
+    assert (rate[0] - B) / (rate[1] - B) == pytest.approx(math.exp(-3.0 * 0.19 * math.hypot(2.0, ALT) / 2.0),
+                                                          rel=1e-6)
+
+
+@pytest.mark.slow
+def test_on_the_walled_scene_the_info_planner_uses_the_fitted_wall_attenuation():
+    r = fly_offline(load_scene("lattice-wall"), SearchConfig(strategy="info"), seed=1)
+    mu = r.estimate.params["wall_attenuation.mu_per_m"]
+    assert mu > 0
+    assert r.brain._planner().wall_mu_per_m == mu
+    assert SearchBrain(r.brain.scenario, SearchConfig()).config.planner.wall_mu_per_m == 0.0  # eq. 6 unchanged
+    assert r.decisions[-1].outcome.found
