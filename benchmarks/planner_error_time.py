@@ -1,8 +1,9 @@
 """Error against mission time per search strategy, from a campaign folder (``benchmarks/mission_search.py --out``
 or ``radseek campaign --out``): one panel per scene, every flight a dot, each strategy's median error at its
-median mission time a cross, and the 0.6 x lattice time line of issue 36's target.
+median mission time a cross, and the 0.6 x lattice time line of issue 36's target. Several folders: a
+(scene, strategy) flown in a later folder replaces the earlier folders' flights of it (a rerun after a change).
 
-    python benchmarks/planner_error_time.py CAMPAIGN_DIR --png docs/img/planner-error-time.png
+    python benchmarks/planner_error_time.py CAMPAIGN_DIR [CAMPAIGN_DIR ...] --png docs/img/planner-error-time.png
 """
 
 from __future__ import annotations
@@ -30,17 +31,21 @@ def medians(rows: list[dict]) -> dict[tuple[str, str], tuple[float, float, int]]
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("campaign", type=Path, help="campaign folder (its Parquet rows)")
+    p.add_argument("campaign", type=Path, nargs="+", help="campaign folders (their Parquet rows)")
     p.add_argument("--png", type=Path, required=True, help="figure to write")
     args = p.parse_args(argv)
-    try:
-        rows = load_rows(args.campaign)
-    except (DamagedStore, OSError) as exc:
-        print(f"planner_error_time: {args.campaign}: {exc}", file=sys.stderr)
-        return 2
-    if not rows:
-        print(f"planner_error_time: {args.campaign}: no flights recorded", file=sys.stderr)
-        return 2
+    rows: list[dict] = []
+    for folder in args.campaign:
+        try:
+            got = load_rows(folder)
+        except (DamagedStore, OSError) as exc:
+            print(f"planner_error_time: {folder}: {exc}", file=sys.stderr)
+            return 2
+        if not got:
+            print(f"planner_error_time: {folder}: no flights recorded", file=sys.stderr)
+            return 2
+        cases = {(r["scene"], r["strategy"]) for r in got}
+        rows = [r for r in rows if (r["scene"], r["strategy"]) not in cases] + got
     import matplotlib
 
     matplotlib.use("Agg")
