@@ -29,7 +29,7 @@ import tempfile
 import numpy as np
 
 from launch.campaign import Sweep, run_campaign
-from mission.search import STRATEGIES, Outcome
+from mission.search import ACTIVE, STRATEGIES, Outcome
 
 #: the campaign rows' ``outcome`` values of a found source
 FOUND = {o.value for o in Outcome if o.found}
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.json:
                 print(json.dumps({k: r[k] for k in keys}), flush=True)
                 continue
-            after = f" ({r['median_search_dwells']:.0f})" if strategy == "active" else ""
+            after = f" ({r['median_search_dwells']:.0f})" if strategy in ACTIVE else ""
             print(f"| {scene} | {strategy} | {r['runs']} | {r['median_error_m']:.3f} | {r['p90_error_m']:.3f} "
                   f"| {r['median_bound_m']:.3f} | {r['median_dwells']:.0f}{after} | {r['median_mission_s']:.0f} "
                   f"| {r['coverage_95']:.2f} | {r['median_wall_s']:.1f} ({r['median_cpu_s']:.1f}) | {r['found']:.2f} |",

@@ -8,7 +8,9 @@ with eq. 6), until the source's 1-sigma (x-y) position ellipse is smaller than `
 estimate is stable and its model fits the counts (goodness of fit p >= ``estimator.inflight.GOOD_FIT_P``),
 or the same holds of an ellipse that has stopped shrinking at the floor odometry drift allows (drift-limited:
 a larger scene flies more metres, and its drift bound may lie above ``stop_sigma_m``), or the dwell budget is
-spent. Strategies ``lattice`` (paper 003's 9-point lattice) and
+spent. Strategy ``info`` is the same search with the information planner (``planner.information``) in place of
+eq. 6: the next dwell point and its length by the expected D-optimal information per second under drift.
+Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
 The brain sees only what the vehicle and detector report (estimated poses, histograms) and the
@@ -49,7 +51,11 @@ class Phase(StrEnum):
     DONE = "done"
 
 
-STRATEGIES = ("active", "lattice", "lawnmower")
+STRATEGIES = ("active", "info", "lattice", "lawnmower")
+#: the strategies that search actively (explore, then next-best dwell points): ``active`` scores the tree with
+#: paper 003's eq. 6 (``next_best.gain_kind``), ``info`` with the information planner (``planner.information``:
+#: D-optimal under drift, dwell length by information per second)
+ACTIVE = ("active", "info")
 #: the drift-limited stop: the 1-sigma is less than 5 % below the best of the two dwells before ...
 PLATEAU = 0.95
 #: ... and is within 25 % of the floor the odometry drift alone allows
@@ -84,6 +90,14 @@ class SearchConfig:
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
 
+    @property
+    def planner(self) -> NextBestConfig:
+        """The next-best settings the search plans with: ``next_best``, scored by the information planner
+        when the strategy is ``info``."""
+        if self.strategy == "info":
+            return dataclasses.replace(self.next_best, gain_kind="info")
+        return self.next_best
+
 
 @dataclass(frozen=True)
 class Decision:
@@ -113,11 +127,18 @@ class SearchBrain:
         self.estimator = InflightEstimator(scenario, self.config.localizer, self.config.localizer_settings)
         self.visited = np.zeros((0, 3))
         self.pattern: list[np.ndarray] = []
+        self.next_dwell_s: float | None = None  # s: the length the planner chose for the next dwell (None: the rule)
 
     # ---------------------------------------------------------------------------- dwell control
 
     def begin_dwell(self) -> None:
-        self.dwell.reset()
+        """A new dwell: the automated dwell time (paper 003 sec. III-E), or exactly the length the information
+        planner chose for this dwell point."""
+        cfg = self.config.dwell
+        if self.next_dwell_s is not None:
+            t = float(np.clip(self.next_dwell_s, 0.0, cfg.t_timeout))
+            cfg = dataclasses.replace(cfg, t_min=t, t_max=t)
+        self.dwell = DwellController(cfg)
 
     def on_frame(self, hist: topics.Histogram) -> DwellStatus:
         """One histogram during a dwell: the dwell controller's verdict (``done`` ends the dwell)."""
@@ -129,7 +150,7 @@ class SearchBrain:
         """The first plan from the take-off pose (x, y, z, yaw)."""
         current = np.asarray(current, dtype=float)
         current = np.r_[current[:2], self.config.altitude_m, current[3]]
-        if self.config.strategy != "active":
+        if self.config.strategy not in ACTIVE:
             self.phase = Phase.PATTERN
             self.pattern = list(self._pattern_points())
             return self._next_pattern_point(current)
@@ -141,6 +162,7 @@ class SearchBrain:
         recorded so far (usable frames), ``current`` the pose (x, y, z, yaw) now, ``flown`` positions
         visited since the last call (for exploration)."""
         pos = np.asarray(position, dtype=float).reshape(3)
+        self.next_dwell_s = None
         rate = status.mean_rate if np.isfinite(status.mean_rate) else 0.0
         self.history = DwellHistory(np.vstack([self.history.positions, pos]), np.r_[self.history.rates, rate])
         if flown is not None and len(flown):
@@ -168,13 +190,17 @@ class SearchBrain:
             return self._done(*stop)
         if belief is None:
             return self._explore(current, "no estimate yet: keep exploring")
-        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self.config.next_best,
-                               rng=self.rng)
+        var_now = (np.array([frames.var_x[-1], frames.var_y[-1], frames.var_z[-1]], dtype=float) if len(frames.t)
+                   else np.zeros(3))
+        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self._planner(),
+                               rng=self.rng, frames=frames, pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
         if not plan.ok:
             # every tree node inside the belief's ellipse or predicted too weak (a broad early belief covers
             # the whole tree): gather counts where none were taken yet rather than give up with budget left
             return self._explore(current, f"no valid next-best dwell point (1-sigma {sigma:.3f} m): explore")
-        return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit})")
+        self.next_dwell_s = plan.info.get("dwell_s")
+        dwell = f", dwell {self.next_dwell_s:g} s" if self.next_dwell_s is not None else ""
+        return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit}{dwell})")
 
     def stop_rule(self, belief: SourceBelief | None, sigma: float) -> tuple[str, Outcome] | None:
         """Whether the search stops after the estimate ``belief`` (1-sigma ``sigma`` m) of the dwells so far, and
@@ -216,6 +242,15 @@ class SearchBrain:
         if not plan.ok:
             return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)
+
+    def _planner(self) -> NextBestConfig:
+        """The planner's settings for the next dwell: the information planner predicts the rate through the
+        walls with the attenuation the in-flight fit estimated (the localizers' model, ``wall_attenuation``)."""
+        cfg = self.config.planner
+        mu = self.estimate.params.get("wall_attenuation.mu_per_m") if self.estimate is not None else None
+        if cfg.gain_kind == "info" and mu is not None and math.isfinite(mu) and mu > 0 and self.occ.walls:
+            cfg = dataclasses.replace(cfg, wall_mu_per_m=float(mu))
+        return cfg
 
     def _misfit(self) -> str:
         """A note when the last estimate's goodness of fit fails (p < ``GOOD_FIT_P``: the model misses

@@ -1,11 +1,14 @@
 """Next-best dwell point (paper 003 sec. IV-B-3): grow a tree, score nodes with eq. 6, apply the
 constraints, extract the path to the best node and choose the yaw along it.
 
-Two gains (``NextBestConfig.gain_kind``): ``"eq6"``, paper 003 eq. 6 alone, and ``"eq6_pose"``, eq. 6
+Three scores (``NextBestConfig.gain_kind``): ``"eq6"``, paper 003 eq. 6 alone, and ``"eq6_pose"``, eq. 6
 under pose covariance (``planner.gain.gain_eq6_pose``): the drift variance a candidate's path adds
 (``SourceBelief.drift_density`` x path length, the path being the straight segment when it is free,
 else the tree path) discounts the information the dwell can give, so of two equally informative
-candidates the nearer wins. With zero drift density both gains are the same.
+candidates the nearer wins. With zero drift density both gains are the same. ``"info"``: the information
+planner (``planner.information``): the expected D-optimal reduction of the source's x-y covariance given
+the flown frames, under the drift the path adds, per second of the leg; it also picks the dwell length
+(``DwellPlan.info["dwell_s"]``).
 
 Constraints on candidate nodes (paper 003, text after eq. 6):
 
@@ -29,11 +32,13 @@ import numpy as np
 from planner.belief import DwellHistory, SourceBelief
 from planner.dwell_tree import Tree, TreeConfig, densify, grow_tree, shortcut_path
 from planner.gain import GainConfig, gain_eq6, gain_eq6_pose
+from planner.information import InfoConfig, score_information
 from planner.occupancy import OccupancyMap
 from planner.plan import DwellPlan
 from planner.yaw_sampling import bearing_score, bearings, sample_yaw, track_yaw
+from radseek.dataset import Frames
 
-GAIN_KINDS = ("eq6", "eq6_pose")
+GAIN_KINDS = ("eq6", "eq6_pose", "info")
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,7 @@ class NextBestConfig:
     q: int = 8  # random yaw candidates per sample (paper's q), >= 1
     gain_kind: str = "eq6"  # one of GAIN_KINDS: eq. 6, or eq. 6 under the pose covariance the path adds
     dwell_s: float = 10.0  # s, > 0: dwell length assumed by the pose-covariance gain's counting noise
+    info: InfoConfig = field(default_factory=InfoConfig)  # the information planner's settings ("info")
 
     def __post_init__(self) -> None:
         if self.lambda_min_cps < 0 or self.ellipsoid_sigma < 0 or self.wall_mu_per_m < 0:
@@ -69,6 +75,7 @@ class NodeScores:
     too_close: np.ndarray  # inside the covariance semi-major axis
     too_weak: np.ndarray  # predicted net rate below lambda_min
     valid: np.ndarray  # candidate: neither, and not the root
+    dwell_s: np.ndarray | None = None  # (N,) s, the dwell length each node's score assumes ("info" only)
 
     @property
     def best(self) -> int:
@@ -80,15 +87,24 @@ class NodeScores:
 
 def score_nodes(positions: np.ndarray, belief: SourceBelief, history: DwellHistory, occ: OccupancyMap,
                 config: NextBestConfig = NextBestConfig(), pose_covariance: np.ndarray | None = None,
-                root: int | None = 0, path_length: np.ndarray | None = None) -> NodeScores:
+                root: int | None = 0, path_length: np.ndarray | None = None, frames: Frames | None = None,
+                pose_var_now: np.ndarray | None = None) -> NodeScores:
     """Gain (``config.gain_kind``) and constraints for node positions (N, 3); ``root`` (index or None) is
     excluded. ``path_length`` (N,) m: how far each node is flown from the current pose (the
-    pose-covariance gain needs it; None: straight-line distance from ``positions[root]``, or zero)."""
+    pose-covariance gain and the information planner need it; None: straight-line distance from
+    ``positions[root]``, or zero). ``frames`` (the flown frames) and ``pose_var_now`` ((3,) m^2, the pose
+    variance now) are what the information planner's score starts from (None: nothing flown, exact pose)."""
     pos = np.asarray(positions, dtype=float).reshape(-1, 3)
-    if config.gain_kind == "eq6_pose":
-        if path_length is None:
-            path_length = (np.linalg.norm(pos - pos[root], axis=1) if root is not None and len(pos)
-                           else np.zeros(len(pos)))
+    if path_length is None:
+        path_length = (np.linalg.norm(pos - pos[root], axis=1) if root is not None and len(pos)
+                       else np.zeros(len(pos)))
+    dwell_s = None
+    if config.gain_kind == "info":
+        info = score_information(pos, path_length, belief, frames,
+                                 np.zeros(3) if pose_var_now is None else pose_var_now,
+                                 config.info, occ.walls, config.wall_mu_per_m)
+        gain, dwell_s = info.rate, info.dwell_s
+    elif config.gain_kind == "eq6_pose":
         gain = gain_eq6_pose(pos, belief.mean, history.positions, path_length, belief.covariance,
                              belief.cps_at_1m, belief.background_cps, belief.drift_density, config.gain,
                              config.dwell_s)
@@ -101,7 +117,7 @@ def score_nodes(positions: np.ndarray, belief: SourceBelief, history: DwellHisto
     valid = ~too_close & ~too_weak
     if root is not None and len(valid):
         valid[root] = False
-    return NodeScores(gain=gain, too_close=too_close, too_weak=too_weak, valid=valid)
+    return NodeScores(gain=gain, too_close=too_close, too_weak=too_weak, valid=valid, dwell_s=dwell_s)
 
 
 def finish_path(tree_path: np.ndarray, start_yaw: float, belief_mean: np.ndarray, occ: OccupancyMap,
@@ -125,10 +141,12 @@ def finish_path(tree_path: np.ndarray, start_yaw: float, belief_mean: np.ndarray
 
 def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHistory, occ: OccupancyMap,
                     config: NextBestConfig = NextBestConfig(), pose_covariance: np.ndarray | None = None,
-                    rng: np.random.Generator | None = None, tree: Tree | None = None) -> DwellPlan:
+                    rng: np.random.Generator | None = None, tree: Tree | None = None, frames: Frames | None = None,
+                    pose_var_now: np.ndarray | None = None) -> DwellPlan:
     """Paper 003 sec. IV-B-3 next-best dwell point from ``current`` = (x, y, z, psi).
 
     Pass ``tree`` to score an existing tree (tests); otherwise one is grown with ``config.tree``.
+    ``frames`` and ``pose_var_now``: see :func:`score_nodes` (the information planner's inputs).
     """
     rng = rng if rng is not None else np.random.default_rng()
     current = np.asarray(current, dtype=float).reshape(4)
@@ -137,10 +155,11 @@ def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHis
     t_tree = time.perf_counter() - t0
     pos = tree.states[:, :3]
     length = None
-    if config.gain_kind == "eq6_pose":  # what will be flown: the straight segment if free, else the tree path
+    if config.gain_kind in ("eq6_pose", "info"):  # what will be flown: the straight segment if free, else the tree path
         straight = occ.segments_valid(np.broadcast_to(pos[0], pos.shape), pos)
         length = np.where(straight, np.linalg.norm(pos - pos[0], axis=1), tree.path_lengths())
-    scores = score_nodes(pos, belief, history, occ, config, pose_covariance, path_length=length)
+    scores = score_nodes(pos, belief, history, occ, config, pose_covariance, path_length=length, frames=frames,
+                         pose_var_now=pose_var_now)
     info = {
         "nodes": len(tree), "tree_time_s": t_tree, "valid_nodes": int(scores.valid.sum()),
         "rejected_close": int(scores.too_close.sum()), "rejected_weak": int(scores.too_weak.sum()),
@@ -154,4 +173,6 @@ def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHis
     info["best_node"] = best
     if length is not None:
         info["path_length_m"] = float(length[best])
+    if scores.dwell_s is not None:
+        info["dwell_s"] = float(scores.dwell_s[best])
     return DwellPlan(path[-1:], path, f"next_best_{config.gain_kind}", gains=scores.gain[best:best + 1], info=info)

@@ -64,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget in all (default 16)")
     p.add_argument("--localizer", default="mle", help="estimator used in flight (default mle)")
     p.add_argument("--strategy", default="active", choices=STRATEGIES,
-                   help="active search (paper 003) or a fixed pattern baseline (default active)")
+                   help="active search: next dwell by paper 003's eq. 6 (active) or by the information planner (info: "
+                        "D-optimal under drift, dwell length by information per second); or a fixed pattern baseline "
+                        "(default active)")
     p.add_argument("--plan", type=Path, metavar="FILE",
                    help="instead of a search: fly a QGroundControl .plan file (mission, geofence, rally points)")
     p.add_argument("--team", metavar="NAMES",

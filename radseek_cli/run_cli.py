@@ -97,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
                         "(default on; --no-mcap leaves that port to a GCS)")
     p.add_argument("--max-dwells", type=int, default=16, help="dwell budget (default 16)")
     p.add_argument("--strategy", default="active", choices=STRATEGIES,
-                   help="active search (paper 003) or a fixed pattern baseline (default active)")
+                   help="active search: next dwell by paper 003's eq. 6 (active) or by the information planner (info: "
+                        "D-optimal under drift, dwell length by information per second); or a fixed pattern baseline "
+                        "(default active)")
     p.add_argument("--timeout", type=float, default=900.0, help="wall seconds before the run is abandoned")
     p.add_argument("--vehicle-arg", action="append", default=[], help="extra argument for radseek vehicle")
     p.add_argument("--detector-arg", action="append", default=[], help="extra argument for radseek detector")

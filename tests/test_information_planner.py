@@ -1,0 +1,168 @@
+"""The information planner (planner.information): analytic cases of its D-optimal score, its agreement with the
+estimator's Fisher information, and seeded in-process flights that find the source with it."""
+
+import math
+
+import numpy as np
+import pytest
+
+from detector_fw_sim.scene import load_scene
+from estimator.mle import fisher_information
+from estimator.model import MeasurementModel
+from launch.campaign import coverage
+from launch.offline import fly_offline
+from mission.search import SearchBrain, SearchConfig
+from planner.belief import SourceBelief
+from planner.information import (
+    InfoConfig,
+    flown_information,
+    measurement_weight,
+    rate_and_gradient,
+    score_information,
+)
+from radseek.dataset import Frames
+
+S, B = 1500.0, 40.0
+SOURCE = np.array([0.0, 0.0, 0.0])
+ALT = 1.5
+
+
+def belief(drift_density: float = 0.0) -> SourceBelief:
+    return SourceBelief(SOURCE, np.eye(3) * 0.25, S, B, drift_density)
+
+
+def dwell_frames(points: list[tuple[float, float]], seconds: float = 10.0, var: float = 0.0,
+                 transit: int = 0) -> Frames:
+    """Frames of one dwell per point (10 Hz, ``seconds`` each, pose variance ``var``) with ``transit`` moving
+    frames between consecutive dwells."""
+    rows = []
+    for k, (x, y) in enumerate(points):
+        rows += [(x, y, k)] * int(round(seconds * 10))
+        if k + 1 < len(points):
+            nx, ny = points[k + 1]
+            rows += [(x + (nx - x) * f, y + (ny - y) * f, -1) for f in np.linspace(0.1, 0.9, transit)]
+    a = np.array(rows, dtype=float)
+    n = len(a)
+    zero = np.zeros(n)
+    return Frames(t=np.arange(1, n + 1) * 0.1, duration=zero + 0.1, x=a[:, 0], y=a[:, 1], z=zero + ALT, yaw=zero,
+                  var_x=zero + var, var_y=zero + var, var_z=zero, dwell=a[:, 2].astype(int),
+                  counts=np.zeros((n, 32), dtype=int))
+
+
+def test_flown_information_is_the_estimators_fisher_information():
+    # one rate model: the planner's Poisson Fisher information of theta = (x, y, S, B) over flown frames equals
+    # estimator.mle.fisher_information (paper 004 eq. 5.3) of the localizers' baseline model, prior aside
+    scenario = load_scene().scenario()
+    frames = dwell_frames([(2.0, 0.5), (-1.0, 2.0), (0.5, -2.5)], transit=7)
+    src = np.array([0.3, 0.2, scenario.source_z])
+    b = SourceBelief(src, np.eye(3), S, B)
+    planner_j = flown_information(frames, b) - flown_information(None, b)
+    model = MeasurementModel(scenario)
+    theta = {"x": src[0], "y": src[1], "cps_at_1m": S, "background_cps": B}
+    est_j = fisher_information(model, theta, frames, names=["x", "y", "cps_at_1m", "background_cps"])
+    np.testing.assert_allclose(planner_j, est_j, rtol=2e-3, atol=1e-9 * np.abs(est_j).max())
+
+
+def test_information_grows_linearly_with_dwell_time_without_drift_and_saturates_with_it():
+    pts = np.array([[1.0, 0.5, ALT], [2.5, -1.0, ALT]])
+    rate, grad = rate_and_gradient(pts, belief())
+    zero = np.zeros((2, 3))
+    for t in (2.0, 5.0, 40.0):  # Fisher information T g g^T / lambda: c doubles when T doubles
+        np.testing.assert_allclose(measurement_weight(rate, grad, 2 * t, zero),
+                                   2 * measurement_weight(rate, grad, t, zero))
+    np.testing.assert_allclose(measurement_weight(rate, grad, 10.0, zero), 10.0 / rate)
+    # a pose error of variance v on x and y caps it at 1 / (g_d^T Sigma g_d) however long the dwell
+    v = np.full((2, 3), 0.01)
+    cap = 1.0 / (0.01 * (grad[:, :2] ** 2).sum(-1))
+    long = measurement_weight(rate, grad, 1e6, v)
+    np.testing.assert_allclose(long, cap, rtol=1e-3)
+    assert (measurement_weight(rate, grad, 10.0, v) < measurement_weight(rate, grad, 10.0, zero)).all()
+
+
+def test_after_one_pose_on_the_x_axis_the_d_optimal_next_point_is_off_the_axis():
+    # one dwell at (1.5, 0): it tells the source's x (and S, B) but hardly y; of candidates on a circle of 1.5 m
+    # around the belief, the D-optimal one measures y: at 90 deg to the flown bearing, not on the x axis
+    frames = dwell_frames([(1.5, 0.0)])
+    angles = np.radians(np.arange(0, 360, 15))
+    cand = np.column_stack([1.5 * np.cos(angles), 1.5 * np.sin(angles), np.full(len(angles), ALT)])
+    cfg = InfoConfig(dwell_lengths_s=(10.0,))
+    s = score_information(cand, np.zeros(len(cand)), belief(), frames, np.zeros(3), cfg)
+    best = angles[np.argmax(s.gain)]
+    assert abs(math.sin(best)) > 0.9, math.degrees(best)
+    # the opposite side (180 deg) separates distance from strength, which one pose cannot, yet tells less than
+    # 90 deg; the flown pose again (0 deg) tells the x-y marginal next to nothing (its direction is known)
+    assert s.gain.max() > 1.2 * s.gain[len(angles) // 2]
+    assert s.gain[0] < 1e-3 * s.gain.max()
+    # symmetric in y: +90 and -90 deg score the same
+    assert s.gain[6] == pytest.approx(s.gain[18], rel=1e-6)
+
+
+def test_the_drift_a_path_adds_lowers_the_score_and_short_dwells_win_per_second():
+    frames = dwell_frames([(1.5, 0.0), (-1.0, 1.2)], var=0.004)
+    cand = np.array([[0.0, -1.5, ALT]] * 2)
+    cfg = InfoConfig(dwell_lengths_s=(5.0,), overhead_s=0.0, speed_m_s=1e9)  # time = dwell only
+    s = score_information(cand, np.array([0.0, 30.0]), belief(drift_density=0.003), frames, np.full(3, 0.004), cfg)
+    assert s.gain[1] < s.gain[0]  # the same point after 30 m of flight (0.09 m^2 more pose variance) tells less
+    # gain concave in T (log det of a rank-one update) with no travel time: the shortest dwell has the best rate
+    s = score_information(cand[:1], np.zeros(1), belief(), frames, np.zeros(3),
+                          InfoConfig(dwell_lengths_s=(5.0, 10.0, 20.0), overhead_s=0.0))
+    assert s.dwell_s[0] == 5.0
+    # 60 s of flight is charged to every length, so per second a longer dwell wins there (log det gains are
+    # concave in T, so next door the shortest still does)
+    weak = SourceBelief(SOURCE, np.eye(3) * 0.25, 20.0, B)
+    lengths = InfoConfig(dwell_lengths_s=(5.0, 10.0, 20.0), overhead_s=0.0)
+    far = score_information(cand, np.array([60.0, 0.0]), weak, frames, np.zeros(3), lengths)
+    assert far.dwell_s[1] == 5.0 and far.dwell_s[0] > 5.0
+
+
+def test_info_strategy_is_a_config_field():
+    cfg = SearchConfig(strategy="info")
+    assert cfg.planner.gain_kind == "info"
+    assert SearchConfig().planner.gain_kind == SearchConfig().next_best.gain_kind  # eq. 6 stays the default
+    with pytest.raises(ValueError, match="strategy must be one of"):
+        SearchConfig(strategy="infoo")
+
+
+@pytest.mark.slow
+def test_info_planner_finds_the_default_source():
+    # 8 seeded in-process flights. Bounds from the statistics, not the seeds: at a found rate of 0.95 (issue 36's
+    # target; the first 60-seed measurement found 1.00) P(found <= 5 of 8) = 0.6 %; at the 95 % ellipse's
+    # nominal coverage P(covered <= 5 of 8) = 0.6 % as well
+    found = covered = 0
+    for seed in range(8):
+        r = fly_offline(load_scene(), SearchConfig(strategy="info"), seed=seed)
+        assert r.brain.search_dwells >= SearchConfig().min_search_dwells
+        found += bool(r.summary["outcome"] and r.decisions[-1].outcome.found)
+        s = r.dataset.truth.sources[0]
+        covered += bool(coverage(r.estimate, (s.x, s.y))[1])
+        # each search dwell lasted the length the planner chose for it (dwell clock: usable 0.1 s frames)
+        f = r.dataset.frames
+        chosen = [(k, d.plan.info["dwell_s"]) for k, d in enumerate(r.decisions)
+                  if d.plan is not None and "dwell_s" in d.plan.info]
+        assert chosen
+        for k, t in chosen:
+            assert t in InfoConfig().dwell_lengths_s
+            assert abs(f.duration[f.dwell == k].sum() - t) < 0.15, (k, t)
+    assert found >= 6
+    assert covered >= 6
+
+
+def test_behind_a_wall_the_info_planner_predicts_the_attenuated_rate():
+    # the planner's rate is the localizers' model: through a wall of mu 3 /m and 0.19 m, exp(-0.57) of the rate
+    from radseek.dataset import Wall
+
+    wall = Wall(start=(1.0, -1.0), end=(1.0, 1.0), thickness=0.19, height=2.0)
+    pts = np.array([[2.0, 0.0, ALT], [-2.0, 0.0, ALT]])
+    rate, _ = rate_and_gradient(pts, belief(), [wall], 3.0)
+    assert (rate[0] - B) / (rate[1] - B) == pytest.approx(math.exp(-3.0 * 0.19 * math.hypot(2.0, ALT) / 2.0),
+                                                          rel=1e-6)
+
+
+@pytest.mark.slow
+def test_on_the_walled_scene_the_info_planner_uses_the_fitted_wall_attenuation():
+    r = fly_offline(load_scene("lattice-wall"), SearchConfig(strategy="info"), seed=1)
+    mu = r.estimate.params["wall_attenuation.mu_per_m"]
+    assert mu > 0
+    assert r.brain._planner().wall_mu_per_m == mu
+    assert SearchBrain(r.brain.scenario, SearchConfig()).config.planner.wall_mu_per_m == 0.0  # eq. 6 unchanged
+    assert r.decisions[-1].outcome.found
