@@ -14,12 +14,13 @@ import re
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import pytest
 
 from radseek import topics
-from radseek.zenoh_session import open_session
+from radseek.zenoh_session import open_session, session_user
 from radseek_io.dataset import read_dataset
 from tests.conftest import free_port
 from vehicle_sim.harness import free_udp_port
@@ -62,7 +63,14 @@ def test_mission_survives_injected_faults(tmp_path):
 
     try:
         try:
-            session_cm = open_session(connect=f"tcp/127.0.0.1:{PORTS['zenoh']}", wait_for_router_s=120)
+            # the run's router admits only its users: read the run's credentials (written before the router
+            # starts) and watch as its observer
+            creds = out / "zenoh" / "credentials"
+            while not creds.exists() and proc.poll() is None:
+                time.sleep(0.05)
+            observer = session_user(None, credentials=creds) if creds.exists() else None
+            session_cm = open_session(connect=f"tcp/127.0.0.1:{PORTS['zenoh']}", user=observer,
+                                      wait_for_router_s=120)
         except TimeoutError:
             if proc.poll() is not None:  # the launcher died before its router came up: show why
                 raise AssertionError(f"radseek run exited {proc.returncode}: {proc.stderr.read()[-3000:]}") from None
