@@ -266,7 +266,9 @@ def test_manual_control_moves_the_vehicle_in_position_mode():
         return start is not None and any(_dist_m(p[1], p[2], start[1], start[2]) > 2.0 or abs(p[3] - start[3]) > 2.0
                                          for p in w.positions if p[0] > t0)
 
-    out, w, code = run_example("manual_control.py", [], expect=["-- Taking off", "-- Starting manual control"],
-                               until=moved)
+    # on a 5x clock (its sleeps and the vehicle both 5x faster: the same simulated flight in a fifth of the time)
+    out, w, code = run_example("manual_control.py", ["--speedup", "5"], expect=["-- Taking off",
+                                                                             "-- Starting manual control"],
+                               until=moved, runner=sped_up(5))
     assert 3 << 16 in w.modes  # PX4 POSCTL
     assert moved(out, w), "the sticks never moved the vehicle"
