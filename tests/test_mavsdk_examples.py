@@ -5,8 +5,9 @@ The examples (../shared/mavsdk-python-examples, BSD-3, never edited) use the gRP
 mavsdk_server). radseek's own venv has the native `mavsdk` 4.x binding, under the same import name, so
 the examples run from their own venv, `.venv-mavsdk-grpc/` (made by `make`; made here if missing).
 
-Each example connects to `udpin://0.0.0.0:14540` and its mavsdk_server takes gRPC port 50051, both
-fixed: they run one after the other, the vehicle sending to 14540 from free local ports. A pymavlink
+Each example connects to `udpin://0.0.0.0:14540` and its mavsdk_server takes gRPC port 50051. The runner
+moves both to free ports, as a second PX4 SITL instance moves its own (tests/support/example_ports.py: the
+script is unchanged), so examples run side by side on both pytest workers. A pymavlink
 listener on the vehicle's GCS port records what the vehicle did (sim time, position, mode), so the
 asserts are on events and the vehicle's state, not on wall-clock durations. Examples that never end
 (goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (offboard,
@@ -29,11 +30,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import free_port
+from tests.support.example_ports import GRPC_ENV, MAVLINK_ENV
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
-# the examples' ports are fixed (MAVLink 14540, mavsdk_server's gRPC 50051): one at a time on this machine,
-# whichever pytest worker runs them (conftest: exclusive)
-pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")]
+pytestmark = [pytest.mark.slow, pytest.mark.io]
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
 VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
@@ -94,19 +95,21 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
                 timeout: float = WAIT_S, runner: list[str] | None = None,
-                cwd: Path | None = None) -> tuple[str, Watch, int | None]:
+                cwd: Path | None = None, ports: dict[str, str] | None = None) -> tuple[str, Watch, int | None]:
     """Run ``script`` unchanged (cwd = the examples folder, or ``cwd`` for one that writes files) against a fresh
     vehicle. Returns its output, the vehicle's watch and the exit code (None when stopped by us after
     ``until(output, watch)``). ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in
-    radseek's own venv)."""
-    runner = runner or [str(grpc_python()), "-u"]
+    radseek's own venv). ``ports``: the example's (``example_ports``), else free ones."""
+    runner = runner or sped_up(1)
     gcs_port = free_udp_port()
+    ports = ports or example_ports()
     watch, stop = Watch(), threading.Event()
-    with VehicleProcess(14540, gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
+    with VehicleProcess(int(ports[MAVLINK_ENV]), gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
         listener = threading.Thread(target=_listen, args=(gcs, watch, stop), daemon=True)
         listener.start()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **ports}
         proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=cwd or EXAMPLES, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                stderr=subprocess.STDOUT, text=True, env=env)
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
         reader.start()
@@ -141,6 +144,12 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
     return out, watch, code
 
 
+def example_ports() -> dict[str, str]:
+    """Free ports for one example's MAVLink (instead of 14540) and mavsdk_server gRPC (instead of 50051), as the
+    environment of its runner (tests/support/example_ports.py moves them there; the script is unchanged)."""
+    return {MAVLINK_ENV: str(free_udp_port()), GRPC_ENV: str(free_port())}
+
+
 def sped_up(factor: int) -> list[str]:
     """The runner of an example whose sleeps are ``factor`` times shorter (the vehicle must run ``factor`` times
     faster than at 1x for the same simulated flight)."""
@@ -148,8 +157,8 @@ def sped_up(factor: int) -> list[str]:
 
 
 def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None,
-              cwd: Path | None = None) -> tuple[str, Watch]:
-    out, watch, code = run_example(script, args, expect=expect, runner=runner, cwd=cwd)
+              cwd: Path | None = None, ports: dict[str, str] | None = None) -> tuple[str, Watch]:
+    out, watch, code = run_example(script, args, expect=expect, runner=runner, cwd=cwd, ports=ports)
     assert code == 0, f"{script} did not complete (exit {code})"
     assert "Traceback" not in out, out
     return out, watch

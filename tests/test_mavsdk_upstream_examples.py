@@ -2,8 +2,8 @@
 unchanged, against `radseek vehicle`: the examples are the copies in tests/mavsdk_upstream/ (byte for byte, with
 their licence and source commit), or those of the MAVSDK-Python checkout named by RADSEEK_MAVSDK_PYTHON_EXAMPLES.
 
-They run as tests/test_mavsdk_examples.py runs the shared ones (same runner, same fixed ports 14540 / 50051, so
-the same machine-wide lock): a pymavlink listener on the vehicle's GCS port records what the vehicle did."""
+They run as tests/test_mavsdk_examples.py runs the shared ones (same runner, each example on its own free ports):
+a pymavlink listener on the vehicle's GCS port records what the vehicle did."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from pymavlink import mavutil
 
 from tests import test_mavsdk_examples as ex
 
-pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")]
+pytestmark = [pytest.mark.slow, pytest.mark.io]
 UPSTREAM = Path(os.environ.get("RADSEEK_MAVSDK_PYTHON_EXAMPLES", Path(__file__).parent / "mavsdk_upstream"))
 
 
@@ -42,13 +42,14 @@ def test_failure_injection_gps_off():
 
 
 @contextlib.contextmanager
-def mavsdk_server():
-    """MAVSDK's own mavsdk_server (the example venv's binary) on the examples' ports, for an example written to
-    attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``)."""
+def mavsdk_server(ports: dict[str, str]):
+    """MAVSDK's own mavsdk_server (the example venv's binary) on the example's ports (``ex.example_ports``), for an
+    example written to attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``)."""
     py = ex.grpc_python()
     where = subprocess.run([str(py), "-c", "import mavsdk, os; print(os.path.dirname(mavsdk.__file__))"],
                            capture_output=True, text=True, check=True).stdout.strip()
-    proc = subprocess.Popen([str(Path(where) / "bin" / "mavsdk_server"), "-p", "50051", "udpin://0.0.0.0:14540"],
+    proc = subprocess.Popen([str(Path(where) / "bin" / "mavsdk_server"), "-p", ports[ex.GRPC_ENV],
+                             f"udpin://0.0.0.0:{ports[ex.MAVLINK_ENV]}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         yield proc
@@ -63,8 +64,9 @@ def mavsdk_server():
 
 def test_ftp_list_dir_lists_the_vehicle_root():
     # the example attaches to a running mavsdk_server (its own connect() address, a serial port, is then unused)
-    with mavsdk_server():
-        out, w = ex.completes("ftp_list_dir.py", [], ["-- Connected to drone!", "directory list"])
+    ports = ex.example_ports()
+    with mavsdk_server(ports):
+        out, w = ex.completes("ftp_list_dir.py", [], ["-- Connected to drone!", "directory list"], ports=ports)
     assert "directory list ListDirectoryData: [dirs: ['fs'], files: []]" in out
 
 

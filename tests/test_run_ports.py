@@ -137,9 +137,9 @@ def _own_frames_only(out) -> np.ndarray:
 @pytest.mark.slow
 @pytest.mark.io
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
-# runs on the default ports, as the unchanged MAVSDK examples do: never beside them (a worker's example bound
-# 14540 between this run's port check and its mission's bind)
-@pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")
+# runs on the default ports (7447, 14540...): never beside the other test that does (a test bound 14540 between
+# this run's port check and its mission's bind)
+@pytest.mark.exclusive("default-ports-7447-14540")
 def test_run_moves_off_taken_default_ports_and_says_which(tmp_path):
     held = [Held(socket.SOCK_STREAM, P.ZENOH_BASE), Held(socket.SOCK_DGRAM, P.API_BASE)]
     try:
@@ -167,9 +167,9 @@ def test_run_moves_off_taken_default_ports_and_says_which(tmp_path):
 @pytest.mark.slow
 @pytest.mark.io
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
-# runs on the default ports, as the unchanged MAVSDK examples do: never beside them (a worker's example bound
-# 14540 between this run's port check and its mission's bind)
-@pytest.mark.exclusive("mavsdk-examples-udp14540-grpc50051")
+# runs on the default ports (7447, 14540...): never beside the other test that does (a test bound 14540 between
+# this run's port check and its mission's bind)
+@pytest.mark.exclusive("default-ports-7447-14540")
 def test_two_stacks_side_by_side_fly_their_own_flights(tmp_path):
     outs = [tmp_path / "a", tmp_path / "b"]
     procs = [_run(out, seed) for seed, out in enumerate(outs)]  # started together: the lock decides, not luck

@@ -6,8 +6,12 @@ editing the script). Usage: python run_as_mavsdk_grpc.py SCRIPT [ARGS...]"""
 import importlib
 import importlib.abc
 import importlib.util
+import os
 import runpy
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from example_ports import move_ports_from_env  # noqa: E402
 
 
 class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -26,6 +30,7 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 sys.meta_path.insert(0, _Alias())
+move_ports_from_env()
 script = sys.argv[1]
 sys.argv = sys.argv[1:]
 runpy.run_path(script, run_name="__main__")
