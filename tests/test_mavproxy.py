@@ -4,27 +4,17 @@ mission that an API client uploaded, item by item.
 MAVProxy is driven by what it prints (each command is sent once the output it depends on has appeared),
 not by fixed sleeps, so a slow start on a loaded host only makes the test wait longer."""
 
-import os
-import shutil
-import subprocess
-import sys
-import threading
-import time
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
 
+from tests.support.mavproxy import MavProxy
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port, item
 
 pytestmark = pytest.mark.slow
-MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
-WAIT_S = 60.0  # bounds waiting only
 
 
 def test_mavproxy_lists_the_uploaded_mission():
-    exe = str(MAVPROXY) if MAVPROXY.exists() else shutil.which("mavproxy.py")
-    assert exe, "MAVProxy missing: `make` installs it with pip --no-deps (see Makefile)"
     api, gcs_port = free_udp_port(), free_udp_port()
     lat, lon = 47.397742, 8.545594
     items = [item(0, M.MAV_CMD_NAV_TAKEOFF, lat, lon, 3.0), item(1, M.MAV_CMD_NAV_WAYPOINT, lat + 1e-4, lon, 3.0, 42.0),
@@ -32,37 +22,13 @@ def test_mavproxy_lists_the_uploaded_mission():
     with VehicleProcess(api, gcs_port, ["--speedup", "5"]), Gcs(api) as api_client:
         api_client.wait_vehicle()
         assert api_client.upload(items) == M.MAV_MISSION_ACCEPTED
-        mavproxy = subprocess.Popen([exe, f"--master=udpin:127.0.0.1:{gcs_port}", "--no-state"],
-                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True)
-        reader.start()
-
-        def wait_for(cond, what: str) -> None:
-            deadline = time.monotonic() + WAIT_S
-            while not cond("".join(lines)):
-                assert mavproxy.poll() is None, f"MAVProxy exited waiting for {what}:\n{''.join(lines)}"
-                assert time.monotonic() < deadline, f"MAVProxy: no {what} in {WAIT_S} s:\n{''.join(lines)}"
-                time.sleep(0.05)
-
-        try:
-            wait_for(lambda out: "Detected vehicle 1:1" in out, "vehicle detected")
-            mavproxy.stdin.write("wp list\n")
-            mavproxy.stdin.flush()
-            wait_for(lambda out: sum(" p1=" in ln for ln in out.splitlines()) >= 4, "4 listed waypoints")
-            mavproxy.stdin.write("mode\n")
-            mavproxy.stdin.flush()
-            wait_for(lambda out: "Available modes:" in out, "mode list")
-        finally:
-            mavproxy.stdin.close()
-            try:
-                mavproxy.wait(30)
-            except subprocess.TimeoutExpired:
-                mavproxy.kill()
-                mavproxy.wait()
-            reader.join(10)
-    out = "".join(lines)
+        with MavProxy(gcs_port) as mp:
+            mp.wait_for("Detected vehicle 1:1", "vehicle detected")
+            mp.send("wp list")
+            mp.wait_for(lambda out: sum(" p1=" in ln for ln in out.splitlines()) >= 4, "4 listed waypoints")
+            mp.send("mode")
+            mp.wait_for("Available modes:", "mode list")
+    out = mp.output
     print(out)
     assert "Detected vehicle 1:1" in out
     assert "Requesting 4 waypoints" in out
@@ -79,42 +45,21 @@ def test_mavproxy_lists_the_uploaded_mission():
 def test_mavproxy_lists_and_downloads_the_flight_log_by_log_protocol_and_ftp(tmp_path):
     # MAVProxy's `log` (LOG_REQUEST_LIST / LOG_REQUEST_DATA) and `ftp` modules (loaded by default); its
     # `ftp get @PARAM/param.pck` (what it tries on ArduPilot) fails at once on the NAK instead of timing out
-    exe = str(MAVPROXY) if MAVPROXY.exists() else shutil.which("mavproxy.py")
-    assert exe, "MAVProxy missing: `make` installs it with pip --no-deps (see Makefile)"
     api, gcs_port = free_udp_port(), free_udp_port()
     with VehicleProcess(api, gcs_port, []):
-        mavproxy = subprocess.Popen([exe, f"--master=udpin:127.0.0.1:{gcs_port}", "--no-state"], cwd=tmp_path,
-                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True)
-        reader.start()
+        with MavProxy(gcs_port, cwd=tmp_path) as mp:
 
-        def run(command: str, cond, what: str) -> None:
-            mavproxy.stdin.write(command + "\n")
-            mavproxy.stdin.flush()
-            deadline = time.monotonic() + WAIT_S
-            while not cond("".join(lines)):
-                assert mavproxy.poll() is None, f"MAVProxy exited waiting for {what}:\n{''.join(lines)}"
-                assert time.monotonic() < deadline, f"MAVProxy: no {what} in {WAIT_S} s:\n{''.join(lines)}"
-                time.sleep(0.05)
+            def run(command: str, cond, what: str) -> None:
+                mp.send(command)
+                mp.wait_for(cond, what)
 
-        try:
             run("", lambda out: "Detected vehicle 1:1" in out and "parameters" in out, "vehicle and parameters")
             run("log list", lambda out: "numLogs 1" in out, "log list")
             run("log download 0 flight.tlog", lambda out: "Finished downloading flight.tlog" in out, "log download")
             run("ftp list /fs/microsd/log", lambda out: "Total size" in out.split("Listing /fs/microsd/log")[-1],
                 "ftp listing")
             run("ftp get @PARAM/param.pck", lambda out: "ftp open failed" in out, "ftp refusal")
-        finally:
-            mavproxy.stdin.close()
-            try:
-                mavproxy.wait(30)
-            except subprocess.TimeoutExpired:
-                mavproxy.kill()
-                mavproxy.wait()
-            reader.join(10)
-    out = "".join(lines)
+    out = mp.output
     print(out)
     assert "Log 0  numLogs 1 lastLog 0 size" in out and "0 retries" in out
     day = out.split("Listing /fs/microsd/log")[1].split("Total size")[0].split()

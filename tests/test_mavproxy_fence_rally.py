@@ -3,22 +3,14 @@ client uploaded as the FENCE and RALLY mission types, item by item (`fence list`
 
 Driven by what MAVProxy prints, as in test_mavproxy.py: no fixed sleeps."""
 
-import os
-import shutil
-import subprocess
-import sys
-import threading
-import time
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
 
+from tests.support.mavproxy import WAIT_S, MavProxy
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
 pytestmark = pytest.mark.slow
-MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
-WAIT_S = 60.0  # bounds waiting only
 LAT, LON = 47.397742, 8.545594
 
 
@@ -37,8 +29,6 @@ def _upload(gcs: Gcs, items: list, mission_type: int) -> int:
 
 
 def test_mavproxy_lists_fence_and_rally():
-    exe = str(MAVPROXY) if MAVPROXY.exists() else shutil.which("mavproxy.py")
-    assert exe, "MAVProxy missing: `make` installs it with pip --no-deps (see Makefile)"
     api, gcs_port = free_udp_port(), free_udp_port()
     square = [(-1e-3, -1e-3), (1e-3, -1e-3), (1e-3, 1e-3), (-1e-3, 1e-3)]
     fence = [_item(k, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, LAT + a, LON + b, 4, 1)
@@ -50,37 +40,13 @@ def test_mavproxy_lists_fence_and_rally():
         api_client.wait_vehicle()
         assert _upload(api_client, fence, 1) == M.MAV_MISSION_ACCEPTED
         assert _upload(api_client, rally, 2) == M.MAV_MISSION_ACCEPTED
-        mavproxy = subprocess.Popen([exe, f"--master=udpin:127.0.0.1:{gcs_port}", "--no-state"],
-                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True)
-        reader.start()
-
-        def wait_for(cond, what: str) -> None:
-            deadline = time.monotonic() + WAIT_S
-            while not cond("".join(lines)):
-                assert mavproxy.poll() is None, f"MAVProxy exited waiting for {what}:\n{''.join(lines)}"
-                assert time.monotonic() < deadline, f"MAVProxy: no {what} in {WAIT_S} s:\n{''.join(lines)}"
-                time.sleep(0.05)
-
-        try:
-            wait_for(lambda out: "Detected vehicle 1:1" in out, "vehicle detected")
-            mavproxy.stdin.write("fence list\n")
-            mavproxy.stdin.flush()
-            wait_for(lambda out: sum(ln.startswith("500") for ln in out.splitlines()) >= 5, "5 fence items")
-            mavproxy.stdin.write("rally list\n")
-            mavproxy.stdin.flush()
-            wait_for(lambda out: any(ln.startswith("5100 ") for ln in out.splitlines()), "the rally point")
-        finally:
-            mavproxy.stdin.close()
-            try:
-                mavproxy.wait(30)
-            except subprocess.TimeoutExpired:
-                mavproxy.kill()
-                mavproxy.wait()
-            reader.join(10)
-    out = "".join(lines)
+        with MavProxy(gcs_port) as mp:
+            mp.wait_for("Detected vehicle 1:1", "vehicle detected")
+            mp.send("fence list")
+            mp.wait_for(lambda out: sum(ln.startswith("500") for ln in out.splitlines()) >= 5, "5 fence items")
+            mp.send("rally list")
+            mp.wait_for(lambda out: any(ln.startswith("5100 ") for ln in out.splitlines()), "the rally point")
+    out = mp.output
     print(out)
     assert "Requesting 5 fence items" in out and "Requesting 1 rally items" in out
     listed = [ln.split() for ln in out.splitlines() if ln.startswith(("500", "5100 "))]
