@@ -143,8 +143,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
             for name in names:
                 while not up[name].wait(0.1):
                     if missions[name].poll() is not None:
-                        raise RuntimeError(f"mission {name} exited with {missions[name].returncode}: see "
-                                           f"{out}/logs/mission-{name}.log")
+                        raise RuntimeError(stack.exited(f"mission-{name}"))
                     if time.monotonic() > ready_by:
                         raise RuntimeError(f"mission {name} did not get ready in 180 s")
             for s in subs:
@@ -175,7 +174,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
                     break
                 for pname, proc in stack.procs.items():
                     if not pname.startswith(("mission", "recorder")) and proc.poll() is not None:
-                        raise RuntimeError(f"{pname} exited with {proc.returncode}: see {out}/logs/{pname}.log")
+                        raise RuntimeError(stack.exited(pname))
                 if recorder is not None and recorder.poll() is not None:
                     stop_recorder(stack, out)
                     recorder = None

@@ -88,9 +88,14 @@ class Stack:
             if text in log.read_text(errors="replace"):
                 return
             if self.procs[name].poll() is not None:
-                raise RuntimeError(f"{name} exited with {self.procs[name].returncode}: see {log}")
+                raise RuntimeError(self.exited(name))
             time.sleep(0.05)
         raise RuntimeError(f"{name} did not get ready in {timeout_s:g} s: see {log}")
+
+    def exited(self, name: str) -> str:
+        """One line: process ``name`` exited, with its own last words (e.g. the router refused it) and its log."""
+        log = self.logs / f"{name}.log"
+        return f"{name} exited with {self.procs[name].returncode}{_last_words(log)}; see {log}"
 
     def stop(self) -> None:
         for name in reversed(list(self.procs)):

@@ -69,16 +69,25 @@ def client_config(config_file: str | Path | None = None, connect: str = DEFAULT_
     return conf
 
 
-def _answers(endpoint: str) -> bool:
-    """True if something accepts a TCP connection on a tcp/HOST:PORT endpoint."""
+def tcp_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of a ``tcp/HOST:PORT`` endpoint; None for another protocol or a malformed endpoint."""
     try:
         proto, addr = endpoint.split("/", 1)
         host, port = addr.rsplit(":", 1)
-        if proto != "tcp":
-            return False
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=1.0):
+        return (host.strip("[]"), int(port)) if proto == "tcp" else None
+    except ValueError:
+        return None
+
+
+def _answers(endpoint: str) -> bool:
+    """True if something accepts a TCP connection on a tcp/HOST:PORT endpoint."""
+    address = tcp_address(endpoint)
+    if address is None:
+        return False
+    try:
+        with socket.create_connection(address, timeout=1.0):
             return True
-    except (OSError, ValueError):
+    except OSError:
         return False
 
 
@@ -107,25 +116,29 @@ def open_session(
     user: User | None = None,
     wait_for_router_s: float = 30.0,
 ) -> zenoh.Session:
-    """Open a client session (as ``user``: see :func:`session_user`), retrying until the router answers (or
-    ``wait_for_router_s`` passes).
+    """Open a client session (as ``user``: see :func:`session_user`; or as a ``config_file`` says), retrying until
+    the router answers (or ``wait_for_router_s`` passes).
 
     Raises ``TimeoutError`` naming the endpoint, with the command that starts a router, and ``RouterRefused``
-    when a router answers there but does not admit the session.
+    naming the user and the endpoint when a router answers there but does not admit the session.
     """
-    if config_file is not None:
-        return zenoh.open(client_config(config_file, connect))
+    conf = client_config(config_file, connect, user)
+    if config_file is not None:  # the file's own endpoint and user are the ones named
+        endpoints = _json(conf, "connect/endpoints") or []
+        connect = next((e for e in endpoints if isinstance(e, str)), None)
+        if connect is None:  # no router to wait for (a peer scouting its network): zenoh says what is wrong
+            return zenoh.open(conf)
+        name = _json(conf, "transport/auth/usrpwd/user")
+        user = User(name, "") if isinstance(name, str) else None
     deadline = time.monotonic() + wait_for_router_s
     refused = 0
     while True:
         try:
-            return zenoh.open(client_config(config_file, connect, user))
+            return zenoh.open(conf)
         except zenoh.ZError as exc:
             refused = refused + 1 if _answers(connect) else 0
             if refused >= 3:  # a router that is up says no, again and again (not a slow start)
-                who = f"user {user.name!r} (wrong password, or that router has other credentials)" if user else \
-                    f"a session without credentials (give them with {zenoh_auth.CREDENTIALS_ENV}=FILE)"
-                raise RouterRefused(f"the zenoh router at {connect} refused {who}") from None
+                raise RouterRefused(_refusal(connect, user, config_file)) from None
             if time.monotonic() > deadline:
                 reason = str(exc).split(" at /")[0]  # zenoh appends its Rust source location
                 raise TimeoutError(
@@ -133,6 +146,26 @@ def open_session(
                     "start one with 'radseek router'"
                 ) from None
             time.sleep(0.2)
+
+
+def _json(conf: zenoh.Config, key: str):
+    """A value of a zenoh config, None where it has none."""
+    try:
+        return json.loads(conf.get_json(key))
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+def _refusal(connect: str, user: User | None, config_file: str | Path | None) -> str:
+    """One line: the router at ``connect`` refused ``user`` (and what to check)."""
+    source = f" of {config_file}" if config_file is not None else ""
+    if user is not None:
+        who = f"user {user.name!r}{source} (wrong password, or that router has other credentials)"
+    elif config_file is not None:
+        who = f"a session without credentials ({config_file} gives no transport.auth.usrpwd user)"
+    else:
+        who = f"a session without credentials (give them with {zenoh_auth.CREDENTIALS_ENV}=FILE)"
+    return f"the zenoh router at {connect} refused {who}"
 
 
 def session_from_args(args: argparse.Namespace, role: str | None = None, *, prefer: str | None = None,

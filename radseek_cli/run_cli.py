@@ -211,7 +211,7 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
             ready_by = time.monotonic() + 180.0
             while not mission_up.wait(0.1):
                 if mission.poll() is not None:
-                    raise RuntimeError(f"mission exited with {mission.returncode}: see {out}/logs/mission.log")
+                    raise RuntimeError(stack.exited("mission"))
                 if time.monotonic() > ready_by:
                     raise RuntimeError(f"mission did not get ready in 180 s: see {out}/logs/mission.log")
             state_sub.undeclare()
@@ -239,7 +239,7 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
                         break
                     for name, proc in stack.procs.items():
                         if name not in ("mission", "recorder") and proc.poll() is not None:
-                            raise RuntimeError(f"{name} exited with {proc.returncode}: see {out}/logs/{name}.log")
+                            raise RuntimeError(stack.exited(name))
                     if recorder is not None and recorder.poll() is not None:  # the flight goes on without it
                         stop_recorder(stack, out)
                         recorder = None

@@ -3,7 +3,8 @@
 With no arguments it sends to 127.0.0.1:14540 (MAVSDK ``udpin://0.0.0.0:14540``) and 127.0.0.1:14550
 (QGroundControl / MAVProxy ``--master=udpin:127.0.0.1:14550``), answers on the same sockets, runs in
 real time and publishes its clock and poses on zenoh (router at tcp/127.0.0.1:7447, waited for in the
-background).
+background). A router that refuses its zenoh credentials stops it at once: exit 1 with a one-line reason
+naming its user and the router's endpoint.
 """
 
 from __future__ import annotations
@@ -187,4 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lockstep: {g.messages} mission/lockstep messages, held {vehicle.stats['lockstep_held_wall_s']:.1f} s "
               f"wall ({vehicle.stats['lockstep_pauses']} pauses > 1 s), "
               f"{'released: ' + g.released if g.released else 'engaged to the end'}", flush=True)
+    if vehicle.zenoh_refused is not None:  # the last line: what `radseek run` quotes
+        print(f"radseek vehicle: {vehicle.zenoh_refused}: stopped (a vehicle its stack cannot hear must not fly on)",
+              file=sys.stderr, flush=True)
+        return 1
     return 0

@@ -2,7 +2,8 @@
 MAVLink on every endpoint, emits telemetry, and publishes clock / true pose / estimated pose on zenoh.
 
 Zenoh never blocks MAVLink: the session is opened in a background thread and publishing starts when
-it is up (a missing router only means nobody sees the zenoh topics yet).
+it is up (a missing router only means nobody sees the zenoh topics yet). A router that refuses the
+vehicle's credentials stops it (``Vehicle.zenoh_refused``): a vehicle its stack cannot hear must not fly on.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -95,9 +97,10 @@ class VehicleConfig:
 class _ZenohOut:
     """Publishers for sim/clock, sim/truth_pose and pose, opened in the background."""
 
-    def __init__(self, cfg: VehicleConfig, gate=None):
+    def __init__(self, cfg: VehicleConfig, gate=None, on_refused: Callable[[str], None] | None = None):
         self.cfg = cfg
         self._gate = gate  # vehicle_sim.lockstep.LockstepGate, fed from mission/lockstep
+        self._on_refused = on_refused  # called with the one-line reason when the router refuses the session
         self.ready = False
         self._session = None
         self._closed = False
@@ -107,11 +110,16 @@ class _ZenohOut:
     def _open(self) -> None:
         from radseek import topics
         from radseek.simclock import ClockPublisher
-        from radseek.zenoh_session import open_session, session_user
+        from radseek.zenoh_auth import CredentialsError
+        from radseek.zenoh_session import RouterRefused, open_session, session_user
 
         try:
             user = None if self.cfg.zenoh_config else session_user("vehicle", self.cfg.vehicle_name)
             session = open_session(self.cfg.zenoh_config, self.cfg.zenoh_connect, user=user, wait_for_router_s=1e9)
+        except (RouterRefused, CredentialsError, FileNotFoundError) as exc:  # no waiting mends these
+            if self._on_refused is not None:
+                self._on_refused(str(exc))
+            return
         except Exception as exc:  # noqa: BLE001 - zenoh trouble must not stop the vehicle
             log.error("zenoh unavailable (%s): flying without zenoh topics", exc)
             return
@@ -189,6 +197,7 @@ class Vehicle(SimVehicle):
         self.params = self._make_params()
         self._text_id = 0
         self._stop = threading.Event()
+        self.zenoh_refused: str | None = None  # why the zenoh session was refused (the vehicle then stops)
         self._zenoh: _ZenohOut | None = None
         self._last_pose_t = -1.0
         self._pose_every = max(1, round(0.1 / cfg.dt))  # steps between `pose` messages (10 Hz on the step grid)
@@ -537,6 +546,12 @@ class Vehicle(SimVehicle):
     def stop(self) -> None:
         self._stop.set()
 
+    def _refused(self, reason: str) -> None:
+        """The zenoh session cannot be had (refused credentials, a bad credentials or config file): stop."""
+        self.zenoh_refused = reason
+        log.error("zenoh: %s: stopping", reason)
+        self._stop.set()
+
     def run(self, max_sim_time: float | None = None) -> None:
         """The loop: fixed sim steps paced by a FreeRunningClock at ``speedup``; with ``cfg.lockstep``
         never past the sim time the mission process allows (``vehicle_sim.lockstep``)."""
@@ -551,7 +566,7 @@ class Vehicle(SimVehicle):
 
             gate = self.lockstep = LockstepGate(cfg.lockstep_timeout_s)
         if cfg.zenoh:
-            self._zenoh = _ZenohOut(cfg, gate)
+            self._zenoh = _ZenohOut(cfg, gate, self._refused)
         # while lockstep holds sim time, telemetry goes on in wall time (as at 1x) so that MAVSDK and a
         # GCS keep their link (heartbeats) through a long pause; SET_MESSAGE_INTERVAL applies to both
         hold_sched = telemetry.Scheduler(1.0, cfg.max_wall_hz)
