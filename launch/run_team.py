@@ -15,6 +15,10 @@ Output (``--out``): ``dataset/uav<v>/`` (each vehicle's recorded flight, its ``m
 ``per_vehicle``: one {vehicle, dwell_points, distance_m, failed} per vehicle), ``flight.mcap`` (every zenoh
 topic; MAVLink of uav0), ``logs/``.
 
+A member that fails (its mission crashed, was killed, or recorded nothing) costs the team nothing else: the
+report and ``summary.json`` are written from the others, the member marked ``failed``, and a search the others
+ended with the source located exits 4 ("found, with a vehicle lost"; ``radseek run --help``).
+
 ``--kill-mission-at uav1:T`` (fault injection): SIGKILL that vehicle's mission process when its clock passes
 T sim seconds; its vehicle's own failsafes take over (lockstep released, link loss: hold, then RTL), the
 others finish the search. That vehicle alone releases lockstep after ``KILLED_LOCKSTEP_TIMEOUT_S`` of silence

@@ -24,6 +24,8 @@ from radseek import topics
 PY = sys.executable
 
 EXIT_FOUND, EXIT_STACK, EXIT_USAGE, EXIT_SEARCH_FAILED = 0, 1, 2, 3
+#: a team found the source, but one of its vehicles was lost on the way (``per_vehicle`` marks which)
+EXIT_FOUND_VEHICLE_LOST = 4
 #: wall seconds the MCAP recorder may take to start, and to finish its file once stopped
 RECORDER_START_S, RECORDER_STOP_S = 60.0, 60.0
 
@@ -258,8 +260,10 @@ class StackRun:
 
 def report_verdict(write_report: Callable[[], dict], out: Path, failure: str | None, recorded: str) -> int:
     """Write the report (``write_report``: the summary) and print the summary, then the run's exit code from
-    the search's ``failure`` (None: found). A report that fails is said on stderr with where the ``recorded``
-    flight is; without a report a search that found the source is a stack failure."""
+    the search's ``failure`` (None: found; found by a team that lost a member on the way: 4). A report that
+    fails is said on stderr with where the ``recorded`` flight is; without a report a search that found the
+    source is a stack failure."""
+    summary = None
     try:
         summary = write_report()
     except Exception as exc:  # noqa: BLE001 - a flight too short to fit still has a verdict and its data
@@ -272,6 +276,10 @@ def report_verdict(write_report: Callable[[], dict], out: Path, failure: str | N
     if failure is not None:
         print(f"radseek run: search failed: {failure}", file=sys.stderr)
         return EXIT_SEARCH_FAILED
+    lost = [] if summary is None else [r["vehicle"] for r in summary.get("per_vehicle", []) if r.get("failed")]
+    if lost:
+        print(f"radseek run: source found, with {' and '.join(lost)} lost (summary.json per_vehicle)", file=sys.stderr)
+        return EXIT_FOUND_VEHICLE_LOST
     return EXIT_FOUND
 
 

@@ -29,6 +29,8 @@ exit codes:
   3  the search failed: aborted (vehicle failsafe, vehicle landed, ...) or ended without locating the
      source (dwell budget spent, no frontier left, no estimate); dataset, report.png and summary.json
      are still written so the flight can be examined
+  4  a team (--vehicles N) located the source, but lost a vehicle on the way (its mission failed or was
+     killed): summary.json's per_vehicle marks it failed and keeps the others' results
 """
 
 from __future__ import annotations

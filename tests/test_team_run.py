@@ -90,6 +90,20 @@ def test_mission_refuses_a_team_without_itself(tmp_path, capsys):
     assert exc.value.code == 2 and "including --vehicle-name" in capsys.readouterr().err
 
 
+def test_a_team_that_found_the_source_but_lost_a_vehicle_exits_4(tmp_path, capsys):
+    """The verdict's exit code from the team's summary: found (0), found with a member lost (4), failed (3)."""
+    from launch.stack import EXIT_FOUND, EXIT_FOUND_VEHICLE_LOST, EXIT_SEARCH_FAILED, report_verdict
+
+    def summary(*failed: bool) -> dict:
+        return {"error_m": 0.1, "per_vehicle": [{"vehicle": f"uav{v}", "failed": f} for v, f in enumerate(failed)]}
+
+    assert report_verdict(lambda: summary(False, False), tmp_path, None, "flights are") == EXIT_FOUND
+    assert report_verdict(lambda: summary(False, True), tmp_path, None, "flights are") == EXIT_FOUND_VEHICLE_LOST
+    assert "source found, with uav1 lost" in capsys.readouterr().err
+    assert report_verdict(lambda: summary(False, True), tmp_path, "dwell budget spent", "flights are") == \
+        EXIT_SEARCH_FAILED
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
 def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
@@ -106,7 +120,8 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
     # keeps the default 5 s (with --vehicle-arg=--lockstep-timeout=1 for both, a 1 s gap in uav0's own lockstep
     # heartbeat on a loaded machine released it, and uav0 flew free into a battery failsafe)
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 120)
-    assert run.returncode in (0, 3), run.stderr[-3000:]  # 3: a reasoned stop (e.g. the dwell budget), not a crash
+    # 4: found, with a vehicle lost; 3: a reasoned stop (e.g. the dwell budget), not a crash
+    assert run.returncode in (4, 3), run.stderr[-3000:]
     assert "fault injected: mission uav1 killed" in run.stderr
     # progress per vehicle while the team flies (a team run was silent for its whole flight)
     assert "uav0: [t=" in run.stderr and "uav1: [t=" in run.stderr
@@ -118,8 +133,9 @@ def test_two_vehicles_one_mission_killed_the_other_finishes(tmp_path):
     assert rows["uav1"]["failed"] and rows["uav1"]["failed_at_s"] >= KILL_AT_S
     assert not rows["uav0"]["failed"] and rows["uav0"]["dwell_points"] >= 1 and rows["uav0"]["distance_m"] > 0
     assert summary["decided_by"] == "uav0"
-    if run.returncode == 0:
+    if run.returncode == 4:
         assert summary["outcome"] in ("found", "drift_limited") and summary["error_m"] < 0.5
+        assert "radseek run: source found, with uav1 lost (summary.json per_vehicle)" in run.stderr
     else:
         assert summary["stop_reason"]
 
