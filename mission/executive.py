@@ -39,6 +39,11 @@ ARRIVE_SETTLE_S = 0.5  # sim s the estimate must stay within the radius before a
 LANDED_Z_M = 0.03  # estimated altitude of a landed vehicle
 
 
+class FlightStopped(RuntimeError):
+    """The flight cannot go on (no detector frames, no pose, takeoff or landing not reached): one line, said as
+    it is by ``radseek mission``; the frames recorded so far stay in the dataset."""
+
+
 class VehicleLink(Protocol):
     """The autopilot as the mission commands it (local ENU m, rad)."""
 
@@ -182,7 +187,7 @@ class MissionExecutive:
             if p is not None and p.z > altitude - 0.2:
                 return
             if self.t - t0 > limit_s:
-                raise RuntimeError(f"takeoff: {altitude:g} m not reached in {limit_s:g} s of sim time")
+                raise FlightStopped(f"takeoff: {altitude:g} m not reached in {limit_s:g} s of sim time")
 
     async def landed(self, limit_s: float = 600.0) -> None:
         """Frame by frame until the estimated pose has stayed on the ground for ARRIVE_SETTLE_S."""
@@ -197,7 +202,7 @@ class MissionExecutive:
             else:
                 down_since = None
             if self.t - t0 > limit_s:
-                raise RuntimeError(f"not landed {limit_s:g} s of sim time after the return to launch")
+                raise FlightStopped(f"not landed {limit_s:g} s of sim time after the return to launch")
             await self.tick()
 
     def current(self) -> np.ndarray:

@@ -37,7 +37,7 @@ import zenoh
 
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.vehicle_link import MavsdkVehicle
-from mission.executive import FRAME_S, MissionExecutive
+from mission.executive import FRAME_S, FlightStopped, MissionExecutive
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Phase, SearchBrain, SearchConfig, reproducible
@@ -439,14 +439,14 @@ class ZenohFrames:
             now = loop.time()
             if first_timeout_wall_s is not None:
                 if now - start > first_timeout_wall_s:
-                    raise RuntimeError(f"no detector histograms after {first_timeout_wall_s:g} s on "
+                    raise FlightStopped(f"no detector histograms after {first_timeout_wall_s:g} s on "
                                        f"{topics.key(topics.HISTOGRAM, self.vehicle)}")
                 continue
             p = stream.pose()
             if p is not None and p.t > last_pose_t:
                 last_pose_t, last_pose_at = p.t, now
             if now - last_pose_at > STALL_WALL_S:
-                raise RuntimeError(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
+                raise FlightStopped(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
             fate, spoke_wall = stream.frame_fate(t_next)
             lost, why = fate == "not_sent", "not sent (detector/status)"
             if fate == "in_flight":  # sent, yet not here: zenoh dropped it (wall time: a real loss)

@@ -121,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     settings = MissionSettings(url=args.url, vehicle=args.vehicle_name, seed=args.seed,
                                connect_timeout_s=args.connect_timeout, team=team)
     from mission.client.connection import ConnectionFailed
+    from mission.executive import FlightStopped
 
     try:
         # --connect-timeout governs every wait: the router's as well as the autopilot's
@@ -133,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_mission(session, scenario, Path(args.out), config, settings)
     except ConnectionFailed as exc:
         print(f"radseek mission: {exc} (frames recorded while waiting are in {args.out})", file=sys.stderr)
+        return 1
+    except FlightStopped as exc:  # no detector, no pose, no takeoff: the stack is broken, said in one line
+        print(f"radseek mission: {exc} (the frames recorded so far are in {args.out})", file=sys.stderr)
         return 1
     except OSError as exc:  # a write to the dataset failed (disk full, file too large): the cause, named
         print(f"radseek mission: {_write_error(exc)}", file=sys.stderr)

@@ -47,6 +47,20 @@ def test_bad_input_is_reported(tmp_path, capsys):
     assert "no setting" in capsys.readouterr().err
 
 
+def test_a_repeated_frame_row_is_refused_naming_the_row(tmp_path, shared_datasets, capsys):
+    """Issue 34: one row repeated 5 times was counted six times by localize; now the row is named, nothing fitted."""
+    import shutil
+
+    shutil.copy(shared_datasets / "lattice-clean" / "scenario.json", tmp_path)
+    lines = (shared_datasets / "lattice-clean" / "frames.csv").read_text().splitlines()
+    (tmp_path / "frames.csv").write_text("\n".join(lines[:11] + [lines[10]] * 5 + lines[11:]) + "\n")
+    assert localize_cli.main([str(tmp_path), "--method", "sphere"]) == 2
+    captured = capsys.readouterr()
+    err = [ln for ln in captured.err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "frames.csv: row 12, column 't': repeats the previous row's time" in err[0], captured.err
+    assert "Traceback" not in captured.err and captured.out == ""
+
+
 def test_match_errors_pairs_each_truth_once():
     ds = lattice_flight(0)
     tr = ds.truth.sources[0]
