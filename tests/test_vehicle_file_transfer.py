@@ -4,7 +4,9 @@ telemetry log pymavlink reads back as the vehicle's own messages."""
 
 from __future__ import annotations
 
+import socket
 import struct
+import time
 
 import pytest
 from pymavlink import mavutil
@@ -134,3 +136,33 @@ def test_log_protocol_lists_one_log_and_serves_it_whole(link):
     assert data == vehicle.flight_log.read(0, entry.size)
     gcs.send(M.MAVLink_log_request_data_message(1, 1, 0, entry.size + 1000, 90))  # past the end: count 0
     assert gcs.recv("LOG_DATA", lambda d: d.ofs == entry.size + 1000).count == 0
+
+
+def test_the_flight_log_holds_the_frames_the_gcs_received_byte_for_byte():
+    """The .tlog keeps the bytes the link sent, not a second packing with its own sequence numbers: every datagram
+    a ground station received on the GCS port is one of the log's frames, with the same sequence number."""
+    api_port, gcs_port = free_udp_port(), free_udp_port()
+    with VehicleThread(thread_config(api_port, gcs_port, speedup=10.0)) as vehicle, Gcs(api_port) as api, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", gcs_port))
+        sock.settimeout(30)
+        received = [sock.recvfrom(65535)[0] for _ in range(100)]
+        api.wait_vehicle()  # replies to the API client go to its port alone: the two links' sequences part
+        for _ in range(5):
+            assert api.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == \
+                M.MAV_RESULT_ACCEPTED
+        received += [sock.recvfrom(65535)[0] for _ in range(200)]
+        time.sleep(0.2)  # the loop records a message as it sends it; give it the last one
+        log = vehicle.flight_log.read(0, vehicle.flight_log.size())
+    frames, at = [], 0
+    while at < len(log):  # 8-byte timestamp, then one MAVLink 2 frame: STX, LEN, INCOMPAT ... + 12 (+13 if signed)
+        length = log[at + 9]
+        size = 12 + length + (13 if log[at + 10] & 0x01 else 0)
+        frames.append(log[at + 8:at + 8 + size])
+        at += 8 + size
+    assert at == len(log) and all(f[0] == 0xFD for f in frames)
+    logged = set(frames)
+    missing = [d for d in received if d not in logged]
+    assert not missing, f"{len(missing)} of {len(received)} received frames not in the log, e.g. seq {missing[0][4]}"
+    seqs = [d[4] for d in received]
+    assert len(set(seqs)) > 200  # the control: real sequence numbers, all different over 300 frames

@@ -3,8 +3,10 @@
 PX4 writes a ULog per flight to its SD card (``/fs/microsd/log/<date>/<time>.ulg``); the mock vehicle has no
 uORB topics to log, so it records what it tells the world instead, in the format MAVProxy, QGroundControl and
 pymavlink (``mavutil.mavlink_connection(path)``, ``mavlogdump.py``) read: each message as an 8-byte big-endian
-microsecond timestamp followed by the packed MAVLink 2 frame. The timestamp is the boot's wall clock plus the
-simulated time, so a log of a sped-up flight spans the simulated flight. One log per boot (PX4's SDLOG_MODE 2,
+microsecond timestamp followed by the MAVLink 2 frame as the link sent it (the bytes sent to the GCS endpoint,
+or to the one endpoint a reply went to: sequence numbers and signatures are those a ground station received).
+The timestamp is the boot's wall clock plus the simulated time, so a log of a sped-up flight spans the simulated
+flight. One log per boot (PX4's SDLOG_MODE 2,
 "from boot until shutdown"), served while it grows: by MAVLink FTP (``mavftp``) and by the log protocol
 (``log_transfer``). The transfers themselves (FILE_TRANSFER_PROTOCOL, LOG_DATA, LOG_ENTRY) are not recorded,
 so a download never feeds the file it reads. Bounded like a card: past ``max_bytes`` recording stops, and what
@@ -15,8 +17,6 @@ from __future__ import annotations
 import struct
 import time
 
-from pymavlink.dialects.v20 import common as M
-
 NOT_LOGGED = frozenset({"FILE_TRANSFER_PROTOCOL", "LOG_DATA", "LOG_ENTRY"})
 DEFAULT_MAX_BYTES = 64 * 1024 * 1024
 
@@ -24,25 +24,21 @@ DEFAULT_MAX_BYTES = 64 * 1024 * 1024
 class FlightLog:
     """The growing .tlog of one boot, in memory."""
 
-    def __init__(self, sysid: int, compid: int, boot_wall_s: float | None = None,
-                 max_bytes: int = DEFAULT_MAX_BYTES):
+    def __init__(self, boot_wall_s: float | None = None, max_bytes: int = DEFAULT_MAX_BYTES):
         self.boot_wall_s = time.time() if boot_wall_s is None else boot_wall_s
         self.max_bytes = max_bytes
         self.full = False
         self._data = bytearray()
-        self._mav = M.MAVLink(None, srcSystem=sysid, srcComponent=compid)  # its own sequence numbers
 
     @property
     def name(self) -> str:
         """PX4's log file naming (UTC date folder, time of day) with the .tlog extension of its format."""
         return time.strftime("%Y-%m-%d/%H_%M_%S.tlog", time.gmtime(self.boot_wall_s))
 
-    def record(self, msg, sim_t: float) -> None:
-        """Append one sent message at sim time ``sim_t`` (s since boot)."""
+    def record(self, msg, frame: bytes, sim_t: float) -> None:
+        """Append one sent message, ``frame`` the bytes the link sent, at sim time ``sim_t`` (s since boot)."""
         if self.full or msg.get_type() in NOT_LOGGED:
             return
-        frame = msg.pack(self._mav)
-        self._mav.seq = (self._mav.seq + 1) % 256
         if len(self._data) + 8 + len(frame) > self.max_bytes:
             self.full = True
             return

@@ -201,7 +201,8 @@ class Link:
         self.drop_rate = drop_rate
         self._rng = np.random.default_rng(seed + 7919)
         self.stats = LinkStats()
-        self.tap: Callable[[object], None] | None = None  # sees each sent message once (the flight log)
+        #: sees each sent message once, with the bytes sent (the GCS endpoint's when it went there): the flight log
+        self.tap: Callable[[object, bytes], None] | None = None
 
     def _drop(self) -> bool:
         return self.drop_rate > 0 and self._rng.random() < self.drop_rate
@@ -260,8 +261,9 @@ class Link:
                         msg.get_srcSystem(), msg.get_srcComponent(), addr, reason, n)
 
     def send(self, msg, endpoint: Endpoint | None = None) -> None:
-        if self.tap is not None:
-            self.tap(msg)
+        """Pack ``msg`` for each endpoint (its own sequence numbers and signature) and send it; the ``tap`` sees
+        the bytes sent to the GCS endpoint, or to the one endpoint a reply went to (what a GCS's log holds)."""
+        logged = None
         for ep in [endpoint] if endpoint is not None else self.endpoints:
             if ep.signature is not None:
                 ep.signing_now()  # outgoing timestamps follow real time, not just the message count
@@ -271,6 +273,8 @@ class Link:
                 log.error("cannot pack %s: %s", msg.get_type(), exc)
                 return
             ep.mav.seq = (ep.mav.seq + 1) % 256
+            if logged is None or ep.name == "gcs":
+                logged = buf
             if self._drop():
                 self.stats.dropped_tx += 1
                 continue
@@ -279,6 +283,8 @@ class Link:
                 self.stats.tx_packets += 1
             except OSError as exc:
                 log.debug("%s: send error %s", ep.name, exc)
+        if self.tap is not None and logged is not None:
+            self.tap(msg, logged)
 
     @property
     def last_rx_wall(self) -> float | None:

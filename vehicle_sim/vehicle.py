@@ -184,8 +184,8 @@ class Vehicle(SimVehicle):
              ("gcs", (cfg.bind_host, cfg.gcs_local_port), (cfg.remote_host, cfg.gcs_port))],
             sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
             seed=cfg.seed, wall_time_s=time.time())
-        self.flight_log = FlightLog(cfg.sysid, cfg.compid)
-        self.link.tap = lambda msg: self.flight_log.record(msg, self.t)
+        self.flight_log = FlightLog()
+        self.link.tap = lambda msg, frame: self.flight_log.record(msg, frame, self.t)
         fs = VirtualFs()
         fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
         self.ftp = FtpServer(fs)
