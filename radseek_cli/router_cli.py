@@ -16,23 +16,20 @@ import threading
 import zenoh
 
 from radseek.zenoh_auth import CredentialsError, credentials_file, read_credentials
-from radseek.zenoh_session import DEFAULT_ENDPOINT, router_config
+from radseek.zenoh_session import DEFAULT_ENDPOINT, router_config, tcp_address
 
 
 def _in_use(endpoint: str) -> bool:
     """True if a tcp/HOST:PORT endpoint cannot be bound because something holds it."""
+    address = tcp_address(endpoint)
+    if address is None:
+        return False
     try:
-        proto, addr = endpoint.split("/", 1)
-        host, port = addr.rsplit(":", 1)
-        if proto != "tcp":
-            return False
         with socket.socket() as s:
-            s.bind((host.strip("[]"), int(port)))
+            s.bind(address)
         return False
     except OSError:
         return True
-    except ValueError:
-        return False
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -121,3 +121,13 @@ def test_a_run_whose_process_is_refused_ends_naming_it(tmp_path, role):
     assert not (out / "summary.json").exists()
     if role == "vehicle":  # the mission was up, recording, when the vehicle was refused
         assert (out / "dataset").is_dir() and (out / "logs" / "mission.log").is_file()
+
+
+@pytest.mark.parametrize(("endpoint", "address"), [
+    ("tcp/127.0.0.1:7447", ("127.0.0.1", 7447)), ("tcp/[::1]:7448", ("::1", 7448)), ("udp/127.0.0.1:7447", None),
+    ("tcp/127.0.0.1:port", None), ("127.0.0.1:7447", None), ("tcp/127.0.0.1", None)])
+def test_the_router_and_its_clients_read_an_endpoint_alike(endpoint, address):
+    """One parser for the router's 'is my port taken' and a client's 'does a router answer there'."""
+    from radseek.zenoh_session import tcp_address
+
+    assert tcp_address(endpoint) == address
