@@ -23,7 +23,8 @@ leaves its recorded frames and logs but no summary.
 exit codes:
   0  the search ended on its own criterion with the source located ("source found", or a
      pattern baseline flown to its end with an estimate)
-  1  the stack failed: a process exited or did not start, the mission failed, or --timeout passed
+  1  the stack failed: a process exited or did not start (e.g. the zenoh router refused its credentials:
+     the process and its own one-line reason are named), the mission failed, or --timeout passed
      (no report)
   2  usage: bad options or scene, or --out is not empty and --force was not given
   3  the search failed: aborted (vehicle failsafe, vehicle landed, ...) or ended without locating the
