@@ -151,6 +151,12 @@ AUTH_HARDWARE = f"""`ROLE.LABEL@VEHICLE` (e.g. `detector.board7@uav0`) is a seco
 process looks for its own name (`detector@uav0`) and otherwise takes the first line of its role and vehicle
 (a reader: the first reader's line). A process given `--zenoh-config FILE` uses that file's credentials.
 
+A process the router refuses (a wrong password, a user the router does not list) stops at once, with one line
+naming its user and the router's endpoint, e.g. `radseek vehicle: the zenoh router at tcp/127.0.0.1:7447
+refused user 'vehicle@uav0' (wrong password, or that router has other credentials): stopped`; a vehicle does
+not fly on unheard. `radseek run` then ends with exit code 1 quoting that line (`radseek run: vehicle exited
+with 1: ...`) and keeps what was recorded (`tests/test_zenoh_refused.py`).
+
 **A hardware board or a ground station with its own credential.** Write a credentials file for the router
 with a line per user, one `USER:PASSWORD` each (no blank lines or comments: zenoh reads the file as it is),
 e.g. `detector.board7@uav0:<secret>` for the board's companion computer and `groundstation:<secret>` for a
