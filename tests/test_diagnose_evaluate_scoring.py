@@ -60,20 +60,43 @@ def _wall_row(mt: float, named: list[str], errs: list[dict], n_true: int, walls_
 
 def test_walls_table_rates_per_mu_t_and_the_target():
     rows = [
-        _wall_row(0.3, ["unmapped_wall"], [{"segment": 0.2, "centre": 0.9}, {"segment": 0.7, "centre": 0.4}], 2, 1),
+        _wall_row(0.3, ["unmapped_wall"], [{"segment": 0.2, "centre": 0.9, "shaded_centre": 0.3},
+                                           {"segment": 0.7, "centre": 0.4}], 2, 1),
         _wall_row(0.3, [], [], 1, 0),
         _wall_row(1.0, ["unmapped_wall", "dead_time"], [{"segment": 0.1, "centre": 0.1}], 1, 1),
         _row("null", [], []),  # other kinds are left out
     ]
     text, s = E.walls_table(rows)
+    # the shaded part's centre stands in for the centre where a row has none
     assert s[0.3] == {"n": 2, "detected": 0.5, "located_segment": 1 / 3, "located_centre": 1 / 3,
-                      "every_located": 0.0}
-    assert s[1.0] == {"n": 1, "detected": 1.0, "located_segment": 1.0, "located_centre": 1.0, "every_located": 1.0}
-    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another effect named
+                      "located_shaded": 2 / 3, "every_located": 0.0}
+    assert s[1.0] == {"n": 1, "detected": 1.0, "located_segment": 1.0, "located_centre": 1.0,
+                      "located_shaded": 1.0, "every_located": 1.0}
+    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 / 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another effect
     assert "NOT met" in text
-    good = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.6}], 1, 1) for mt in (0.3, 0.5, 1.0)]
+    good = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.4}], 1, 1) for mt in (0.3, 0.5, 1.0)]
     text, _ = E.walls_table(good + [_wall_row(0.1, [], [], 1, 0)])  # weak walls do not count for the target
-    assert "lowest detection 100%, lowest located 100%: met" in text
+    assert "lowest detection 100%, lowest located (centre) 100%, (shaded part's centre) 100%: met" in text
+    far = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.6}], 1, 1) for mt in (0.3, 0.5, 1.0)]
+    assert "NOT met" in E.walls_table(far)[0]  # the target is the centre, not the segment
+
+
+def test_a_slab_scaled_about_the_source_casts_the_same_shadow_until_a_frame_changes_side():
+    src = np.array([0.0, 0.0])
+    wall = {"start": [2.0, -1.0], "end": [2.0, 1.0]}  # 2 m east of the source, centre at r = 2
+    # frames due east at 1 m (lit, before the slab) and at 4 m (shaded): s = 2 and 0.5
+    frames = np.array([[1.0, 0.0], [4.0, 0.0], [0.0, 3.0]])  # the last is outside the sector
+    lo, hi = E.placement_range(src, wall, frames)
+    # shaded for k <= 1/0.5 = 2, lit for k > 1/2: the centre may move from -1 m (k = 1/2) to +2 m (k = 2)
+    assert (lo, hi) == (-1.0, 2.0)
+    # with no frame between the source and the slab it can slide all the way to the source
+    assert E.placement_range(src, wall, frames[1:])[0] == -2.0
+    part = E.shaded_part(src, wall, np.array([[4.0, 0.0], [4.0, 1.0], [4.0, -4.0]]))
+    # lines of sight to (4, 0) and (4, 1) cross x = 2 at y = 0 and 0.5; (4, -4) passes below the slab's end
+    assert part == {"start": [2.0, 0.0], "end": [2.0, 0.5]}
+    assert E.shaded_part(src, wall, np.array([[1.0, 0.0]])) is None  # in the sector, but before the slab
+    errs = E.wall_errors([{**wall, "shaded": part}], [{"start": [2.0, 0.2], "end": [2.0, 0.3]}])
+    assert errs == [{"segment": 0.0, "centre": 0.25, "shaded_centre": 0.0}]
 
 
 def test_nuclides_table_right_rate_per_true_nuclide():
