@@ -28,11 +28,20 @@ REPO = Path(__file__).resolve().parents[1]
 DOCKER = REPO / "docker"
 
 
+def _compose(environ: dict[str, str] | None = None) -> dict:
+    """docker/compose.yaml as compose reads it: ``${VAR:-default}`` from ``environ`` (default: none set)."""
+    env = environ or {}
+    text = re.sub(r"\$\{(\w+):-([^}]*)\}", lambda m: env.get(m.group(1)) or m.group(2),
+                  (DOCKER / "compose.yaml").read_text())
+    assert "${" not in text, "compose.yaml: only ${VAR:-default} is modelled here"
+    return yaml.safe_load(text)
+
+
 
 
 @pytest.mark.io
 def test_compose_services_run_real_radseek_commands():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     services = compose["services"]
     assert {"router", "detector", "vehicle", "mission"} <= set(services)
     for name, svc in services.items():
@@ -78,7 +87,7 @@ def _unsigned_mavlink_on_all_interfaces(cmd: list[str]) -> bool:
 
 
 def test_compose_publishes_only_listened_ports_on_loopback():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         listened = _listened_ports(svc["command"])
         for spec in svc.get("ports", []):
@@ -91,7 +100,7 @@ def test_compose_publishes_only_listened_ports_on_loopback():
 
 
 def test_compose_keeps_unsigned_mavlink_off_every_reachable_network():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     networks = compose.get("networks") or {}
     for name, svc in compose["services"].items():
         if not _unsigned_mavlink_on_all_interfaces(svc["command"]):
@@ -103,6 +112,83 @@ def test_compose_keeps_unsigned_mavlink_off_every_reachable_network():
                 f"{name}: unsigned MAVLink bound to all interfaces on non-internal network {net!r}"
     # the router, on a network the host reaches, is the one service still published (loopback only)
     assert compose["services"]["router"]["ports"] == ["127.0.0.1:7447:7447/tcp"]
+
+
+# --- zenoh credentials: the router admits only the stack's users, each service holds only its own -------------
+
+def _secret_files(compose: dict, secrets_dir: Path) -> dict[str, tuple[Path, str]]:
+    """service -> (the host file of the secret it mounts, where its RADSEEK_ZENOH_CREDENTIALS points)."""
+    from radseek.zenoh_auth import CREDENTIALS_ENV
+
+    out = {}
+    for name, svc in compose["services"].items():
+        (secret,) = svc["secrets"]
+        host_file = (DOCKER / compose["secrets"][secret]["file"]).resolve()
+        assert host_file.parent == secrets_dir.resolve(), f"{name}: {host_file} is not in {secrets_dir}"
+        out[name] = (host_file, svc["environment"][CREDENTIALS_ENV])
+        assert out[name][1] == f"/run/secrets/{secret}", f"{name}: its credentials variable names another file"
+    return out
+
+
+def test_each_compose_service_is_given_only_its_own_zenoh_credential(tmp_path, capsys):
+    from radseek import zenoh_auth
+    from radseek.zenoh_session import session_user
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    assert main(["--out", str(out), "--owner", "-"]) == 0
+    files = _secret_files(_compose({"RADSEEK_SECRETS": str(out)}), out)
+    assert set(files) == {"router", "detector", "vehicle", "mission"}
+    everyone = zenoh_auth.read_credentials(files["router"][0])
+    assert {u.name for u in everyone} == {"detector@uav0", "vehicle@uav0", "mission@uav0", "recorder", "observer"}
+    for role in ("detector", "vehicle", "mission"):
+        (own,) = zenoh_auth.read_credentials(files[role][0])  # one line: nobody else's password
+        assert own in everyone and own.role == role
+        # the user the service's process connects as (compose runs it with the default vehicle)
+        assert session_user(role, "uav0", credentials=files[role][0]) == own
+    for f in out.iterdir():
+        assert f.stat().st_mode & 0o777 == 0o600, f
+    assert out.stat().st_mode & 0o777 == 0o700
+    (observer,) = zenoh_auth.read_credentials(out / "observer.credentials")
+    conf = json.loads((out / "observer.json5").read_text())
+    assert conf["transport"]["auth"]["usrpwd"] == {"user": "observer", "password": observer.password}
+    assert conf["connect"]["endpoints"] == ["tcp/127.0.0.1:7447"]  # the router's published port
+    # the defaults agree: compose mounts from docker/run, which the command writes by default
+    default = _secret_files(_compose(), DOCKER / "run")
+    assert {f.name for f, _ in default.values()} == {f.name for f, _ in files.values()}
+    assert _ignored("docker/run/router.credentials", [_pattern_regex(p) for p in _dockerignore_patterns()]), \
+        "the credentials must never be copied into the image"
+    assert observer.password not in capsys.readouterr().err
+
+
+def test_zenoh_credentials_are_never_overwritten(tmp_path, capsys):
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    assert main(["--out", str(out), "--owner", "-"]) == 0
+    before = {f.name: f.read_text() for f in out.iterdir()}
+    capsys.readouterr()
+    assert main(["--out", str(out), "--owner", "-"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("radseek zenoh-credentials: ") and "already exists" in err and len(err.splitlines()) == 1
+    assert {f.name: f.read_text() for f in out.iterdir()} == before
+
+
+def test_zenoh_credentials_go_to_the_image_user_or_are_not_written(tmp_path, capsys):
+    """The services run as uid 10001: their 0600 files must be theirs. Only root may give them away; anyone
+    else is told so, and nothing is left half-written."""
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    code = main(["--out", str(out)])
+    if os.geteuid() == 0:
+        assert code == 0
+        owners = {f.name: (f.stat().st_uid, f.stat().st_gid) for f in out.iterdir()}
+        for name, owner in owners.items():
+            assert owner == ((0, 0) if name.startswith("observer") else (10001, 10001)), name
+    else:
+        assert code == 1 and list(out.iterdir()) == []
+        assert "needs root" in capsys.readouterr().err
 
 
 # --- the image's own tree --------------------------------------------------------------------------------------
@@ -301,7 +387,7 @@ def test_every_first_party_import_in_the_image_resolves_in_the_image(image_tree)
 
 @pytest.mark.io
 def test_every_compose_service_command_runs_from_the_image_tree(image_tree):
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         cmd = svc["command"]
         proc = _run_from_tree(image_tree, [*cmd, "--help"])
@@ -393,7 +479,7 @@ def _readme_docker_table() -> dict[str, tuple[set[str], set[str]]]:
 
 
 def test_readme_says_what_compose_listens_on_and_publishes():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     table = _readme_docker_table()
     assert set(table) == set(compose["services"]), "README's Docker table lists every compose service"
     for name, svc in compose["services"].items():
@@ -437,7 +523,7 @@ def test_image_builds_and_serves_the_router_on_the_published_port():
                           text=True, timeout=3000)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         proc = subprocess.run([*eng, "run", "--rm", *run_args, tag, *svc["command"], "--help"], capture_output=True,
                               text=True, timeout=300)
