@@ -70,22 +70,26 @@ def write_run_credentials(out: Path, vehicles: list[str], endpoint: str) -> Path
     return path
 
 
-def write_compose_secrets(out: Path, vehicle: str, endpoint: str, owner: tuple[int, int] | None = None) -> list[Path]:
+def write_compose_secrets(out: Path, vehicle: str, endpoint: str, owner: tuple[int, int] | None = None,
+                          host_owner: tuple[int, int] | None = None) -> list[Path]:
     """The credentials of one compose stack in the folder ``out`` (created 0700; it must hold none of them yet):
     ``router.credentials`` (every user), ``ROLE.credentials`` (that role's line only) for each of
     :data:`COMPOSE_ROLES`, all owned by ``owner`` (the image's user, so a container reads its 0600 file), and
-    ``observer.credentials`` and ``observer.json5`` (connecting to ``endpoint``) for the host's tools, owned by
-    whoever runs this. Returns the files written; on an error none is left behind."""
+    ``observer.credentials`` and ``observer.json5`` (connecting to ``endpoint``) for the host's tools, owned like
+    the folder by ``host_owner`` (default: whoever runs this). Returns the files written; on an error none is
+    left behind."""
     out.mkdir(mode=0o700, parents=True, exist_ok=True)
     out.chmod(0o700)
+    if host_owner is not None:
+        os.chown(out, *host_owner)
     users = new_users([vehicle])
     by_name = {u.name: u for u in users}
     observer = by_name[READER]
     files = [("router.credentials", credentials_text(users), owner)]
     files += [(f"{role}.credentials", credentials_text([by_name[user_name(role, vehicle)]]), owner)
               for role in COMPOSE_ROLES]
-    files += [("observer.credentials", credentials_text([observer]), None),
-              ("observer.json5", observer_config(observer, endpoint), None)]
+    files += [("observer.credentials", credentials_text([observer]), host_owner),
+              ("observer.json5", observer_config(observer, endpoint), host_owner)]
     for name, _, _ in files:
         if (out / name).exists():
             raise FileExistsError(f"{out / name} already exists: remove {out} (and restart the stack) for new "

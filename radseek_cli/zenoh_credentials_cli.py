@@ -5,15 +5,16 @@ Writes, in a new 0700 folder (default docker/run, which compose mounts from), on
 as under ``radseek run``), ``detector.credentials``, ``vehicle.credentials`` and ``mission.credentials`` hold
 one line each, the credential of that service only. The services run as the image's user (uid 10001), so
 those four are given to it (``--owner``; changing a file's owner needs root: run this as root, or under
-rootless podman as ``podman unshare radseek zenoh-credentials ...``). ``observer.credentials`` and
-``observer.json5`` stay yours, for ``radseek echo`` / ``radseek topics`` and zenoh tools on the host through
-the router's published port. Every file is mode 0600; none is ever overwritten and no password is printed:
-remove the folder for new ones, and restart the stack.
+rootless podman as ``podman unshare radseek zenoh-credentials ...``). ``observer.credentials``,
+``observer.json5`` and the folder stay yours (under sudo: the user who ran sudo), for ``radseek echo`` /
+``radseek topics`` and zenoh tools on the host through the router's published port. Every file is mode 0600;
+none is ever overwritten and no password is printed: remove the folder for new ones, and restart the stack.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -34,6 +35,13 @@ def _owner(text: str) -> tuple[int, int] | None:
         raise argparse.ArgumentTypeError(f"--owner {text!r}: expected UID[:GID] in numbers, or '-'") from None
 
 
+def _invoker() -> tuple[int, int] | None:
+    """Who ran ``sudo radseek ...`` (the host's tools are theirs), or None (whoever runs this)."""
+    if os.geteuid() != 0 or not os.environ.get("SUDO_UID", "").isdigit():
+        return None
+    return int(os.environ["SUDO_UID"]), int(os.environ.get("SUDO_GID", os.environ["SUDO_UID"]))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="radseek zenoh-credentials", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -47,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
                         "'-' keeps yours)")
     args = p.parse_args(argv)
     try:
-        files = write_compose_secrets(args.out, args.vehicle_name, args.endpoint, args.owner)
+        files = write_compose_secrets(args.out, args.vehicle_name, args.endpoint, args.owner, _invoker())
     except PermissionError as exc:
         hint = " (changing a file's owner needs root: run as root, or 'podman unshare radseek ...' " \
                "for rootless podman; --owner - keeps yours)" if args.owner else ""

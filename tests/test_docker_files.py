@@ -175,7 +175,7 @@ def test_zenoh_credentials_are_never_overwritten(tmp_path, capsys):
     assert {f.name: f.read_text() for f in out.iterdir()} == before
 
 
-def test_zenoh_credentials_go_to_the_image_user_or_are_not_written(tmp_path, capsys):
+def test_zenoh_credentials_go_to_the_image_user_or_are_not_written(tmp_path, capsys, monkeypatch):
     """The services run as uid 10001: their 0600 files must be theirs. Only root may give them away; anyone
     else is told so, and nothing is left half-written."""
     from radseek_cli.zenoh_credentials_cli import main
@@ -187,6 +187,13 @@ def test_zenoh_credentials_go_to_the_image_user_or_are_not_written(tmp_path, cap
         owners = {f.name: (f.stat().st_uid, f.stat().st_gid) for f in out.iterdir()}
         for name, owner in owners.items():
             assert owner == ((0, 0) if name.startswith("observer") else (10001, 10001)), name
+        # under sudo, the host's files and the folder go back to the user who ran it
+        monkeypatch.setenv("SUDO_UID", "4321")
+        monkeypatch.setenv("SUDO_GID", "4322")
+        assert main(["--out", str(tmp_path / "sudo")]) == 0
+        for f in [tmp_path / "sudo", *(tmp_path / "sudo").glob("observer.*")]:
+            assert (f.stat().st_uid, f.stat().st_gid) == (4321, 4322), f
+        assert (tmp_path / "sudo" / "mission.credentials").stat().st_uid == 10001
     else:
         assert code == 1 and list(out.iterdir()) == []
         assert "needs root" in capsys.readouterr().err
