@@ -16,6 +16,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "detector": ("radseek_cli.detector_cli", "run the emulated 32-channel spectroscopy board"),
     "vehicle": ("radseek_cli.vehicle_cli", "run the mock autopilot (MAVLink 2 over UDP, SITL ports)"),
     "mission": ("radseek_cli.mission_cli", "run the mission process (dwell control, estimator, planner)"),
+    "zenoh-credentials": ("radseek_cli.zenoh_credentials_cli", "write the zenoh users of the docker compose stack"),
     "topics": ("radseek_cli.inspect_cli", "list live radseek zenoh keys with their rates"),
     "echo": ("radseek_cli.echo_cli", "print messages on a zenoh key readably"),
     "record": ("radseek_cli.record_cli", "write an MCAP log of the zenoh topics and MAVLink (Foxglove, mcap reader)"),

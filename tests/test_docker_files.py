@@ -5,6 +5,7 @@ README says what compose publishes."""
 
 import ast
 import json
+import math
 import os
 import re
 import shlex
@@ -28,11 +29,20 @@ REPO = Path(__file__).resolve().parents[1]
 DOCKER = REPO / "docker"
 
 
+def _compose(environ: dict[str, str] | None = None) -> dict:
+    """docker/compose.yaml as compose reads it: ``${VAR:-default}`` from ``environ`` (default: none set)."""
+    env = environ or {}
+    text = re.sub(r"\$\{(\w+):-([^}]*)\}", lambda m: env.get(m.group(1)) or m.group(2),
+                  (DOCKER / "compose.yaml").read_text())
+    assert "${" not in text, "compose.yaml: only ${VAR:-default} is modelled here"
+    return yaml.safe_load(text)
+
+
 
 
 @pytest.mark.io
 def test_compose_services_run_real_radseek_commands():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     services = compose["services"]
     assert {"router", "detector", "vehicle", "mission"} <= set(services)
     for name, svc in services.items():
@@ -78,7 +88,7 @@ def _unsigned_mavlink_on_all_interfaces(cmd: list[str]) -> bool:
 
 
 def test_compose_publishes_only_listened_ports_on_loopback():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         listened = _listened_ports(svc["command"])
         for spec in svc.get("ports", []):
@@ -91,7 +101,7 @@ def test_compose_publishes_only_listened_ports_on_loopback():
 
 
 def test_compose_keeps_unsigned_mavlink_off_every_reachable_network():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     networks = compose.get("networks") or {}
     for name, svc in compose["services"].items():
         if not _unsigned_mavlink_on_all_interfaces(svc["command"]):
@@ -103,6 +113,90 @@ def test_compose_keeps_unsigned_mavlink_off_every_reachable_network():
                 f"{name}: unsigned MAVLink bound to all interfaces on non-internal network {net!r}"
     # the router, on a network the host reaches, is the one service still published (loopback only)
     assert compose["services"]["router"]["ports"] == ["127.0.0.1:7447:7447/tcp"]
+
+
+# --- zenoh credentials: the router admits only the stack's users, each service holds only its own -------------
+
+def _secret_files(compose: dict, secrets_dir: Path) -> dict[str, tuple[Path, str]]:
+    """service -> (the host file of the secret it mounts, where its RADSEEK_ZENOH_CREDENTIALS points)."""
+    from radseek.zenoh_auth import CREDENTIALS_ENV
+
+    out = {}
+    for name, svc in compose["services"].items():
+        (secret,) = svc["secrets"]
+        host_file = (DOCKER / compose["secrets"][secret]["file"]).resolve()
+        assert host_file.parent == secrets_dir.resolve(), f"{name}: {host_file} is not in {secrets_dir}"
+        out[name] = (host_file, svc["environment"][CREDENTIALS_ENV])
+        assert out[name][1] == f"/run/secrets/{secret}", f"{name}: its credentials variable names another file"
+    return out
+
+
+def test_each_compose_service_is_given_only_its_own_zenoh_credential(tmp_path, capsys):
+    from radseek import zenoh_auth
+    from radseek.zenoh_session import session_user
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    assert main(["--out", str(out), "--owner", "-"]) == 0
+    files = _secret_files(_compose({"RADSEEK_SECRETS": str(out)}), out)
+    assert set(files) == {"router", "detector", "vehicle", "mission"}
+    everyone = zenoh_auth.read_credentials(files["router"][0])
+    assert {u.name for u in everyone} == {"detector@uav0", "vehicle@uav0", "mission@uav0", "recorder", "observer"}
+    for role in ("detector", "vehicle", "mission"):
+        (own,) = zenoh_auth.read_credentials(files[role][0])  # one line: nobody else's password
+        assert own in everyone and own.role == role
+        # the user the service's process connects as (compose runs it with the default vehicle)
+        assert session_user(role, "uav0", credentials=files[role][0]) == own
+    for f in out.iterdir():
+        assert f.stat().st_mode & 0o777 == 0o600, f
+    assert out.stat().st_mode & 0o777 == 0o700
+    (observer,) = zenoh_auth.read_credentials(out / "observer.credentials")
+    conf = json.loads((out / "observer.json5").read_text())
+    assert conf["transport"]["auth"]["usrpwd"] == {"user": "observer", "password": observer.password}
+    assert conf["connect"]["endpoints"] == ["tcp/127.0.0.1:7447"]  # the router's published port
+    # the defaults agree: compose mounts from docker/run, which the command writes by default
+    default = _secret_files(_compose(), DOCKER / "run")
+    assert {f.name for f, _ in default.values()} == {f.name for f, _ in files.values()}
+    assert _ignored("docker/run/router.credentials", [_pattern_regex(p) for p in _dockerignore_patterns()]), \
+        "the credentials must never be copied into the image"
+    assert observer.password not in capsys.readouterr().err
+
+
+def test_zenoh_credentials_are_never_overwritten(tmp_path, capsys):
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    assert main(["--out", str(out), "--owner", "-"]) == 0
+    before = {f.name: f.read_text() for f in out.iterdir()}
+    capsys.readouterr()
+    assert main(["--out", str(out), "--owner", "-"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("radseek zenoh-credentials: ") and "already exists" in err and len(err.splitlines()) == 1
+    assert {f.name: f.read_text() for f in out.iterdir()} == before
+
+
+def test_zenoh_credentials_go_to_the_image_user_or_are_not_written(tmp_path, capsys, monkeypatch):
+    """The services run as uid 10001: their 0600 files must be theirs. Only root may give them away; anyone
+    else is told so, and nothing is left half-written."""
+    from radseek_cli.zenoh_credentials_cli import main
+
+    out = tmp_path / "run"
+    code = main(["--out", str(out)])
+    if os.geteuid() == 0:
+        assert code == 0
+        owners = {f.name: (f.stat().st_uid, f.stat().st_gid) for f in out.iterdir()}
+        for name, owner in owners.items():
+            assert owner == ((0, 0) if name.startswith("observer") else (10001, 10001)), name
+        # under sudo, the host's files and the folder go back to the user who ran it
+        monkeypatch.setenv("SUDO_UID", "4321")
+        monkeypatch.setenv("SUDO_GID", "4322")
+        assert main(["--out", str(tmp_path / "sudo")]) == 0
+        for f in [tmp_path / "sudo", *(tmp_path / "sudo").glob("observer.*")]:
+            assert (f.stat().st_uid, f.stat().st_gid) == (4321, 4322), f
+        assert (tmp_path / "sudo" / "mission.credentials").stat().st_uid == 10001
+    else:
+        assert code == 1 and list(out.iterdir()) == []
+        assert "needs root" in capsys.readouterr().err
 
 
 # --- the image's own tree --------------------------------------------------------------------------------------
@@ -301,7 +395,7 @@ def test_every_first_party_import_in_the_image_resolves_in_the_image(image_tree)
 
 @pytest.mark.io
 def test_every_compose_service_command_runs_from_the_image_tree(image_tree):
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         cmd = svc["command"]
         proc = _run_from_tree(image_tree, [*cmd, "--help"])
@@ -393,7 +487,7 @@ def _readme_docker_table() -> dict[str, tuple[set[str], set[str]]]:
 
 
 def test_readme_says_what_compose_listens_on_and_publishes():
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     table = _readme_docker_table()
     assert set(table) == set(compose["services"]), "README's Docker table lists every compose service"
     for name, svc in compose["services"].items():
@@ -415,6 +509,27 @@ def test_dockerfile_run_step_works_from_the_image_tree(image_tree, tmp_path):
     assert (tmp_path / "scenario.json").read_text().count("channel_edges_keV") == 1
 
 
+def _engine() -> tuple[list[str], list[str]]:
+    """The container engine with its global arguments, and the arguments its ``run`` needs; skips unless the
+    container tests are asked for (RADSEEK_CONTAINER_TEST=1) and an engine is there."""
+    if os.environ.get("RADSEEK_CONTAINER_TEST") != "1":
+        pytest.skip("opt-in: RADSEEK_CONTAINER_TEST=1 (builds the image: container engine, PyPI, ~0.5 GB)")
+    engine = os.environ.get("RADSEEK_CONTAINER_ENGINE") or shutil.which("podman") or shutil.which("docker")
+    if not engine:
+        pytest.skip("no podman or docker on PATH")
+    eng = [engine, *shlex.split(os.environ.get("RADSEEK_CONTAINER_ENGINE_ARGS", ""))]
+    return eng, shlex.split(os.environ.get("RADSEEK_CONTAINER_RUN_ARGS", ""))
+
+
+def _build_image(eng: list[str], tag: str) -> None:
+    build = [*eng, "build", *shlex.split(os.environ.get("RADSEEK_CONTAINER_BUILD_ARGS", ""))]
+    if os.environ.get("RADSEEK_DOCKER_BASE"):
+        build += ["--build-arg", f"BASE={os.environ['RADSEEK_DOCKER_BASE']}"]
+    proc = subprocess.run([*build, "-f", "docker/Dockerfile", "-t", tag, "."], cwd=REPO, capture_output=True,
+                          text=True, timeout=3000)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+
+
 @pytest.mark.slow
 def test_image_builds_and_serves_the_router_on_the_published_port():
     """The real thing, opt-in (RADSEEK_CONTAINER_TEST=1): it needs a container engine, PyPI and the base image,
@@ -422,22 +537,11 @@ def test_image_builds_and_serves_the_router_on_the_published_port():
     user, and the compose router is reached from the host through its published loopback port. Where the
     engine needs help (README, Docker: how it ran on the development machines), RADSEEK_CONTAINER_ENGINE_ARGS,
     RADSEEK_CONTAINER_BUILD_ARGS, RADSEEK_CONTAINER_RUN_ARGS and RADSEEK_DOCKER_BASE pass it."""
-    if os.environ.get("RADSEEK_CONTAINER_TEST") != "1":
-        pytest.skip("opt-in: RADSEEK_CONTAINER_TEST=1 (builds the image: container engine, PyPI, ~0.5 GB)")
-    engine = os.environ.get("RADSEEK_CONTAINER_ENGINE") or shutil.which("podman") or shutil.which("docker")
-    if not engine:
-        pytest.skip("no podman or docker on PATH")
-    eng = [engine, *shlex.split(os.environ.get("RADSEEK_CONTAINER_ENGINE_ARGS", ""))]
-    run_args = shlex.split(os.environ.get("RADSEEK_CONTAINER_RUN_ARGS", ""))
-    build = [*eng, "build", *shlex.split(os.environ.get("RADSEEK_CONTAINER_BUILD_ARGS", ""))]
-    if os.environ.get("RADSEEK_DOCKER_BASE"):
-        build += ["--build-arg", f"BASE={os.environ['RADSEEK_DOCKER_BASE']}"]
+    eng, run_args = _engine()
     tag = "localhost/radseek:test-docker-files"
-    proc = subprocess.run([*build, "-f", "docker/Dockerfile", "-t", tag, "."], cwd=REPO, capture_output=True,
-                          text=True, timeout=3000)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    _build_image(eng, tag)
 
-    compose = yaml.safe_load((DOCKER / "compose.yaml").read_text())
+    compose = _compose()
     for name, svc in compose["services"].items():
         proc = subprocess.run([*eng, "run", "--rm", *run_args, tag, *svc["command"], "--help"], capture_output=True,
                               text=True, timeout=300)
@@ -478,3 +582,103 @@ def test_image_builds_and_serves_the_router_on_the_published_port():
         assert zid in proc.stdout.split(), proc.stdout + proc.stderr[-1500:]
     finally:
         subprocess.run([*eng, "rm", "-f", cname], capture_output=True, timeout=120)
+
+
+def _compose_command(eng: list[str]) -> list[str]:
+    """RADSEEK_COMPOSE (a command line), else podman-compose (given the engine's and run's extra arguments) or
+    docker compose, whichever is there; skips when none is."""
+    if os.environ.get("RADSEEK_COMPOSE"):
+        return shlex.split(os.environ["RADSEEK_COMPOSE"])
+    if Path(eng[0]).name == "podman" and shutil.which("podman-compose"):
+        cmd = [shutil.which("podman-compose")]
+        if eng[1:]:
+            cmd.append(f"--podman-args={shlex.join(eng[1:])}")
+        if os.environ.get("RADSEEK_CONTAINER_RUN_ARGS"):
+            cmd.append(f"--podman-run-args={os.environ['RADSEEK_CONTAINER_RUN_ARGS']}")
+        return cmd
+    if Path(eng[0]).name == "docker":
+        return [*eng, "compose"]
+    pytest.skip("no compose tool: set RADSEEK_COMPOSE, or put podman-compose on PATH")
+
+
+def _service_container(eng: list[str], project: str, service: str) -> str:
+    """The id of a compose service's container (docker compose and podman-compose both label them so)."""
+    proc = subprocess.run([*eng, "ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={project}",
+                           "--filter", f"label=com.docker.compose.service={service}"],
+                          capture_output=True, text=True, timeout=60)
+    ids = proc.stdout.split()
+    assert len(ids) == 1, f"{service}: containers {ids} {proc.stderr[-500:]}"
+    return ids[0]
+
+
+@pytest.mark.slow
+@pytest.mark.io
+def test_compose_stack_flies_a_search_and_its_router_refuses_strangers(tmp_path):
+    """The whole of docker/compose.yaml, opt-in like the image test above (RADSEEK_CONTAINER_TEST=1, plus a
+    compose tool): the credentials 'radseek zenoh-credentials' writes, the four services in their containers on
+    the internal network, the mission flying the default scene's search against the vehicle into the mounted
+    output folder. Meanwhile the router, published on loopback, admits the observer's credential from the host
+    and refuses a session without one. About 1 min once the image's dependency layer is built."""
+    if os.geteuid() != 0:
+        pytest.skip("the services' credentials must belong to the image's uid 10001: writing them needs root")
+    from detector_fw_sim.scene import load_scene
+    from radseek.zenoh_session import RouterRefused, open_session
+    from radseek_cli.zenoh_credentials_cli import main as write_credentials
+
+    eng, _ = _engine()
+    compose_cmd = _compose_command(eng)
+    tag = "localhost/radseek:test-compose"
+    _build_image(eng, tag)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    secrets_dir, runs = tmp_path / "run", tmp_path / "runs"
+    endpoint = f"tcp/127.0.0.1:{port}"
+    assert write_credentials(["--out", str(secrets_dir), "--endpoint", endpoint]) == 0
+    runs.mkdir()
+    runs.chmod(0o777)  # the mission writes as uid 10001
+    env = {**os.environ, "RADSEEK_IMAGE": tag, "RADSEEK_ZENOH_PORT": str(port),
+           "RADSEEK_SECRETS": str(secrets_dir), "RADSEEK_RUNS": str(runs)}
+    project = f"radseek-test-{uuid.uuid4().hex[:8]}"
+    compose = [*compose_cmd, "-p", project, "-f", str(DOCKER / "compose.yaml")]
+
+    def logs() -> str:
+        return subprocess.run([*compose, "logs"], capture_output=True, text=True, env=env, timeout=120).stdout[-6000:]
+
+    proc = subprocess.run([*compose, "up", "-d"], capture_output=True, text=True, env=env, timeout=600)
+    try:
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        mission = _service_container(eng, project, "mission")
+        # the search flies at 10x: a few simulated minutes; 10 wall minutes is a hang
+        proc = subprocess.run([*eng, "wait", mission], capture_output=True, text=True, timeout=600)
+        assert proc.stdout.strip() == "0", f"mission exit {proc.stdout.strip()}\n{logs()}"
+
+        summary = json.loads((runs / "compose" / "mission_summary.json").read_text())
+        (truth,) = load_scene().sources
+        est = summary["estimate"]
+        error_m = math.hypot(est["x"] - truth.position[0], est["y"] - truth.position[1])
+        assert summary["outcome"] == "found", summary["reason"]
+        assert error_m < 0.5, (est, truth.position)
+        assert (runs / "compose" / "frames.csv").stat().st_size > 0
+
+        # each service holds its own credential only (the three still running: the mission has finished)
+        for service in ("router", "detector", "vehicle"):
+            cid = _service_container(eng, project, service)
+            proc = subprocess.run([*eng, "exec", cid, "ls", "/run/secrets"], capture_output=True, text=True,
+                                  timeout=60)
+            assert proc.stdout.split() == [f"zenoh-{service}"], proc.stdout + proc.stderr
+
+        # from the host, through the published port: the observer's credential gets the detector's spectra...
+        with open_session(str(secrets_dir / "observer.json5")) as session:
+            got = []
+            sub = session.declare_subscriber("radseek/uav0/detector/histogram", lambda s: got.append(s))
+            deadline = time.monotonic() + 30
+            while not got and time.monotonic() < deadline:
+                time.sleep(0.1)
+            sub.undeclare()
+        assert got, "the observer saw no detector/histogram through the published router port"
+        # ... and a session without credentials is refused by the router (not merely unanswered)
+        with pytest.raises(RouterRefused):
+            open_session(connect=endpoint, wait_for_router_s=20)
+    finally:
+        subprocess.run([*compose, "down"], capture_output=True, env=env, timeout=300)
