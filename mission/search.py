@@ -27,7 +27,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, GOOD_FIT_P, InflightEstimator
+from estimator.inflight import DEFAULT_LOCALIZER, DEFAULT_SETTINGS, GOOD_FIT_P, WARM_SIGMA_M, InflightEstimator
 from estimator.localizers.base import Localizer
 from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
@@ -60,6 +60,9 @@ ACTIVE = ("active", "info")
 PLATEAU = 0.95
 #: ... and is within 25 % of the floor the odometry drift alone allows
 AT_FLOOR = 1.25
+#: m: a search dwell planned from a belief whose 1-sigma is above this (the source not yet localised: the
+#: in-flight fit's own confidence limit, ``estimator.inflight.WARM_SIGMA_M``) does not spend the search budget
+LOCALISED_M = WARM_SIGMA_M
 
 
 @dataclass(frozen=True)
@@ -216,7 +219,7 @@ class SearchBrain:
             return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the odometry-drift "
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
                     "drift allows)", Outcome.DRIFT_LIMITED)
-        if self.search_dwells >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells:
+        if self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells:
             return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})", \
                 Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
         return None
@@ -257,6 +260,16 @@ class SearchBrain:
         something, so its small ellipse is no found source), else ''."""
         p = self.estimate.p_value if self.estimate else math.nan
         return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
+
+    def _budget_dwells(self) -> int:
+        """Search dwells that spend ``max_search_dwells``: those planned from a localised belief (1-sigma below
+        ``LOCALISED_M``). Each in-flight estimate but the last planned one search dwell; one with a 1-sigma of
+        metres (outdoor: exploration ends with three readings above background 10-20 m from a 60000 cps
+        source, and the first 1-4 search estimates have a 1-sigma of 1-70 m) aimed at nothing yet, and
+        counting it ended 2 of 80 outdoor searches "budget spent" one or two dwells short of the drift floor.
+        ``max_dwells`` still bounds the whole search."""
+        wide = sum(not e.sigma_m < LOCALISED_M for e in self.estimates[:-1])
+        return max(self.search_dwells - wide, 0)
 
     def _drift_limited(self) -> float:
         """The drift floor (m) when the estimate is drift-limited, else 0: its 1-sigma is less than ``1 -

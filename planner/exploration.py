@@ -126,11 +126,22 @@ def plan_exploration(current: np.ndarray, history: DwellHistory, occ: OccupancyM
     near = np.argmin(d2, axis=1)
     reach = d2[np.arange(len(cells)), near] <= config.resolution**2
     info.update(nodes=len(tree), reachable=int(reach.sum()), gradient=None if gradient is None else gradient.tolist())
+    straight = None
     if not reach.any():
-        return DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), "frontier", info=info)
+        # the tree stops at n_min nodes once its time budget has passed (a loaded machine), and in a large
+        # field those may miss every frontier cell near a corner start: fly to a cell in a straight line if
+        # one is free rather than end the search before its first dwell (outdoor seed 63: "no frontier left")
+        ends = np.column_stack([cells, np.full(len(cells), current[2])])
+        straight = occ.segments_valid(np.broadcast_to(current[:3], ends.shape), ends)
+        info["straight"] = int(straight.sum())
+        if not straight.any():
+            return DwellPlan(np.zeros((0, 4)), np.zeros((0, 4)), "frontier", info=info)
+        reach = straight
     f = int(np.argmin(np.where(reach, cost, np.inf)))
-    node = int(near[f])
-    pts = densify(shortcut_path(tree.path_to(node), occ), config.nu)
+    if straight is None:
+        pts = densify(shortcut_path(tree.path_to(int(near[f])), occ), config.nu)
+    else:
+        pts = densify(np.vstack([current[:3], [cells[f, 0], cells[f, 1], current[2]]]), config.nu)
     # yaw: face up the gradient if known, else along the direction of travel
     if gradient is not None:
         target = np.full(len(pts), np.arctan2(gradient[1], gradient[0]))

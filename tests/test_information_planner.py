@@ -16,9 +16,13 @@ from planner.belief import SourceBelief
 from planner.information import (
     InfoConfig,
     flown_information,
+    flown_joint_covariance,
+    hybrid_information,
     measurement_weight,
+    pose_groups,
     rate_and_gradient,
     score_information,
+    walk_precision,
 )
 from radseek.dataset import Frames
 
@@ -166,3 +170,103 @@ def test_on_the_walled_scene_the_info_planner_uses_the_fitted_wall_attenuation()
     assert r.brain._planner().wall_mu_per_m == mu
     assert SearchBrain(r.brain.scenario, SearchConfig()).config.planner.wall_mu_per_m == 0.0  # eq. 6 unchanged
     assert r.decisions[-1].outcome.found
+
+
+# ----------------------------------------------------------------------- correlated drift (the random walk)
+
+def walk_frames(points: list[tuple[float, float]], density: float, var0: float = 0.0, transit: int = 0) -> Frames:
+    """:func:`dwell_frames` whose recorded x-y variance is a random walk's: var0 + density x distance flown."""
+    f = dwell_frames(points, transit=transit)
+    flown = np.r_[0.0, np.cumsum(np.hypot(np.diff(f.x), np.diff(f.y)))]
+    var = var0 + density * flown
+    return Frames(t=f.t, duration=f.duration, x=f.x, y=f.y, z=f.z, yaw=f.yaw, var_x=var, var_y=var, var_z=f.var_z,
+                  dwell=f.dwell, counts=f.counts)
+
+
+def test_the_walk_prior_is_a_shared_offset_plus_the_drift_flown_between_groups():
+    # e_0 ~ N(0, s), e_1 = e_0 + w, w ~ N(0, d): Cov = [[s, s], [s, s + d]] on each axis, x and y apart
+    s, d = 0.01, 0.004
+    cov = np.linalg.inv(walk_precision(np.array([[s, s], [d, d]])))
+    expected = np.array([[s, 0, s, 0], [0, s, 0, s], [s, 0, s + d, 0], [0, s, 0, s + d]])
+    np.testing.assert_allclose(cov, expected, rtol=1e-12, atol=1e-15)
+    # a second walk (another vehicle) shares nothing with the first
+    cov = np.linalg.inv(walk_precision(np.array([[s, s], [d, d]]), restarts=np.array([True, True])))
+    np.testing.assert_allclose(cov, np.diag([s, s, d, d]), atol=1e-15)
+
+
+def test_a_shared_offset_adds_its_variance_to_the_source_position_and_nothing_else():
+    # hand calculation: when every dwell is off by the same e ~ N(0, s I), the counts see only x_s - e, so the
+    # Schur complement's inverse is the exact-pose covariance J^-1 plus s on x_s and y_s (S and B untouched)
+    pts = np.array([[2.0, 0.5, ALT], [-1.0, 2.0, ALT], [0.5, -2.5, ALT], [1.5, -1.0, ALT]])
+    rate, grad = rate_and_gradient(pts, belief())
+    weight = 10.0 / rate
+    j = (grad * weight[:, None]).T @ grad
+    s = 0.01
+    hyb = hybrid_information(grad, weight, np.zeros(4, dtype=int), np.array([[s, s]]), np.zeros((4, 4)))
+    schur = hyb[:4, :4] - hyb[:4, 4:] @ np.linalg.solve(hyb[4:, 4:], hyb[4:, :4])
+    expected = np.linalg.inv(j) + np.diag([s, s, 0.0, 0.0])
+    np.testing.assert_allclose(np.linalg.inv(schur), expected, rtol=1e-6)
+    np.testing.assert_allclose(np.linalg.inv(hyb)[:4, :4], expected, rtol=1e-6)
+    # the walk with no drift between the dwells (one group each, increments ~0) is that shared offset too
+    inc = np.array([[s, s], [1e-9, 1e-9], [1e-9, 1e-9], [1e-9, 1e-9]])
+    walk = hybrid_information(grad, weight, np.arange(4), inc, np.zeros((4, 4)))
+    np.testing.assert_allclose(np.linalg.inv(walk)[:4, :4], expected, rtol=1e-3)
+
+
+def test_the_planners_random_walk_bound_is_the_estimators_drift_aware_bound():
+    # the flown frames' hybrid information (random-walk prior on the pose groups, offsets marginalised) is
+    # estimator.localizers.mle.pose_aware_crlb's on the same frames, prior aside
+    from estimator.localizers.mle import pose_aware_crlb
+    from estimator.mle import PoseGroups
+
+    scenario = load_scene().scenario()
+    frames = walk_frames([(2.0, 0.5), (-1.0, 2.0), (0.5, -2.5), (1.5, -1.0)], density=0.003, var0=0.002, transit=25)
+    src = np.array([0.3, 0.2, scenario.source_z])
+    group, inc, restarts = pose_groups(frames)
+    assert PoseGroups.from_frames(frames).n_groups == len(inc)
+    rate, grad = rate_and_gradient(np.column_stack([frames.x, frames.y, frames.z]), SourceBelief(src, np.eye(3), S, B))
+    hyb = hybrid_information(grad, frames.duration / rate, group, inc, np.zeros((4, 4)), restarts)
+    theta = {"x": src[0], "y": src[1], "cps_at_1m": S, "background_cps": B}
+    est = pose_aware_crlb(MeasurementModel(scenario), theta, frames)
+    ours = np.linalg.inv(hyb)[:4, :4]
+    sd_ours, sd_est = np.sqrt(np.diag(ours)), np.sqrt(np.diag(est))
+    np.testing.assert_allclose(sd_ours, sd_est, rtol=3e-3)  # standard deviations (differences: the derivatives)
+    np.testing.assert_allclose(ours / np.outer(sd_ours, sd_ours), est / np.outer(sd_est, sd_est), atol=0.01)
+    # and the drift matters here: exact poses would claim a 2x smaller x-y bound
+    exact = np.linalg.inv((grad * (frames.duration / rate)[:, None]).T @ grad)
+    assert np.trace(exact[:2, :2]) < 0.5 * np.trace(ours[:2, :2])
+
+
+def test_without_flown_frames_the_random_walk_score_is_the_independent_one():
+    # nothing flown: e_last = 0 and uncorrelated with theta, so both pose-error models give the same score
+    angles = np.radians(np.arange(0, 360, 30))
+    cand = np.column_stack([2 * np.cos(angles), 2 * np.sin(angles), np.full(len(angles), ALT)])
+    b = belief(drift_density=0.003)
+    length = np.linspace(0.0, 20.0, len(cand))
+    rw = score_information(cand, length, b, None, np.full(3, 0.002), InfoConfig())
+    ind = score_information(cand, length, b, None, np.full(3, 0.002), InfoConfig(drift="independent"))
+    np.testing.assert_allclose(rw.gain, ind.gain, rtol=1e-9)
+    np.testing.assert_array_equal(rw.dwell_s, ind.dwell_s)
+    with pytest.raises(ValueError, match="drift must be one of"):
+        InfoConfig(drift="brownian")
+
+
+def _xy_logdet(frames: Frames, b: SourceBelief) -> float:
+    cov6, _ = flown_joint_covariance(frames, b)
+    return float(np.linalg.slogdet(cov6[:2, :2])[1])
+
+
+def test_under_correlated_drift_a_ring_of_dwells_tells_more_than_a_line_of_the_same_path():
+    # 8 dwells of 10 s, 1.5 m around the source or on a line 1.5 m beside it, the same spacing (so the same
+    # drift flown between dwells): the ring's x-y posterior ellipse is e^3 smaller in area (determinant), with the
+    # drift or without. (The drift costs the ring more nats than the line: its exact-pose ellipse is the smaller,
+    # so the shared offset's floor weighs more; it does not cancel.)
+    angles = 2 * np.pi * np.arange(8) / 8
+    ring = [(1.5 * math.cos(a), 1.5 * math.sin(a)) for a in angles]
+    step = math.dist(ring[0], ring[1])
+    line = [(step * (k - 3.5), 1.5) for k in range(8)]
+    for density in (0.0, 0.003, 0.01):
+        b = belief(drift_density=density)
+        ring_ld = _xy_logdet(walk_frames(ring, density), b)
+        line_ld = _xy_logdet(walk_frames(line, density), b)
+        assert line_ld - ring_ld > 3.0, (density, ring_ld, line_ld)

@@ -7,6 +7,7 @@ import pytest
 
 from planner import baselines as bl
 from planner.belief import DwellHistory, SourceBelief
+from planner.dwell_tree import TreeConfig
 from planner.exploration import (
     FrontierConfig,
     exploration_done,
@@ -160,6 +161,27 @@ def test_exploration_plan_reaches_a_frontier_without_crossing_walls():
     assert np.linalg.norm(plan.dwell_points[0, :2] - target) <= cfg.resolution + 1e-9
     # the chosen frontier is just outside the sensed disc around the start
     assert cfg.sensing_radius - cfg.resolution <= np.linalg.norm(target - [1.0, 1.0]) <= cfg.sensing_radius + 1.0
+
+
+def test_exploration_flies_straight_to_a_frontier_the_tree_missed():
+    # a tree of 2 nodes (what a time-budgeted tree can shrink to on a loaded machine is 100 in 625 m^2) reaches
+    # no frontier cell of a 25 m field from its corner; a free straight segment to one still gives a plan
+    occ = OccupancyMap(np.array([0.0, 0.0, 0.0]), np.array([25.0, 25.0, 2.5]), (), 0.3)
+    cfg = FrontierConfig(tree=TreeConfig(n_min=2, n_max=2))
+    start = np.array([0.3, 0.3, 1.5, 0.0])
+    plan = plan_exploration(start, DwellHistory(), occ, config=cfg, rng=np.random.default_rng(0))
+    assert plan.info["reachable"] == 0 and plan.info["straight"] > 0
+    assert plan.ok
+    assert np.all(occ.segments_valid(plan.path[:-1, :3], plan.path[1:, :3]))
+    target = np.array(plan.info["frontier"])
+    np.testing.assert_allclose(plan.dwell_points[0, :2], target)
+    assert cfg.sensing_radius <= np.linalg.norm(target - start[:2]) <= cfg.sensing_radius + 1.0
+    # behind a wall that blocks every straight line the plan is still empty, never through the wall
+    wall = Wall((2.5, 0.0), (2.5, 2.5), 0.2, 3.0), Wall((0.0, 2.5), (2.5, 2.5), 0.2, 3.0)
+    boxed = OccupancyMap(np.array([0.0, 0.0, 0.0]), np.array([25.0, 25.0, 2.5]), wall, 0.3)
+    plan = plan_exploration(np.array([1.0, 1.0, 1.5, 0.0]), DwellHistory(), boxed, config=cfg,
+                            rng=np.random.default_rng(0))
+    assert not plan.ok or np.all(boxed.segments_valid(plan.path[:-1, :3], plan.path[1:, :3]))
 
 
 def test_exploration_returns_an_empty_plan_when_everything_is_visited():

@@ -72,6 +72,26 @@ def test_budget_spent_and_misfit(monkeypatch):
     assert d.outcome is Outcome.MISFIT and "the model misses something" in d.reason
 
 
+def test_search_dwells_planned_from_an_unlocalised_belief_do_not_spend_the_budget(monkeypatch):
+    # max_search_dwells flown, the first three planned from estimates of 1-sigma 20, 20 and 5 m (outdoor: the
+    # search begins 10-20 m from the source): three dwells of the budget are left, the search goes on
+    n = SearchConfig().max_search_dwells
+    wide = [_record(3, 20.0), _record(4, 20.0), _record(5, 5.0)]
+    narrow = [_record(6 + k, 0.5) for k in range(n - 2)]
+    brain = _brain(monkeypatch, wide + narrow, search_dwells=n)
+    brain.estimator.estimates.append(narrow[-1])  # the estimate after the last dwell
+    assert brain.stop_rule(None, 0.5) is None
+    # the same count planned from localised beliefs spends it
+    brain = _brain(monkeypatch, [_record(3 + k, 0.9) for k in range(n + 1)], search_dwells=n)
+    brain.estimator.estimates.append(_record(3 + n, 0.9))
+    assert brain.stop_rule(None, 0.9)[1] is Outcome.BUDGET_SPENT
+    # and the battery's max_dwells bounds the unlocalised search all the same
+    brain = _brain(monkeypatch, wide + narrow, search_dwells=n)
+    brain.estimator.estimates.append(narrow[-1])
+    brain.history = DwellHistory(np.zeros((SearchConfig().max_dwells, 3)), np.zeros(SearchConfig().max_dwells))
+    assert brain.stop_rule(None, 0.5)[1] is Outcome.BUDGET_SPENT
+
+
 def test_budget_spent_during_exploration(monkeypatch):
     brain = _brain(monkeypatch, [None])
     n = brain.config.max_dwells - 1
