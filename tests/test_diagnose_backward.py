@@ -1,0 +1,50 @@
+"""The backward check of diagnose's selection (``estimator.diagnose.runner._backward``) on a flight from the
+independent generator (benchmarks/forward2): an effect the forward selection named that the model does not need
+is dropped, the one the world has is kept, and the drop fits give the same answer run one by one or as a batch
+in two processes (``--jobs 2``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.forward2 import FlightSpec, simulate
+from estimator.diagnose.backend import CountFitter
+from estimator.diagnose.runner import _backward
+from estimator.diagnose.selection import Candidate, Selection, Step
+
+
+@pytest.fixture(scope="module")
+def flight():
+    # a background gradient of 3.6 cps/m over a 30 cps background: the world has it, and no dead time
+    return simulate(FlightSpec(geometry="lattice", effects={"background_gradient": {"gx": 3.0, "gy": -2.0}}), seed=3)
+
+
+def _selection(fitter: CountFitter, named: list[str]) -> Selection:
+    """A forward selection that named ``named`` in that order, each step's chosen candidate carrying its fit."""
+    steps, model = [], ()
+    for e in named:
+        model = (*model, e)
+        fit = fitter.fit(model)
+        steps.append(Step(model[:-1], [Candidate(e, 50.0, 1, -48.0, -10.0, "chi2_1", {}, {}, True, 1e-3, fit=fit)],
+                          e))
+    return Selection(steps, list(named), 0.01)
+
+
+def test_a_needless_effect_is_dropped_and_the_worlds_effect_kept_in_one_process_or_two(flight):
+    out = {}
+    for jobs in (1, 2):
+        fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True, jobs=jobs)
+        sel = _selection(fitter, ["dead_time", "background_gradient"])
+        dropped, reduced = _backward(fitter, sel, (), 0.01, True)
+        assert dropped == ["dead_time"]
+        assert reduced.model.effects == ("background_gradient",)
+        assert reduced.values["background_gradient.gx"] > 0 > reduced.values["background_gradient.gy"]
+        out[jobs] = reduced.nll
+    # the same fits from the same starts, whether in this process or in a forked worker
+    assert out[1] == pytest.approx(out[2], abs=1e-9)
+
+
+def test_nothing_is_dropped_when_every_named_effect_is_needed(flight):
+    fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
+    sel = _selection(fitter, ["background_gradient"])
+    assert _backward(fitter, sel, (), 0.01, True) == ([], None)  # one named effect: nothing to check
