@@ -105,3 +105,20 @@ def test_a_calibration_formula_that_is_not_a_polynomial_is_refused_naming_the_li
     f.write_text(f"# calibration: {formula}\n# live_time_s: 10\nchannel,counts\n0,1\n1,2\n2,3\n")
     with pytest.raises(SpectrumFileError, match=rf"s\.csv: # calibration:: .*{says}"):
         read_spectrum(f)
+
+
+def test_bremsstrahlung_of_the_sources_betas_follows_kramers_thick_target_law():
+    """``brems:U-nat``: the photons of Pa-234m's, Th-234's and Th-231's betas stopping in the source. Kramers'
+    thick-target law puts (T - k)/k photons per unit k under each electron of energy T: nothing above the highest
+    endpoint (Pa-234m, 2.27 MeV), and fewer photons at every higher energy."""
+    import pydecay
+
+    from spectra import bremsstrahlung
+
+    e, y = np.array(bremsstrahlung.lines(FRESH_URANIUM)).T
+    assert y.sum() == pytest.approx(1.0, rel=1e-9)
+    end = max(pydecay.beta_spectrum(n)[0][-1] for n in ("Pa-234m", "Th-234")) * 1000.0
+    assert e.max() - bremsstrahlung.STEP_KEV / 2 < end
+    assert np.all(np.diff(y) < 0)
+    with pytest.raises(ValueError, match="no beta emitter"):
+        bremsstrahlung.lines("Am-241")  # an alpha emitter: no bremsstrahlung of its own
