@@ -122,3 +122,27 @@ def test_bremsstrahlung_of_the_sources_betas_follows_kramers_thick_target_law():
     assert np.all(np.diff(y) < 0)
     with pytest.raises(ValueError, match="no beta emitter"):
         bremsstrahlung.lines("Am-241")  # an alpha emitter: no bremsstrahlung of its own
+
+
+@pytest.mark.slow  # two real spectra evaluated and two predicted (no fit): tens of seconds on a busy machine
+def test_rc103_saved_response_predicts_its_other_sources_as_the_benchmark_measured(capsys):
+    """``radseek calibrate Am=Am-241 Th=Th-232 --detector rc103-006489.joint.detector.json --no-fit --predict ...``:
+    the unit's saved response (``python -m benchmarks.real_spectra --unit rc103-006489``) gives the predicted
+    distances the benchmark recorded in it, and the radium source's is half the emulator's response's or less."""
+    import json
+
+    from radseek_cli.main import main
+
+    det = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc103-006489.joint.detector.json"
+    recorded = json.loads(det.read_text())["fit"]["predicted"]
+    rc = main(["calibrate", f"{RC103 / 'Am-241_energy_calibrated.csv'}=Am-241",
+               f"{RC103 / 'Th-232_energy_calibrated.csv'}=Th-232", "--detector", str(det), "--no-fit",
+               "--predict", f"{RC103 / 'Ra-226_energy_calibrated.csv'}=Ra-226",
+               "--predict", f"{RC103 / 'U-238-U-235-FiestaWare_energy_calibrated.csv'}=U-nat", "--json"])
+    assert rc == 0
+    r = json.loads(capsys.readouterr().out)
+    got = {Path(sp["spectrum"]).name: sp for sp in r["predicted"]}
+    for name, tv in recorded.items():
+        assert got[name]["total_variation_32"] == pytest.approx(tv, abs=0.003), name
+    ra = got["Ra-226_energy_calibrated.csv"]
+    assert ra["total_variation_32"] <= 0.5 * ra["baseline"]["total_variation_32"]
