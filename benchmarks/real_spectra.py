@@ -77,6 +77,12 @@ def with_bremsstrahlung(pr, q: dict[str, float]) -> dict:
     each with its amplitude (Poisson maximum likelihood, EM): TV32 and the bremsstrahlung share of the counts."""
     from spectra import fit as F
 
+    from spectra import bremsstrahlung
+
+    try:
+        bremsstrahlung.lines(pr.nuclides[0])
+    except ValueError:  # no beta emitter (Am-241): nothing to add
+        return {}
     lines_shape = pr.shape(q)
     brems = F.Problem(pr.spectrum, ("brems:" + pr.nuclides[0],), pr.background, name=pr.name).shape(q)
     m = pr.mask
