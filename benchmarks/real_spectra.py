@@ -75,9 +75,8 @@ UNIT_EFFECTS = ("energy_nonlinearity", "resolution_law", "backscatter", "side_sc
 def with_bremsstrahlung(pr, q: dict[str, float]) -> dict:
     """The response held, the source's lines and the bremsstrahlung of its own betas (``spectra.bremsstrahlung``)
     each with its amplitude (Poisson maximum likelihood, EM): TV32 and the bremsstrahlung share of the counts."""
-    from spectra import fit as F
-
     from spectra import bremsstrahlung
+    from spectra import fit as F
 
     try:
         bremsstrahlung.lines(pr.nuclides[0])
