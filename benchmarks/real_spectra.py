@@ -23,6 +23,11 @@ its 690 time rows, 43,510 s, ``bg.xml`` subtracted like the others) as a third f
 and offset (``radseek calibrate ... K40.rcspg=K-40 --drift-of K40.rcspg``); not the default: the figures are in
 docs/real-spectra.md. (The Cs-137-only benchmark's Am-241 rows, another unit with no background of its own, are
 in docs/real-spectra.md; they do not measure the response.)
+
+``--unit rc103-006489`` / ``--unit rc102-013789``: the other units' sets (``UNITS``: calibrate on two of a unit's
+sources, predict two others with no refit; target TV32 <= 0.05). Neither unit has a background of its own set-up,
+so none is subtracted. The response starts from the saved RC-102-001272 joint one (``--start``) and the parameters
+of its effects are refitted in one MIGRAD on the two spectra (the figures of docs/real-spectra.md, "Other units").
 """
 
 from __future__ import annotations
@@ -48,6 +53,122 @@ TARGET = {"fitted": 0.03, "predicted": 0.04}
 #: offers only these as candidates
 QUICK_EFFECTS = ("resolution_law", "multiple_scatter", "pileup", "side_scatter", "energy_nonlinearity",
                  "crystal_size", "backscatter", "k_xray_escape")
+
+TESTS = Path(__file__).resolve().parents[1] / "tests" / "data"
+#: other units (issue 32): folder, fitted (file, source) pairs, predicted pairs, what the sources are
+UNITS = {
+    "rc103-006489": (TESTS / "real-spectra-rc103-006489",
+                     (("Am-241_energy_calibrated.csv", "Am-241"), ("Th-232_energy_calibrated.csv", "Th-232")),
+                     (("Ra-226_energy_calibrated.csv", "Ra-226"),
+                      ("U-238-U-235-FiestaWare_energy_calibrated.csv", "U-nat"))),
+    "rc102-013789": (TESTS / "real-spectra-rc102-013789",
+                     (("am-95-his07.xml", "Am-241"), ("ra-88-spd.xml", "Ra-226")),
+                     (("rn-86-spd.xml", "Ra-226"), ("u-92-glass.xml", "U-nat"), ("th-90-wt20.xml", "Th-232"),
+                      ("np-93-his07.xml", "Am-241"))),
+}
+UNIT_TARGET = 0.05
+#: the effects of the saved joint response whose parameters a unit refits (one MIGRAD, not forward selection)
+UNIT_EFFECTS = ("energy_nonlinearity", "resolution_law", "backscatter", "side_scatter", "multiple_scatter",
+                "pileup", "crystal_size")
+
+
+def with_bremsstrahlung(pr, q: dict[str, float]) -> dict:
+    """The response held, the source's lines and the bremsstrahlung of its own betas (``spectra.bremsstrahlung``)
+    each with its amplitude (Poisson maximum likelihood, EM): TV32 and the bremsstrahlung share of the counts."""
+    from spectra import bremsstrahlung
+    from spectra import fit as F
+
+    try:
+        bremsstrahlung.lines(pr.nuclides[0])
+    except ValueError:  # no beta emitter (Am-241): nothing to add
+        return {}
+    lines_shape = pr.shape(q)
+    brems = F.Problem(pr.spectrum, ("brems:" + pr.nuclides[0],), pr.background, name=pr.name).shape(q)
+    m = pr.mask
+    n, bg, s1, s2 = pr.n[m], pr.bg[m], lines_shape[m], brems[m]
+    a = np.array([max(n.sum() - bg.sum(), 1.0) / s1.sum() * 0.9, max(n.sum() - bg.sum(), 1.0) / s2.sum() * 0.1])
+    for _ in range(2000):  # EM for mu = a1 s1 + a2 s2 + bg: each step raises the likelihood, amplitudes stay >= 0
+        mu = a[0] * s1 + a[1] * s2 + bg
+        r = n / np.maximum(mu, 1e-300)
+        a = a * np.array([(r * s1).sum() / s1.sum(), (r * s2).sum() / s2.sum()])
+    model = a[0] * lines_shape + a[1] * brems
+    share = a[1] * s2.sum() / (a[0] * s1.sum() + a[1] * s2.sum())
+    return {"tv32_with_bremsstrahlung": round(F.shape_distances(pr, model)["total_variation_32"], 4),
+            "bremsstrahlung_share": round(float(share), 4)}
+
+
+def unit_benchmark(unit: str, start_file: Path, maxfev: int = 600, out: Path | None = None,
+                   det_out: Path | None = None, refit: bool = True) -> dict:
+    """A unit's joint calibration on two sources (no background), its other sources predicted with no refit.
+    ``refit=False``: ``start_file`` is the unit's own saved response, evaluated as it is."""
+    from radseek_io.detector_file import read_detector_file
+    from radseek_io.spectrum_io import read_spectrum
+    from spectra import fit as F
+    from spectra import model as M
+
+    folder, fitted, predicted = UNITS[unit]
+    joint = F.Joint(tuple(F.Problem(read_spectrum(folder / f), (n,), None, name=f) for f, n in fitted))
+    det = read_detector_file(start_file)
+    start = {k: v for k, v in det.parameters.items() if k in M.PARAMS}
+    start["pileup"] = min(2 * joint.parts[0].rate_cps * det.parameters["pileup_resolving_time_s"],
+                          M.PARAMS["pileup"].hi)
+    res = F.fit(joint, start, UNIT_EFFECTS, maxfev=maxfev, hesse=False) if refit else F.evaluate(joint, start)
+    rows = []
+
+    def row(pr, r, role):
+        d = F.shape_distances(pr, r.shape)
+        base = F.evaluate(pr, M.baseline_params())
+        return {"spectrum": pr.name, "nuclide": pr.nuclides[0], "role": role, "live_time_s": pr.spectrum.livetime,
+                "tv32_emulator": round(F.shape_distances(pr, base.shape)["total_variation_32"], 4),
+                "tv32": round(d["total_variation_32"], 4), "native": round(d["total_variation_native"], 4),
+                "deviance_per_dof": round(r.deviance_per_dof, 3),
+                "still_missing": F.residual_regions(pr, r)}
+
+    for pr, r in zip(joint.parts, res.parts, strict=True):
+        rows.append(row(pr, r, "fitted"))
+    for f, n in predicted:
+        pr = F.Problem(read_spectrum(folder / f), (n,), None, name=f)
+        q = dict(res.params, pileup=min(res.params["pileup"] * pr.rate_cps / joint.parts[0].rate_cps,
+                                        M.PARAMS["pileup"].hi))
+        rows.append(row(pr, F.evaluate(pr, q), "predicted"))
+        rows[-1].update(with_bremsstrahlung(pr, q))
+    result = {"unit": unit, "rows": rows, "parameters": {k: round(v, 6) for k, v in res.params.items()},
+              "deviance_per_dof": round(res.deviance_per_dof, 3)}
+    print(f"{unit}: joint {' + '.join(n for _, n in fitted)}, started from {Path(start_file).name}, "
+          f"deviance/dof {res.deviance_per_dof:.2f}")
+    print(f"{'spectrum':<46} {'source':<8} {'role':<10} {'TV32 emulator':>13} {'TV32':>7} {'target':>7} "
+          f"{'native':>7} {'dev/dof':>8}")
+    for r in rows:
+        target = "-" if r["role"] == "fitted" else f"{UNIT_TARGET:.2f}"
+        print(f"{r['spectrum']:<46} {r['nuclide']:<8} {r['role']:<10} {r['tv32_emulator']:>13.4f} "
+              f"{r['tv32']:>7.4f} {target:>7} {r['native']:>7.4f} {r['deviance_per_dof']:>8.2f}")
+        if "tv32_with_bremsstrahlung" in r:
+            print(f"    with the bremsstrahlung of its own betas (its amplitude fitted too): TV32 "
+                  f"{r['tv32_with_bremsstrahlung']:.4f}, {100 * r['bremsstrahlung_share']:.1f} % of the counts")
+        for w in r["still_missing"]:
+            print(f"    {w['from_keV']:.0f}-{w['to_keV']:.0f} keV: {_versus(w)} "
+                  f"(deviance {w['deviance']:.0f} over {w['channels']} channels)")
+    print("parameters: " + ", ".join(f"{k} {v:.5g}" for k, v in result["parameters"].items()))
+    if out is not None:
+        Path(out).write_text(json.dumps(result, indent=1, allow_nan=False))
+    if det_out is not None and refit:  # the unit's response, for `radseek calibrate ... --detector DET --no-fit`
+        from radseek_io.detector_file import DetectorFile
+        from spectra.calibration import TEMPLATE_GRID, template_nuclides, templates
+
+        shared = {k: v for k, v in res.params.items() if k in M.PARAMS}
+        tau = res.params["pileup"] / max(2 * joint.parts[0].rate_cps, 1e-9)
+        DetectorFile(name=joint.parts[0].spectrum.serial or unit, parameters=dict(shared, pileup_resolving_time_s=tau),
+                     effects=list(det.effects),
+                     calibrated_on={"spectra": [{"spectrum": f, "nuclides": [n]} for f, n in fitted],
+                                    "background": None, "started_from": Path(start_file).name,
+                                    "refitted": list(UNIT_EFFECTS)},
+                     fit={"deviance_per_dof": result["deviance_per_dof"],
+                          "per_spectrum": {r["spectrum"]: r["tv32"] for r in rows if r["role"] == "fitted"},
+                          "predicted": {r["spectrum"]: r["tv32"] for r in rows if r["role"] == "predicted"}},
+                     grid_keV=TEMPLATE_GRID, cdf=templates(shared, template_nuclides([n for _, n in fitted]))
+                     ).write(det_out)
+        print(f"wrote {det_out}")
+    return result
 
 
 def channel_shares(row: dict, nuclides: list[str], params: dict[str, float], n_top: int = 5) -> list[dict]:
@@ -77,7 +198,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="joint fit: only the effects the full run selects")
     ap.add_argument("--k40", action="store_true",
                     help="joint fit: K40.rcspg as a third fitted spectrum, with its own gain and offset")
+    ap.add_argument("--unit", choices=sorted(UNITS), help="another unit's set instead (module docstring)")
+    ap.add_argument("--start", default="docs/img/rc102-001272.joint.detector.json",
+                    help="--unit: the saved response to start from")
+    ap.add_argument("--no-fit", action="store_true", help="--unit: evaluate --start (the unit's own response) as it is")
     a = ap.parse_args(argv)
+    if a.unit:
+        unit_benchmark(a.unit, Path(a.start), out=Path(a.json) if a.json else None,
+                       det_out=Path(a.out) / f"{a.unit}.joint.detector.json", refit=not a.no_fit)
+        return 0
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     bg = str(DATA / BG)

@@ -105,7 +105,38 @@ def equilibrium_lines(head: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tup
     return tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
 
 
+#: natural uranium separated from its daughters (``radseek calibrate glass.xml=U-nat``): uranium glass and glaze,
+#: yellowcake. Chemistry keeps the uranium isotopes and removes thorium and radium; within months Th-234 and Pa-234m
+#: grow back to U-238's activity, and Th-231 to U-235's, while Th-230 (75,000 y) holds Ra-226 and its lines back for
+#: millennia. U-234 is uranium and stays at U-238's activity.
+FRESH_URANIUM = "U-nat"
+#: atom ratio U-235 / U-238 of natural uranium: 0.007204 / 0.992742, CIAAW / IUPAC isotopic abundances (Meija et
+#: al., Pure Appl. Chem. 88 (2016) 293); the activity ratio follows with pydecay's half-lives (0.0461)
+NATURAL_U235_U238_ATOMS = 0.007204 / 0.992742
+
+
+def natural_uranium_activity_ratio() -> float:
+    """Activity of U-235 per U-238 decay in natural uranium: the atom ratio times T(U-238) / T(U-235)."""
+    t238 = Nuclide.load("U-238").half_life_s
+    t235 = Nuclide.load("U-235").half_life_s
+    return NATURAL_U235_U238_ATOMS * t238 / t235
+
+
+@lru_cache(maxsize=4)
+def fresh_uranium_lines(min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[float, float], ...]:
+    """(energy keV, photons per U-238 decay) of ``FRESH_URANIUM``: U-238 with Th-234 and Pa-234m, U-234 at the same
+    activity, U-235 with Th-231 at the natural activity ratio; ICRP-107 emissions through pydecay."""
+    lines: dict[float, float] = {}
+    for name, w in (("U-238", 1.0), ("U-234", 1.0), ("U-235", natural_uranium_activity_ratio())):
+        for e, y in gamma_lines(name, min_yield=0.0):
+            lines[e] = lines.get(e, 0.0) + w * y
+    return tuple(sorted((e, y) for e, y in lines.items() if y >= min_yield))
+
+
 def source_lines(name: str) -> tuple[tuple[float, float], ...]:
     """Photon lines of a calibration source: a natural chain head (``NATURAL_CHAINS``) in secular equilibrium,
-    any other nuclide with its short-lived progeny (``gamma_lines``)."""
+    ``FRESH_URANIUM`` (natural uranium without its daughters), any other nuclide with its short-lived progeny
+    (``gamma_lines``)."""
+    if name == FRESH_URANIUM:
+        return fresh_uranium_lines()
     return equilibrium_lines(name) if name in NATURAL_CHAINS else gamma_lines(name)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.photon_lines import NATURAL_CHAINS
+from radseek.photon_lines import FRESH_URANIUM, NATURAL_CHAINS
 from radseek_io.detector_file import DetectorFile, first_non_finite, read_detector_file
 from radseek_io.outdir import check_output_file
 from radseek_io.spectrum_io import read_spectrum
@@ -39,8 +39,9 @@ def templates(params: dict[str, float], nuclides: tuple[str, ...]) -> dict[str, 
 
 def template_nuclides(nuclides) -> tuple[str, ...]:
     """Nuclides the detector file carries a template for: the calibrated ones and ``TEMPLATE_NUCLIDES``; a natural
-    chain is a calibration source, not a flight source, so it gets none."""
-    return tuple(dict.fromkeys([n for n in nuclides if n not in NATURAL_CHAINS] + list(TEMPLATE_NUCLIDES)))
+    chain (or natural uranium) is a calibration source, not a flight source, so it gets none."""
+    sources = (*NATURAL_CHAINS, FRESH_URANIUM)
+    return tuple(dict.fromkeys([n for n in nuclides if n not in sources] + list(TEMPLATE_NUCLIDES)))
 
 
 def run(spectrum: str, nuclides: list[str], background: str | None = None, detector: str | None = None,

@@ -31,7 +31,18 @@ import numpy as np
 from scipy.special import ndtr
 
 from detector_fw_sim import response
-from radseek.photon_lines import source_lines
+from radseek.photon_lines import source_lines as _chain_lines
+
+
+def source_lines(name: str) -> tuple[tuple[float, float], ...]:
+    """Photon lines of a source: ``radseek.photon_lines.source_lines``, or for ``brems:NAME`` the bremsstrahlung
+    of NAME's betas (``spectra.bremsstrahlung``)."""
+    from spectra import bremsstrahlung
+
+    if name.startswith(bremsstrahlung.PREFIX):
+        return bremsstrahlung.lines(name[len(bremsstrahlung.PREFIX):])
+    return _chain_lines(name)
+
 
 FWHM_PER_SIGMA = 2 * math.sqrt(2 * math.log(2))
 

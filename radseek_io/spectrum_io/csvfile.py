@@ -171,13 +171,46 @@ def read_csv(path: str | Path, data: bytes | None = None, live_time_s: float | N
     else:
         counts = counts_in
     if "calibration" in meta:
-        cal = _poly_cal(path, "# calibration:", _floats(path, "# calibration:", meta["calibration"].replace(",", " ")),
-                        len(counts))
+        cal = _poly_cal(path, "# calibration:", _calibration_coefficients(path, meta["calibration"]), len(counts))
         bounds = None
     live, real = _times(path, meta, live_time_s)
     return [make_spectrum(path, "spectrum", counts, live, real, calibration=cal, bin_edges_kev=bounds,
-                          start_time=meta.get("starttime"), title=meta.get("title", ""),
+                          start_time=meta.get("starttime"), title=meta.get("title") or meta.get("spectrumname", ""),
+                          serial=meta.get("serialnumber") or meta.get("serial", ""),
                           kind=meta.get("kind", "foreground"))]
+
+
+_TERM = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)"
+                   r"(?:\s*\*\s*([A-Za-z_]\w*)(?:\s*(?:\^|\*\*)\s*(\d+))?)?")
+
+
+def _calibration_coefficients(path, text: str) -> list[float]:
+    """Coefficients c0 c1 c2 ... of a calibration line: plain numbers (``0.5 2.4 3e-4``, comma or space separated)
+    or a polynomial in the channel as tools write it, ``E_keV = 5.15 + 2.43*c + 0.000375*c^2`` (any variable name,
+    ``^`` or ``**``, terms in any order)."""
+    if "=" not in text and "*" not in text:
+        return _floats(path, "# calibration:", text.replace(",", " "))
+    rhs = text.split("=", 1)[1] if "=" in text else text
+    coefs: dict[int, float] = {}
+    pos, var = 0, None
+    while pos < len(rhs.rstrip()):
+        m = _TERM.match(rhs, pos)
+        if m is None or m.end() == pos:
+            raise _err(path, "# calibration:", f"not a polynomial in the channel at {rhs[pos:].strip()!r} "
+                       "(write it as 'E = c0 + c1*ch + c2*ch^2' or 'c0 c1 c2')")
+        sign, num, name, power = m.groups()
+        if name is not None:
+            if var is not None and name != var:
+                raise _err(path, "# calibration:", f"two variables, {var!r} and {name!r}, in {rhs.strip()!r}")
+            var = name
+        k = 0 if name is None else int(power or 1)
+        if k in coefs:
+            raise _err(path, "# calibration:", f"the power {k} of the channel appears twice in {rhs.strip()!r}")
+        coefs[k] = float(sign + num)
+        pos = m.end()
+    if not coefs:
+        raise _err(path, "# calibration:", f"no coefficients in {text.strip()!r}")
+    return [coefs.get(k, 0.0) for k in range(max(coefs) + 1)]
 
 
 def _times(path, meta: dict[str, str], live_time_s: float | None) -> tuple[float, float | None]:
