@@ -512,7 +512,7 @@ def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
 GRID_WALL_MU = (1.0, 3.0, 10.0, 30.0)
 
 
-def _grid_fit(u: np.ndarray, n: np.ndarray, tdur: np.ndarray, b0: float) -> tuple[np.ndarray, ...]:
+def grid_cell_fit(u: np.ndarray, n: np.ndarray, tdur: np.ndarray, b0: float) -> tuple[np.ndarray, ...]:
     """Per cell (rows of ``u``, counts per unit cps_at_1m), the Poisson-optimal source strength and
     background (Newton on the 2-parameter likelihood, kept positive) and the -log L there."""
     s = np.full(len(u), 100.0)
@@ -550,7 +550,7 @@ def _grid(model: MeasurementModel, frames: Frames, n_grid: int, mus: tuple[float
     u = tdur * expected_rate(d2, 1.0)  # (P, N) counts per unit cps_at_1m
     b0 = max(sc.background_cps, 1.0)
     lengths = path_lengths(frames.positions[None, :, :], cells[:, None, :], sc.walls) if any(mus) else 0.0
-    fits = [_grid_fit(u * np.exp(-m * lengths) if m else u, n, tdur, b0) for m in mus]
+    fits = [grid_cell_fit(u * np.exp(-m * lengths) if m else u, n, tdur, b0) for m in mus]
     return (xx, yy, *(np.stack([f[i] for f in fits]) for i in range(3)))
 
 

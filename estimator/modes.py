@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from scipy.special import logsumexp
 
-from estimator.mle import _grid_fit, pooled  # estimator.mle is the one home of the per-cell fit (named private)
+from estimator.mle import grid_cell_fit, pooled
 from radseek.count_model import expected_rate
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths
@@ -72,7 +72,7 @@ def misfit_factor(deviance_per_dof: Any) -> float:
 
 def _nll(scenario: Scenario, frames: Frames, cells: np.ndarray, mu_wall: float) -> np.ndarray:
     """-log L (up to a constant) of the baseline model with a source at each row of ``cells`` (x, y, z), its
-    strength and the background at their optimum (``estimator.mle._grid_fit``), the mapped walls at ``mu_wall``."""
+    strength and the background at their optimum (``estimator.mle.grid_cell_fit``), the mapped walls at ``mu_wall``."""
     from estimator.model import MeasurementModel
 
     n = MeasurementModel(scenario).observed_counts(frames).astype(float)
@@ -80,7 +80,7 @@ def _nll(scenario: Scenario, frames: Frames, cells: np.ndarray, mu_wall: float) 
     u = frames.duration * expected_rate(d2, 1.0)
     if mu_wall > 0 and scenario.walls:
         u = u * np.exp(-mu_wall * path_lengths(frames.positions[None, :, :], cells[:, None, :], scenario.walls))
-    return _grid_fit(u, n, frames.duration, max(scenario.background_cps, 1.0))[2]
+    return grid_cell_fit(u, n, frames.duration, max(scenario.background_cps, 1.0))[2]
 
 
 def mode_covariance(scenario: Scenario, frames: Frames, estimate: dict[str, Any], local: Any, phi: float = 1.0,
