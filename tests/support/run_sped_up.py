@@ -43,8 +43,9 @@ def _sim_now():
 
 
 def _sim_until(delay: float):
-    """The simulated time a sleep of ``delay`` ends at; None: no clock, wait 1/factor of the wall time."""
-    now = _sim_now() if clock_file else None
+    """The simulated time a sleep of ``delay`` ends at; None: no clock (or a sleep(0), which only yields), wait
+    1/factor of the wall time."""
+    now = _sim_now() if clock_file and delay > 0 else None
     return None if now is None else now + delay
 
 
