@@ -199,7 +199,7 @@ def test_do_orbit():
 def test_takeoff_and_land():
     # as at --speedup 2 with the script's own clock: its 10 s wait is 20 s of flight
     out, w = completes("takeoff_and_land.py", ["--speedup", "10"], ["-- Connected to drone!", "-- Taking off",
-                                                                     "-- Landing"], runner=sped_up(5), sim_clock=True)
+                                                                     "-- Landing"], runner=sped_up(5))
     assert w.max_alt() > 2.0  # MIS_TAKEOFF_ALT 2.5 m
 
 
