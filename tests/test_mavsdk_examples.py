@@ -272,8 +272,10 @@ FOLLOW_TARGET_MODE = 4 << 16 | 8 << 24  # PX4 AUTO.FOLLOW_TARGET
 def test_follow_me_follows_the_target():
     # the example sets FLW_TGT_* (the altitude mode is an INT32), takes off, starts follow-me and sends three
     # target positions 2 s apart, the first 33 m north of home, the next two 43 m west of it, at 480 m AMSL
-    out, w = completes("follow_me_example.py", [], ["-- Starting Follow Me Mode", "-- Following Target",
-                                                    "-- Stopping Follow Me Mode", "-- Landing"])
+    # on a 5x clock, its 27 s of sleeps waiting on the vehicle's clock (sim_clock)
+    out, w = completes("follow_me_example.py", ["--speedup", "5"], ["-- Starting Follow Me Mode", "-- Following Target",
+                                                                     "-- Stopping Follow Me Mode", "-- Landing"],
+                       runner=sped_up(5), sim_clock=True)
     assert FOLLOW_TARGET_MODE in w.modes
     start = next(p for p in w.positions if p[3] > 2.0)  # in the air, before following
     # 3D tracking (TARGET_GPS): 8 m above a target 8 m below home is home's height, so PX4's 1 m minimum safety
