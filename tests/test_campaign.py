@@ -225,6 +225,13 @@ def _rows(out: Path) -> list[dict]:
 # Ray: a local cluster takes fixed default ports of its own (dashboard agent, metrics): the two clusters are
 # started one at a time on this machine, whichever pytest worker runs them (conftest: exclusive)
 RAY_GROUP = pytest.mark.exclusive("ray-cluster")
+#: the flights of a test's cluster at the same nice level as the test suite's other work: Ray's default 15 (a
+#: campaign yields the CPU to everything else on a shared machine) left them a few % of a core next to the other
+#: pytest worker; the embedded campaigns get it from --niceness, a `ray start` head from Ray's own variable
+FAIR = {"RAY_worker_niceness": "0"}
+#: a client Ray refuses for its token retries the connection 20 times, a second apart, before it gives up; the
+#: refusal is not transient, so one attempt (Ray's own knob for the GCS connect budget) gives the same error
+ONE_ATTEMPT = {"RAY_gcs_server_port_wait_time_s": "1"}
 
 
 @pytest.mark.slow
@@ -235,7 +242,7 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path):
 
     def args(seeds: str) -> list[str]:
         return ["--scenes", "default", "outdoor", "--seeds", seeds, *FAST, "--effect", "none",
-                "--effect", "dead_time:tau_s=-1", "--workers", "2", "--out", str(out)]
+                "--effect", "dead_time:tau_s=-1", "--workers", "2", "--niceness", "0", "--out", str(out)]
 
     r = _campaign(*args("2"))
     assert r.returncode == 0, r.stderr
@@ -353,7 +360,7 @@ def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
     start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
                             "--port", str(port), "--include-dashboard=false", "--num-cpus", "2",
                             "--temp-dir", temp_dir, "--disable-usage-stats"],
-                           capture_output=True, text=True, timeout=180, env={**os.environ, **env})
+                           capture_output=True, text=True, timeout=180, env={**os.environ, **env, **FAIR})
     try:
         assert start.returncode == 0, start.stdout + start.stderr
         assert _listening(port) and set(_listening(port)) <= LOOPBACK_HEX, _listening(port)
@@ -479,7 +486,7 @@ def _client_env(home: Path, **auth: str) -> dict[str, str]:
 def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
     temp_dir = f"/tmp/rsk-tok-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
     port, token = _free_port(), secrets.token_hex(32)
-    head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token)
+    head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token, **FAIR)
     start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
                             "--port", str(port), "--include-dashboard=false", "--num-cpus", "1",
                             "--temp-dir", temp_dir, "--disable-usage-stats"],
@@ -492,11 +499,12 @@ def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
             return subprocess.run([str(BIN / "radseek"), "campaign", *args, "--out", str(tmp_path / out)],
                                   capture_output=True, text=True, timeout=500, env=env)
 
-        r = campaign("none", _client_env(tmp_path))
+        r = campaign("none", _client_env(tmp_path, **ONE_ATTEMPT))
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert f"the Ray cluster at 127.0.0.1:{port} wants a token" in r.stderr
         assert "set RAY_AUTH_MODE=token" in r.stderr and "RAY_AUTH_TOKEN" in r.stderr, r.stderr
-        r = campaign("wrong", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32)))
+        r = campaign("wrong", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32),
+                                          **ONE_ATTEMPT))
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert "refused this client's token" in r.stderr, r.stderr
         r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token))  # what it said

@@ -76,6 +76,7 @@ def test_replay_of_lattice_clean_reports_the_mirror_mode_at_dwell_four(shared_da
     assert last["sigma_m"] == pytest.approx(last["sigma_local_m"] * math.sqrt(last["misfit_factor"]), rel=1e-6)
 
 
+@pytest.mark.slow  # a whole flight's in-flight replay, ~10 s of CPU: 3x any other test of the unit tier (make check)
 def test_replay_warns_when_errors_lie_far_outside_the_ellipse(shared_datasets, capsys):
     """close-pass-deadtime flown with a model without dead time: the estimate sits ~0.33 m off at a 1-sigma of
     ~0.06 m and the goodness of fit does not see it. With truth, replay says so, on stderr under --json."""

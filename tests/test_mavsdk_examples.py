@@ -10,9 +10,11 @@ moves both to free ports, as a second PX4 SITL instance moves its own (tests/sup
 script is unchanged), so examples run side by side on both pytest workers. A pymavlink
 listener on the vehicle's GCS port records what the vehicle did (sim time, position, mode), so the
 asserts are on events and the vehicle's state, not on wall-clock durations. Examples that never end
-(goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (offboard,
-takeoff) run on a sped-up clock (tests/support/run_sped_up.py): their own sleeps are FACTOR times
-shorter and the vehicle FACTOR times faster, so each sleep spans the same simulated time as at 1x.
+(goto, telemetry) are stopped once the awaited event has happened. Examples that mostly sleep (orbit, offboard,
+takeoff) run on a sped-up clock (tests/support/run_sped_up.py): the vehicle FACTOR times faster and their own
+sleeps shorter, so each sleep spans the same simulated time as at 1x: FACTOR times shorter, or (``sim_clock``)
+until the vehicle's clock, as the listener last saw it, has advanced by the sleep, however fast the vehicle
+managed to run on a loaded machine.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import math
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -40,6 +43,7 @@ EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
 VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
 WAIT_S = 240.0  # bounds waiting only
 HOME = (47.397742, 8.545594, 488.0)
+SIM_CLOCK_ENV = "RADSEEK_SIM_CLOCK_FILE"  # tests/support/run_sped_up.py reads the vehicle's clock there
 
 
 def grpc_python() -> Path:
@@ -63,6 +67,7 @@ class Watch:
     texts: list = field(default_factory=list)
     armed_seen: bool = False
     gps_fix: list = field(default_factory=list)  # GPS_RAW_INT fix types in order
+    clock: Path | None = None  # where the vehicle's latest time_boot_ms (s) is written for the runner (sim_clock)
 
     def near(self, lat: float, lon: float, alt: float, tol_m: float) -> bool:
         return any(_dist_m(p[1], p[2], lat, lon) < tol_m and abs(p[3] - alt) < tol_m for p in self.positions)
@@ -83,6 +88,10 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
             kind = m.get_type()
             if kind == "GLOBAL_POSITION_INT":
                 watch.positions.append((m.time_boot_ms / 1000, m.lat / 1e7, m.lon / 1e7, m.relative_alt / 1000))
+                if watch.clock is not None:
+                    tmp = watch.clock.with_suffix(".tmp")
+                    tmp.write_text(repr(m.time_boot_ms / 1000))
+                    os.replace(tmp, watch.clock)  # the runner never reads half a number
             elif kind == "HEARTBEAT":
                 watch.modes.add(m.custom_mode)
                 watch.mode_since.setdefault(m.custom_mode, watch.positions[-1][0] if watch.positions else 0.0)
@@ -94,20 +103,26 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
 
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
-                timeout: float = WAIT_S, runner: list[str] | None = None,
-                cwd: Path | None = None, ports: dict[str, str] | None = None) -> tuple[str, Watch, int | None]:
+                timeout: float = WAIT_S, runner: list[str] | None = None, cwd: Path | None = None,
+                ports: dict[str, str] | None = None, sim_clock: bool = False) -> tuple[str, Watch, int | None]:
     """Run ``script`` unchanged (cwd = the examples folder, or ``cwd`` for one that writes files) against a fresh
     vehicle. Returns its output, the vehicle's watch and the exit code (None when stopped by us after
     ``until(output, watch)``). ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in
-    radseek's own venv). ``ports``: the example's (``example_ports``), else free ones."""
+    radseek's own venv). ``ports``: the example's (``example_ports``), else free ones. ``sim_clock``: the runner
+    (``sped_up``) is told the vehicle's clock, and the script's sleeps span simulated time whatever the load."""
     runner = runner or sped_up(1)
     gcs_port = free_udp_port()
     ports = ports or example_ports()
     watch, stop = Watch(), threading.Event()
+    clock_dir = tempfile.TemporaryDirectory(prefix="radseek-sim-clock-") if sim_clock else None
+    if clock_dir is not None:
+        watch.clock = Path(clock_dir.name) / "time_boot_s"
     with VehicleProcess(int(ports[MAVLINK_ENV]), gcs_port, vehicle_args) as vp, Gcs(gcs_port) as gcs:
         listener = threading.Thread(target=_listen, args=(gcs, watch, stop), daemon=True)
         listener.start()
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **ports}
+        if watch.clock is not None:
+            env[SIM_CLOCK_ENV] = str(watch.clock)
         proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=cwd or EXAMPLES, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, env=env)
         lines: list[str] = []
@@ -137,6 +152,8 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
             reader.join(10)
             stop.set()
             listener.join(5)
+            if clock_dir is not None:
+                clock_dir.cleanup()
     out = "".join(lines)
     print(f"--- {script} (exit {code}):\n{out[-4000:]}\n--- vehicle:\n{vp.output[-2000:]}\n--- texts: {watch.texts}")
     for e in expect:
@@ -157,18 +174,21 @@ def sped_up(factor: int) -> list[str]:
 
 
 def completes(script: str, args: list[str], expect: list[str], runner: list[str] | None = None,
-              cwd: Path | None = None, ports: dict[str, str] | None = None) -> tuple[str, Watch]:
-    out, watch, code = run_example(script, args, expect=expect, runner=runner, cwd=cwd, ports=ports)
+              cwd: Path | None = None, ports: dict[str, str] | None = None, sim_clock: bool = False
+              ) -> tuple[str, Watch]:
+    out, watch, code = run_example(script, args, expect=expect, runner=runner, cwd=cwd, ports=ports,
+                                   sim_clock=sim_clock)
     assert code == 0, f"{script} did not complete (exit {code})"
     assert "Traceback" not in out, out
     return out, watch
 
 
 def test_do_orbit():
-    # at 1x: on the sped-up clock (10x) the vehicle was twice seen nowhere on the circle on a loaded machine
-    # (0 of its positions; orbit started, landed at t=84 s) - not understood yet, so the 70 s of sleeps stay
-    out, w = completes("do_orbit.py", [], ["--- Taking Off", "Do orbit at 10m height from the ground",
-                                           "--- Landing"])
+    # on a 10x clock whose sleeps wait on the vehicle's own clock (sim_clock): with sleeps only 10x shorter in
+    # wall time, a vehicle held below 10x on a loaded machine flew 20-35 s of the 60 s orbit, sometimes too
+    # short to reach the circle 44 m away at 3 m/s (twice: none of its positions on it)
+    out, w = completes("do_orbit.py", ["--speedup", "10"], ["--- Taking Off", "Do orbit at 10m height from the ground",
+                                                            "--- Landing"], runner=sped_up(10), sim_clock=True)
     center = (47.398036222362471, 8.5450146439425509)
     on_circle = [p for p in w.positions if abs(_dist_m(p[1], p[2], *center) - 10.0) < 0.5 and abs(p[3] - 10) < 0.5]
     assert len(on_circle) > 20, "never flew on the 10 m circle at 10 m"
@@ -219,7 +239,7 @@ def test_geofence_upload():
 
 def test_offboard_position_ned():
     out, w = completes("offboard_position_ned.py", ["--speedup", "5"], ["-- Starting offboard", "-- Stopping offboard"],
-                       runner=sped_up(5))
+                       runner=sped_up(5), sim_clock=True)
     assert "failed" not in out
     assert 4.5 < w.max_alt() < 5.5  # climbed to 5 m
     assert w.near(HOME[0] + 5 / 111_194.9, HOME[1] + 10 / (111_194.9 * math.cos(math.radians(HOME[0]))), 5.0, 0.5)
@@ -228,7 +248,8 @@ def test_offboard_position_ned():
 
 def test_offboard_velocity_ned():
     out, w = completes("offboard_velocity_ned.py", ["--speedup", "5"], ["-- Starting offboard", "-- Go up 2 m/s",
-                                                                         "-- Stopping offboard"], runner=sped_up(5))
+                                                                         "-- Stopping offboard"], runner=sped_up(5),
+                       sim_clock=True)
     assert "failed" not in out
     assert w.max_alt() > 5.0  # 4 s at 2 m/s up
     assert 6 << 16 in w.modes
@@ -251,8 +272,10 @@ FOLLOW_TARGET_MODE = 4 << 16 | 8 << 24  # PX4 AUTO.FOLLOW_TARGET
 def test_follow_me_follows_the_target():
     # the example sets FLW_TGT_* (the altitude mode is an INT32), takes off, starts follow-me and sends three
     # target positions 2 s apart, the first 33 m north of home, the next two 43 m west of it, at 480 m AMSL
-    out, w = completes("follow_me_example.py", [], ["-- Starting Follow Me Mode", "-- Following Target",
-                                                    "-- Stopping Follow Me Mode", "-- Landing"])
+    # on a 5x clock, its 27 s of sleeps waiting on the vehicle's clock (sim_clock)
+    out, w = completes("follow_me_example.py", ["--speedup", "5"], ["-- Starting Follow Me Mode", "-- Following Target",
+                                                                     "-- Stopping Follow Me Mode", "-- Landing"],
+                       runner=sped_up(5), sim_clock=True)
     assert FOLLOW_TARGET_MODE in w.modes
     start = next(p for p in w.positions if p[3] > 2.0)  # in the air, before following
     # 3D tracking (TARGET_GPS): 8 m above a target 8 m below home is home's height, so PX4's 1 m minimum safety
