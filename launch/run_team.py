@@ -142,7 +142,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
                     "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset" / name),
                     "--connect", endpoint, "--vehicle-name", name, "--team", ",".join(names),
                     "--url", f"udpin://0.0.0.0:{port[v]['api']}", "--seed", str(args.seed + 1000 * v),
-                    "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
+                    "--speedup", str(speedup), "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
             ready_by = time.monotonic() + 180.0
             for name in names:
                 while not up[name].wait(0.1):

@@ -38,6 +38,7 @@ import zenoh
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.vehicle_link import MavsdkVehicle
 from mission.executive import FRAME_S, FlightStopped, MissionExecutive
+from mission.key_accounts import KeyAccounts
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Phase, SearchBrain, SearchConfig, reproducible
@@ -47,7 +48,6 @@ from mission.team_link import TeamLinkBase, label_dwells
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
-from radseek.payload_drops import DropCounter
 from radseek_io.outdir import atomic_write_json
 
 log = logging.getLogger("radseek.mission")
@@ -63,6 +63,9 @@ MATE_LAG_SIM_S = 5.0
 TEAM_HEARTBEAT_WALL_S = 1.0  # wall s between repeats of the last team/status (alive while it computes or waits)
 TEAM_START_WALL_S = 180.0  # wall s to wait for a teammate never heard from before it is taken as failed
 TURN_POLL_WALL_S = 0.002  # wall s between looks at the teammates' statuses while waiting for this vehicle's turn
+#: histograms held at most: waiting for their pose, and received but not yet taken by the flight (each queue; the
+#: oldest waiting one is recorded without its pose, the oldest untaken one dropped and counted)
+QUEUE_CAP = 200
 
 
 @dataclass
@@ -74,6 +77,8 @@ class MissionSettings:
     leg_speed_m_s: float = 1.0  # expected cruise speed: a leg may take 3 x distance / speed + 30 s (sim)
     #: the team's vehicle names, this one included (``radseek run --vehicles N``); empty: a single vehicle
     team: tuple[str, ...] = ()
+    #: sim seconds per wall second of the run (at most): the keys' expected rates in wall time (flood accounting)
+    speedup: float = 1.0
 
 
 class _PosedHistograms:
@@ -81,7 +86,7 @@ class _PosedHistograms:
     until a pose at or after its end time is in, or ``POSE_WAIT_WALL_S`` wall seconds (``_release``); what
     becomes of a released one is the subclass's ``_record``."""
 
-    def __init__(self, drops: DropCounter):
+    def __init__(self, drops: KeyAccounts):
         self.poses = PoseHistory(keep_s=POSE_KEEP_S)
         self.lock = threading.Lock()
         self.records: list[FrameRecord] = []
@@ -111,6 +116,8 @@ class _PosedHistograms:
         with self.lock:
             self._pending.append((hist, now))
             self._release(self._received(hist, now))
+            if len(self._pending) > QUEUE_CAP:  # bounded: the oldest is recorded without waiting for its pose
+                self._release(lambda _h, _w: len(self._pending) > QUEUE_CAP)
 
     def _received(self, hist: topics.Histogram, now: float):
         """Called with the lock held as ``hist`` comes in at wall time ``now``: which pending histograms are
@@ -131,11 +138,13 @@ class _Stream(_PosedHistograms):
     """Thread-safe bridge from zenoh callbacks to the asyncio loop: poses into a history, histograms
     into a queue (every one is also recorded at once, so nothing received is lost)."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, recorder: FlightRecorder):
-        super().__init__(DropCounter(log, "dropped invalid payload", first=10))  # records: the usable ones
+    def __init__(self, loop: asyncio.AbstractEventLoop, recorder: FlightRecorder, accounts: KeyAccounts):
+        super().__init__(accounts)  # records: the usable ones
         self.loop = loop
         self.recorder = recorder
-        self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue()
+        self.queue: asyncio.Queue[topics.Histogram] = asyncio.Queue(maxsize=QUEUE_CAP)
+        self.queue_dropped = 0  # histograms dropped from a full queue (the oldest first)
+        self.queue_high = 0  # the longest the queue has been
         self.dwell_index = -1
         self.latest_pose: topics.Pose | None = None
         # the lost-frame rule (ZenohFrames.tick): the latest histogram time received, the latest
@@ -194,7 +203,18 @@ class _Stream(_PosedHistograms):
             return
         if usable:
             self.records.append(record)
-        self.loop.call_soon_threadsafe(self.queue.put_nowait, hist)
+        self.loop.call_soon_threadsafe(self._enqueue, hist)
+
+    def _enqueue(self, hist: topics.Histogram) -> None:
+        """On the loop: queue ``hist`` for the flight; a full queue drops its oldest (counted, logged sparingly)."""
+        if self.queue.full():
+            self.queue.get_nowait()
+            self.queue_dropped += 1
+            if self.queue_dropped in (1, 10) or self.queue_dropped % 1000 == 0:
+                log.warning("histogram queue full (%d): dropped the oldest untaken histogram (%d so far)",
+                            QUEUE_CAP, self.queue_dropped)
+        self.queue.put_nowait(hist)
+        self.queue_high = max(self.queue_high, self.queue.qsize())
 
     def flush(self) -> None:
         """Record whatever still waits for its pose (the subscriptions are closed)."""
@@ -220,8 +240,8 @@ class _MateStream(_PosedHistograms):
     frame's mid-time (``pose`` and ``detector/histogram`` under its name), the dwell index of each frame
     from the dwell intervals it announces (``team/status``)."""
 
-    def __init__(self, name: str, channel_edges_keV: np.ndarray):
-        super().__init__(DropCounter(log, f"dropped invalid payload from teammate {name}", first=5))
+    def __init__(self, name: str, channel_edges_keV: np.ndarray, accounts: KeyAccounts):
+        super().__init__(accounts)
         self.name = name
         self.edges = channel_edges_keV
         self.status: topics.TeamStatus | None = None
@@ -276,9 +296,10 @@ class _MateStream(_PosedHistograms):
 class _Team(TeamLinkBase):
     """This vehicle's side of the team's zenoh traffic (``team/status`` and the joint ``estimate``)."""
 
-    def __init__(self, session: zenoh.Session, me: str, names: tuple[str, ...], channel_edges_keV: np.ndarray):
+    def __init__(self, session: zenoh.Session, me: str, names: tuple[str, ...], channel_edges_keV: np.ndarray,
+                 accounts: KeyAccounts):
         super().__init__(me, names)
-        self.mates = {n: _MateStream(n, channel_edges_keV) for n in names if n != me}
+        self.mates = {n: _MateStream(n, channel_edges_keV, accounts) for n in names if n != me}
         self._subs = []
         for n, m in self.mates.items():
             self._subs += [session.declare_subscriber(topics.key(topics.POSE, n), m.on_pose),
@@ -481,13 +502,14 @@ class MissionRunner:
         self.out = Path(out)
         self.settings = settings
         self.team: _Team | None = None
+        self.accounts = KeyAccounts(log, settings.speedup)  # every key subscribed to, teammates' included
         self._pubs = {topic: topics.declare_publisher(session, topic, v)
                       for topic in (topics.MISSION_STATE, topics.ESTIMATE, topics.PLAN)}
         kw = dict(leg_speed_m_s=settings.leg_speed_m_s, log_path=self.out / "mission_log.jsonl",
                   put=lambda topic, payload: self._pubs[topic].put(payload.to_bytes()))
         self.executive: MissionExecutive
         if len(settings.team) > 1:
-            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV)
+            self.team = _Team(session, v, tuple(settings.team), scenario.channel_edges_keV, self.accounts)
             brain = TeamBrain(scenario, config, TeamConfig(n_vehicles=len(settings.team)), seed=settings.seed)
             self.executive = TeamExecutive(scenario, config, brain, self.team, **kw)
         else:
@@ -499,7 +521,7 @@ class MissionRunner:
         loop = asyncio.get_running_loop()
         ex = self.executive
         recorder = FlightRecorder(self.out, self.scenario)
-        stream = _Stream(loop, recorder)
+        stream = _Stream(loop, recorder, self.accounts)
         v = self.settings.vehicle
         subs = [
             self.session.declare_subscriber(topics.key(topics.POSE, v), stream.on_pose),
@@ -535,8 +557,11 @@ class MissionRunner:
                 "frames_received": recorder.received,
                 "frames_recorded": recorder.recorded,
                 "frames_flagged": recorder.flagged,
-                "bad_payloads": stream.drops.count,
+                "bad_payloads": self.accounts.invalid,
                 "frames_lost": frames.frames_lost,
+                # per key subscribed: samples accepted, dropped as a flood / as another publisher's, invalid
+                "samples": self.accounts.counts(),
+                "histogram_queue": {"cap": QUEUE_CAP, "high": stream.queue_high, "dropped": stream.queue_dropped},
             })
             if self.team is not None:
                 summary.update(self.team.summary(ex.brain, stream.frames()))

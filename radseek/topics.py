@@ -18,6 +18,7 @@ Usage::
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields
@@ -63,6 +64,34 @@ TEAM_STATUS = "team/status"
 TEAM = "team"
 #: topics only a team publishes (``radseek run --vehicles N``): a single vehicle's run has none of them
 TEAM_ONLY = (TEAM_STATUS,)
+
+
+@dataclass(frozen=True)
+class Rate:
+    """How often a key's publisher sends: ``per_sim_s`` samples per sim second plus ``per_wall_s`` per wall
+    second (heartbeats kept on wall time); at speed-up s that is ``per_sim_s * s + per_wall_s`` per wall second."""
+
+    per_sim_s: float
+    per_wall_s: float = 0.0
+
+
+#: each key's expected rate (one publisher): a receiver takes a publisher far over it for a flood
+#: (``mission.key_accounts``). ``pose``: 10 Hz on the vehicle's step grid, plus one where lockstep holds it;
+#: ``detector/status``: 1 Hz of sim time, plus one at once when the detector ends or skips a frame;
+#: ``team/status``: on each change (a frame handled at most) and a heartbeat every wall second.
+EXPECTED_RATES: dict[str, Rate] = {
+    SIM_CLOCK: Rate(50.0),
+    SIM_TRUTH_POSE: Rate(20.0),
+    POSE: Rate(20.0),
+    HISTOGRAM: Rate(10.0),
+    RAW_FRAME: Rate(10.0),
+    DETECTOR_STATUS: Rate(2.0, 1.0),
+    MISSION_STATE: Rate(10.0, 1.0),
+    MISSION_LOCKSTEP: Rate(10.0, 2.0),
+    ESTIMATE: Rate(10.0, 1.0),
+    PLAN: Rate(10.0, 1.0),
+    TEAM_STATUS: Rate(10.0, 1.0),
+}
 
 # Histogram.flags bits (mirrors the board's status byte, radseek.board_wire)
 FLAG_SATURATED = 0x01  # a comparator counter wrapped or the input stage saturated
@@ -508,11 +537,30 @@ def encoding(topic: str) -> str:
     raise KeyError(f"{topic!r} is not a radseek topic")
 
 
-def declare_publisher(session: Any, topic: str, vehicle: str = DEFAULT_VEHICLE) -> Any:
-    """``session.declare_publisher`` for ``key(topic, vehicle)`` with the topic's :func:`encoding`."""
+class StampedPublisher:
+    """A zenoh publisher whose every ``put`` carries ``source_info`` (its entity id and a sequence number), so a
+    receiver can tell its samples from another publisher's on the same key (``mission.key_accounts``: rate
+    accounting per publisher). Anything else is the zenoh publisher's own."""
+
+    def __init__(self, publisher: Any):
+        self._pub = publisher
+        self._sn = itertools.count(1)
+
+    def put(self, payload: Any, **kwargs: Any) -> None:
+        import zenoh
+
+        self._pub.put(payload, source_info=zenoh.SourceInfo(self._pub.id, next(self._sn)), **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._pub, name)
+
+
+def declare_publisher(session: Any, topic: str, vehicle: str = DEFAULT_VEHICLE) -> StampedPublisher:
+    """``session.declare_publisher`` for ``key(topic, vehicle)`` with the topic's :func:`encoding`, stamping its
+    samples with its id (:class:`StampedPublisher`)."""
     import zenoh
 
-    return session.declare_publisher(key(topic, vehicle), encoding=zenoh.Encoding(encoding(topic)))
+    return StampedPublisher(session.declare_publisher(key(topic, vehicle), encoding=zenoh.Encoding(encoding(topic))))
 
 
 def topic_of(full_key: str) -> str:

@@ -210,7 +210,7 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
             mission = stack.start("mission", _radseek(
                 "mission", "--scenario", str(scenario_file), "--out", str(out / "dataset"), "--connect", endpoint,
                 "--url", f"udpin://0.0.0.0:{port['api']}", "--seed", str(args.seed),
-                "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
+                "--speedup", str(speedup), "--max-dwells", str(args.max_dwells), "--strategy", args.strategy))
             ready_by = time.monotonic() + 180.0
             while not mission_up.wait(0.1):
                 if mission.poll() is not None:

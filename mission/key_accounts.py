@@ -1,0 +1,177 @@
+"""Per-key, per-publisher rate accounting of the samples a mission subscribes to: a flood is dropped and named.
+
+An authenticated process can still flood its own keys (a board sending histograms at 1 kHz, a vehicle re-sending
+poses), and on an open network anyone can. Each subscribed key has an expected rate from its contract
+(``radseek.topics.EXPECTED_RATES``, per sim second and per wall second); at the run's speed-up that is
+``expected`` samples per wall second. Each publisher of a key (the zenoh entity in ``sample.source_info``, which
+radseek's own publishers stamp; "unknown publisher" for a sample without it) gets a token bucket of
+``FLOOD_FACTOR x expected`` per wall second with ``BURST_WALL_S`` of burst: a sample over it is dropped before it
+is decoded (cheaply) and counted as a flood, so one flooding publisher cannot starve the key's honest one. A
+one-line warning names the key, the publisher, the observed and the expected rate, at most every
+``WARN_EVERY_WALL_S`` per key and publisher.
+
+Every key has one publisher by contract, so a key's samples are taken from one publisher at a time, its *owner*:
+the first publisher heard within its rate. Samples of another publisher while the owner speaks are dropped as
+``foreign`` (a forgery, or a second board on one key), named the same way; an owner silent for
+``OWNER_SILENT_WALL_S`` hands the key to the next publisher heard (a restarted detector). ``counts()`` gives per
+key the accepted, flood-dropped, foreign and invalid samples, for ``mission_summary.json``::
+
+    accounts = KeyAccounts(log, speedup=20.0)
+    pose = accounts.decode(topics.Pose, sample)   # None: a flood or an invalid payload (counted, maybe logged)
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from radseek import topics
+from radseek.payload_drops import worth_reporting
+
+T = TypeVar("T")
+
+FLOOD_FACTOR = 5.0  # a publisher may send up to this many times its key's expected rate
+BURST_WALL_S = 2.0  # wall seconds of samples at that rate a publisher may send at once
+MIN_BURST = 20.0  # samples a publisher may always send at once (a slow key's startup, a reconnect's backlog)
+WARN_EVERY_WALL_S = 5.0  # a flooded key and publisher is named at most this often
+UNKNOWN_PUBLISHER = "unknown publisher"
+OWNER_SILENT_WALL_S = 3.0  # wall s of silence after which a key's publisher is replaced by the next one heard
+
+
+def publisher_of(sample: Any) -> str:
+    """The zenoh entity that published ``sample`` (``<zid>/<entity id>``), or ``UNKNOWN_PUBLISHER``: zenoh sets
+    ``source_info`` only where the publisher gives it (radseek's own publishers do: ``topics.declare_publisher``)."""
+    info = getattr(sample, "source_info", None)
+    source = getattr(info, "source_id", None) if info is not None else None
+    if source is None:
+        return UNKNOWN_PUBLISHER
+    return f"{source.zid}/{source.eid}"
+
+
+@dataclass
+class _Bucket:
+    """One publisher of one key: its token bucket and its arrivals since the last warning."""
+
+    tokens: float
+    refilled: float  # wall time of the last refill
+    since: float  # wall time of its first sample
+    arrived: int = 0
+    #: per kind of warning ("flood", "foreign"): the wall time and the arrivals at its last line
+    warned: dict[str, tuple[float, int]] = field(default_factory=dict)
+
+    def rate_since(self, kind: str, now: float) -> str:
+        """Its samples per wall second since its last ``kind`` warning (its first sample for the first)."""
+        t0, n0 = self.warned.get(kind, (self.since, 0))
+        n, dt = self.arrived - n0, now - t0
+        return f"{n / dt:.0f} samples/s observed" if dt >= 0.01 else f"{n} samples at once observed"
+
+
+@dataclass
+class _Key:
+    topic: str
+    accepted: int = 0
+    flood: int = 0
+    invalid: int = 0
+    foreign: int = 0
+    owner: str | None = None  # the publisher whose samples are taken
+    owner_heard: float = 0.0  # wall time of the owner's last sample taken
+    buckets: dict[str, _Bucket] = field(default_factory=dict)
+
+
+class KeyAccounts:
+    """The accounting of every key one mission subscribes to (thread-safe: zenoh calls from its own threads)."""
+
+    def __init__(self, logger: logging.Logger, speedup: float = 1.0, *, clock: Callable[[], float] = time.monotonic,
+                 invalid_first: int = 10):
+        if not speedup > 0:
+            raise ValueError(f"speedup must be > 0, got {speedup!r}")
+        self._log = logger
+        self.speedup = speedup
+        self._clock = clock
+        self._first = invalid_first
+        self._lock = threading.Lock()
+        self._keys: dict[str, _Key] = {}
+
+    def expected_wall_hz(self, topic: str) -> float:
+        """Samples per wall second the contract of ``topic`` expects at this speed-up."""
+        rate = topics.EXPECTED_RATES[topic]
+        return rate.per_sim_s * self.speedup + rate.per_wall_s
+
+    def admit(self, sample: Any) -> bool:
+        """Whether ``sample`` is taken: from its key's owner, within its rate (False: dropped as a flood or as
+        foreign, counted)."""
+        key = str(sample.key_expr)
+        publisher = publisher_of(sample)
+        now = self._clock()
+        warn: tuple | None = None
+        with self._lock:
+            acct = self._keys.get(key)
+            if acct is None:
+                acct = self._keys[key] = _Key(topics.topic_of(key))
+            limit = FLOOD_FACTOR * self.expected_wall_hz(acct.topic)
+            burst = max(MIN_BURST, limit * BURST_WALL_S)
+            b = acct.buckets.get(publisher)
+            if b is None:
+                b = acct.buckets[publisher] = _Bucket(tokens=burst, refilled=now, since=now)
+            b.tokens = min(burst, b.tokens + (now - b.refilled) * limit)
+            b.refilled = now
+            b.arrived += 1
+            kind = "flood" if b.tokens < 1.0 else "foreign"
+            due = kind not in b.warned or now - b.warned[kind][0] >= WARN_EVERY_WALL_S
+            if kind == "flood":
+                acct.flood += 1
+                if due:
+                    warn = ("flood on %s from %s: %s, %.4g/s expected (x%g speed-up); the excess is dropped "
+                            "(%d so far on this key)", key, publisher, b.rate_since(kind, now),
+                            self.expected_wall_hz(acct.topic), self.speedup, acct.flood)
+            else:
+                b.tokens -= 1.0
+                if acct.owner is None or acct.owner == publisher or now - acct.owner_heard > OWNER_SILENT_WALL_S:
+                    acct.owner, acct.owner_heard = publisher, now
+                    return True
+                acct.foreign += 1
+                if due:
+                    warn = ("second publisher on %s: %s (%s) while %s publishes it; its samples are dropped as "
+                            "forged (%d so far on this key)", key, publisher, b.rate_since(kind, now), acct.owner,
+                            acct.foreign)
+            if warn is not None:
+                b.warned[kind] = (now, b.arrived)
+        if warn is not None:
+            self._log.warning(*warn)
+        return False
+
+    def decode(self, schema: type[T], sample: Any) -> T | None:
+        """``schema.from_bytes`` of an admitted sample's payload; None for a flood or an invalid payload (each
+        counted on its key; an invalid one logged, naming the key, the first few times and every 100th)."""
+        if not self.admit(sample):
+            return None
+        key = str(sample.key_expr)
+        try:
+            msg = schema.from_bytes(sample.payload.to_bytes())  # type: ignore[attr-defined]
+        except topics.PayloadError as exc:
+            with self._lock:
+                self._keys[key].invalid += 1
+                n = self._keys[key].invalid
+            if worth_reporting(n, self._first, 100):
+                self._log.warning("invalid sample #%d on %s from %s: %s", n, key, publisher_of(sample), exc)
+            return None
+        with self._lock:
+            self._keys[key].accepted += 1
+        return msg
+
+    @property
+    def invalid(self) -> int:
+        """Invalid samples on every key."""
+        with self._lock:
+            return sum(a.invalid for a in self._keys.values())
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """Per key heard: ``accepted``, ``flood`` (dropped over the rate), ``foreign`` (dropped: not the key's
+        publisher) and ``invalid`` samples."""
+        with self._lock:
+            return {k: {"accepted": a.accepted, "flood": a.flood, "foreign": a.foreign, "invalid": a.invalid}
+                    for k, a in sorted(self._keys.items())}
