@@ -5,8 +5,12 @@ MAVProxy is driven by what it prints (each command is sent once the output it de
 not by fixed sleeps, so a slow start on a loaded host only makes the test wait longer."""
 
 
+import contextlib
+import io
+
 import pytest
 from pymavlink.dialects.v20 import common as M
+from pyulog import ULog
 
 from tests.support.mavproxy import MavProxy
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port, item
@@ -55,7 +59,7 @@ def test_mavproxy_lists_and_downloads_the_flight_log_by_log_protocol_and_ftp(tmp
 
             run("", lambda out: "Detected vehicle 1:1" in out and "parameters" in out, "vehicle and parameters")
             run("log list", lambda out: "numLogs 1" in out, "log list")
-            run("log download 0 flight.tlog", lambda out: "Finished downloading flight.tlog" in out, "log download")
+            run("log download 0 flight.ulg", lambda out: "Finished downloading flight.ulg" in out, "log download")
             run("ftp list /fs/microsd/log", lambda out: "Total size" in out.split("Listing /fs/microsd/log")[-1],
                 "ftp listing")
             run("ftp get @PARAM/param.pck", lambda out: "ftp open failed" in out, "ftp refusal")
@@ -64,5 +68,8 @@ def test_mavproxy_lists_and_downloads_the_flight_log_by_log_protocol_and_ftp(tmp
     assert "Log 0  numLogs 1 lastLog 0 size" in out and "0 retries" in out
     day = out.split("Listing /fs/microsd/log")[1].split("Total size")[0].split()
     assert day[0] == "D" and len(day[1]) == 10  # one folder, YYYY-MM-DD
-    data = (tmp_path / "flight.tlog").read_bytes()
-    assert len(data) > 1000 and data[8] == 0xFD  # timestamped MAVLink 2 frames
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):  # pyulog prints its warnings
+        ulog = ULog(str(tmp_path / "flight.ulg"))  # log 0 is the vehicle's ULog, as on PX4
+    assert printed.getvalue() == "" and not ulog.file_corruption
+    assert len(ulog.get_dataset("vehicle_local_position").data["timestamp"]) > 5

@@ -4,13 +4,17 @@ telemetry log pymavlink reads back as the vehicle's own messages."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import socket
 import struct
 import time
 
+import numpy as np
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
+from pyulog import ULog
 
 from vehicle_sim.harness import Gcs, VehicleThread, free_udp_port, thread_config
 from vehicle_sim.mavftp import HEADER
@@ -67,9 +71,13 @@ def test_ftp_lists_the_log_folder_and_reads_the_flight_log(link, tmp_path):
     days = _list(ftp, "/fs/microsd/log")
     assert len(days) == 1 and days[0].startswith("D")
     files = _list(ftp, f"/fs/microsd/log/{days[0][1:]}")
-    assert len(files) == 1 and files[0].startswith("F")  # F<name><TAB><size>
-    name, size = files[0][1:].split("\t")
-    assert name.endswith(".tlog") and int(size) > 0
+    assert len(files) == 2 and all(f.startswith("F") for f in files)  # F<name><TAB><size>
+    listed = dict(f[1:].split("\t") for f in files)
+    assert sorted(n.rsplit(".", 1)[1] for n in listed) == ["tlog", "ulg"]  # PX4's ULog and the telemetry log
+    assert len({n.rsplit(".", 1)[0] for n in listed}) == 1  # one boot, one name
+    name = next(n for n in listed if n.endswith(".tlog"))
+    size = listed[name]
+    assert int(size) > 0
     path = f"/fs/microsd/log/{days[0][1:]}/{name}".encode()
     r = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path)
     assert r["opcode"] == M.MAV_FTP_OPCODE_ACK and r["seq"] == ftp.seq + 1 and r["target"] == (255, 190)
@@ -114,28 +122,69 @@ def test_ftp_resend_gets_the_same_answer_without_a_second_session(link):
     vehicle, gcs = link
     ftp = Ftp(gcs)
     days = _list(ftp, "/fs/microsd/log")
-    name = _list(ftp, f"/fs/microsd/log/{days[0][1:]}")[0][1:].split("\t")[0]
+    name = _list(ftp, f"/fs/microsd/log/{days[0][1:]}")[0][1:].split("\t")[0]  # either file
     path = f"/fs/microsd/log/{days[0][1:]}/{name}".encode()
     first = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path, seq=100)
     again = ftp.request(M.MAV_FTP_OPCODE_OPENFILERO, path, seq=100)  # the reply was "lost": same seq
     assert first == again and len(vehicle.ftp.sessions) == 1
 
 
-def test_log_protocol_lists_one_log_and_serves_it_whole(link):
-    vehicle, gcs = link
+def _download(gcs: Gcs) -> tuple[object, bytes]:
+    """Log 0's LOG_ENTRY and its bytes, by the log protocol."""
     gcs.send(M.MAVLink_log_request_list_message(1, 1, 0, 0xFFFF))
     entry = gcs.recv("LOG_ENTRY")
-    assert (entry.id, entry.num_logs, entry.last_log_num) == (0, 1, 0) and entry.size > 0
-    assert abs(entry.time_utc - vehicle.flight_log.boot_wall_s) < 1
     gcs.send(M.MAVLink_log_request_data_message(1, 1, 0, 0, entry.size))
     got: dict[int, bytes] = {}
     while sum(len(v) for v in got.values()) < entry.size:
         d = gcs.recv("LOG_DATA")
         got[d.ofs] = bytes(d.data[:d.count])
-    data = b"".join(got[k] for k in sorted(got))
-    assert data == vehicle.flight_log.read(0, entry.size)
+    return entry, b"".join(got[k] for k in sorted(got))
+
+
+def test_log_protocol_lists_one_log_and_serves_it_whole(link):
+    vehicle, gcs = link
+    entry, data = _download(gcs)
+    assert (entry.id, entry.num_logs, entry.last_log_num) == (0, 1, 0) and entry.size > 0
+    assert abs(entry.time_utc - vehicle.flight_log.boot_wall_s) < 1
+    assert data == vehicle.ulog.read(0, entry.size) and data[:7] == b"ULog\x01\x12\x35"  # log 0: the ULog, as PX4
     gcs.send(M.MAVLink_log_request_data_message(1, 1, 0, entry.size + 1000, 90))  # past the end: count 0
     assert gcs.recv("LOG_DATA", lambda d: d.ofs == entry.size + 1000).count == 0
+
+
+def test_the_downloaded_ulog_is_the_flight_as_pyulog_reads_it(link):
+    """A parameter set and a refused command in flight, then the log downloaded: pyulog reads it with no warning,
+    with the vehicle's parameters (the change where it happened), its text, and every topic in sim time."""
+    vehicle, gcs = link
+    gcs.send(M.MAVLink_param_set_message(1, 1, b"MPC_XY_CRUISE", 4.5, M.MAV_PARAM_TYPE_REAL32))
+    assert gcs.recv("PARAM_VALUE", lambda m: m.param_id == "MPC_XY_CRUISE").param_value == 4.5
+    assert gcs.command(M.MAV_CMD_INJECT_FAILURE, M.FAILURE_UNIT_SENSOR_GPS, M.FAILURE_TYPE_OFF, 0) == \
+        M.MAV_RESULT_DENIED  # SYS_FAILURE_EN 0: says so in a STATUSTEXT, sent before the ACK
+    assert any(m.get_type() == "STATUSTEXT" and "failure injection disabled" in m.text for m in gcs.received)
+    _, data = _download(gcs)
+    t_end = vehicle.t
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        ulog = ULog(io.BytesIO(data))
+    assert out.getvalue() == "" and not ulog.file_corruption
+    assert {d.name for d in ulog.data_list} == {"vehicle_attitude", "vehicle_local_position", "sensor_combined",
+                                                 "vehicle_global_position", "vehicle_status", "battery_status"}
+    table = {p.name: p for p in vehicle.params.params}
+    assert set(ulog.initial_parameters) == set(table)
+    for name, p in table.items():
+        value = 3.0 if name == "MPC_XY_CRUISE" else p.value  # the table holds the change now; the log both
+        integer = p.ptype == M.MAV_PARAM_TYPE_INT32
+        assert ulog.initial_parameters[name] == (int(value) if integer else np.float32(value)), name
+        assert isinstance(ulog.initial_parameters[name], int) == integer, name
+    assert [(n, v) for _, n, v in ulog.changed_parameters] == [("MPC_XY_CRUISE", 4.5)]
+    texts = [m for m in ulog.logged_messages if "failure injection disabled" in m.message]
+    assert len(texts) == 1 and texts[0].log_level_str() == "INFO"
+    for d in ulog.data_list:  # sim time: every 50 ms step from boot, never back, never past the vehicle's clock
+        ts = d.data["timestamp"].astype(np.int64)
+        assert ts[0] == 0 and np.all(np.diff(ts) > 0) and ts[-1] <= round(t_end * 1e6), d.name
+        assert np.all(ts % 50_000 == 0), d.name
+    assert ulog.changed_parameters[0][0] <= texts[0].timestamp <= round(t_end * 1e6)
+    acc = ulog.get_dataset("sensor_combined").data["accelerometer_m_s2[2]"]
+    assert np.allclose(acc, -9.80665, atol=1e-4)  # standing: the specific force is -g
 
 
 def test_the_flight_log_holds_the_frames_the_gcs_received_byte_for_byte():

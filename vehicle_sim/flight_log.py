@@ -1,14 +1,14 @@
 """The vehicle's own flight log: every MAVLink message it sends, recorded from boot as a telemetry log (.tlog).
 
-PX4 writes a ULog per flight to its SD card (``/fs/microsd/log/<date>/<time>.ulg``); the mock vehicle has no
-uORB topics to log, so it records what it tells the world instead, in the format MAVProxy, QGroundControl and
+PX4 writes a ULog per flight to its SD card (``/fs/microsd/log/<date>/<time>.ulg``: ``px4_logger``); beside it
+the mock vehicle records what it tells the world, in the format MAVProxy, QGroundControl and
 pymavlink (``mavutil.mavlink_connection(path)``, ``mavlogdump.py``) read: each message as an 8-byte big-endian
 microsecond timestamp followed by the MAVLink 2 frame as the link sent it (the bytes sent to the GCS endpoint,
 or to the one endpoint a reply went to: sequence numbers and signatures are those a ground station received).
 The timestamp is the boot's wall clock plus the simulated time, so a log of a sped-up flight spans the simulated
 flight. One log per boot (PX4's SDLOG_MODE 2,
-"from boot until shutdown"), served while it grows: by MAVLink FTP (``mavftp``) and by the log protocol
-(``log_transfer``). The transfers themselves (FILE_TRANSFER_PROTOCOL, LOG_DATA, LOG_ENTRY) are not recorded,
+"from boot until shutdown"), served while it grows by MAVLink FTP (``mavftp``; the log protocol serves the
+ULog, as PX4). The transfers themselves (FILE_TRANSFER_PROTOCOL, LOG_DATA, LOG_ENTRY) are not recorded,
 so a download never feeds the file it reads. Bounded like a card: past ``max_bytes`` recording stops, and what
 is recorded stays (``full`` says so)."""
 

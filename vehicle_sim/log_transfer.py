@@ -1,7 +1,8 @@
 """The MAVLink log protocol (https://mavlink.io/en/services/log.html) serving the vehicle's flight log.
 
 LOG_REQUEST_LIST -> one LOG_ENTRY per log in the asked id range (the one log of this boot, id 0, its size and
-UTC start time; with no log at all one LOG_ENTRY with num_logs 0, as the protocol asks). LOG_REQUEST_DATA ->
+UTC start time: the vehicle's ULog, as PX4 lists its .ulg files; with no log at all one LOG_ENTRY with num_logs 0,
+as the protocol asks). LOG_REQUEST_DATA ->
 LOG_DATA packets of 90 bytes from ``ofs`` for ``count`` bytes (clipped to the log's end; an offset at or past the
 end gets one LOG_DATA with count 0), handed out in order by ``pending`` so that a 46 kB request (MAVSDK asks 512
 packets at a time) is paced instead of overflowing the client's socket. LOG_REQUEST_END stops a transfer.
@@ -11,20 +12,29 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
+from typing import Protocol
 
 from pymavlink.dialects.v20 import common as M
-
-from vehicle_sim.flight_log import FlightLog
 
 log = logging.getLogger(__name__)
 
 CHUNK = 90  # LOG_DATA's data field
 
 
-class LogServer:
-    """Answers the log protocol for one ``FlightLog``."""
+class ServedLog(Protocol):
+    """A log the protocol can serve (``px4_logger.Px4Logger``, ``flight_log.FlightLog``)."""
 
-    def __init__(self, flight_log: FlightLog | None):
+    boot_wall_s: float
+
+    def size(self) -> int: ...
+
+    def read(self, offset: int, count: int) -> bytes: ...
+
+
+class LogServer:
+    """Answers the log protocol for one log."""
+
+    def __init__(self, flight_log: ServedLog | None):
         self.log = flight_log
         self._transfer: Iterator | None = None
 

@@ -59,6 +59,11 @@ class ParamTable:
         self._params = params
         self._by_name = {p.name: p for p in params}
 
+    @property
+    def params(self) -> list[Param]:
+        """The parameters, in index order."""
+        return list(self._params)
+
     def __len__(self) -> int:
         return len(self._params)
 

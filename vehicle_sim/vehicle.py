@@ -39,6 +39,7 @@ from vehicle_sim.motion import MotionLimits
 from vehicle_sim.navigator import MANUAL_MODES, Mode, NavParams
 from vehicle_sim.odometry import OdometryParams
 from vehicle_sim.params import INT32, Param, ParamTable
+from vehicle_sim.px4_logger import Px4Logger
 from vehicle_sim.sim_vehicle import SimVehicle
 
 log = logging.getLogger(__name__)
@@ -184,17 +185,25 @@ class Vehicle(SimVehicle):
              ("gcs", (cfg.bind_host, cfg.gcs_local_port), (cfg.remote_host, cfg.gcs_port))],
             sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
             seed=cfg.seed, wall_time_s=time.time())
+        self.params = self._make_params()
+        self.imu = ImuStream(cfg.home, cfg.speedup)
+        # two logs of one boot: the ULog PX4 writes (log 0 of the log protocol, as on PX4) and the telemetry log
+        # of what the vehicle sent (.tlog, beside it in the log folder, by MAVLink FTP)
         self.flight_log = FlightLog()
+        self.ulog = Px4Logger([(p.name, p.value, p.ptype == INT32) for p in self.params.params], cfg.sysid,
+                              cfg.compid, cfg.battery.cells, cfg.battery.low_threshold,
+                              cfg.battery.critical_threshold, boot_wall_s=self.flight_log.boot_wall_s)
+        self._logged_params = {p.name: p.value for p in self.params.params}
+        self.ulog.record(self.snapshot(), self._imu_now())
         self.link.tap = lambda msg, frame: self.flight_log.record(msg, frame, self.t)
         fs = VirtualFs()
+        fs.add(f"{LOG_DIR}/{self.ulog.name}", VirtualFile(self.ulog.size, self.ulog.read))
         fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
         self.ftp = FtpServer(fs)
-        self.logs = LogServer(self.flight_log)
-        self.imu = ImuStream(cfg.home, cfg.speedup)
+        self.logs = LogServer(self.ulog)
         self._log_ep: Endpoint | None = None
         self._bulk: deque = deque()  # (message, endpoint) of file transfers, paced by flush_bulk
         self.scheduler = telemetry.Scheduler(cfg.speedup, cfg.max_wall_hz)
-        self.params = self._make_params()
         self._text_id = 0
         self._stop = threading.Event()
         self.zenoh_refused: str | None = None  # why the zenoh session was refused (the vehicle then stops)
@@ -329,11 +338,16 @@ class Vehicle(SimVehicle):
     def message_by_id(self, msg_id: int):
         """The message REQUEST_MESSAGE asks for, or None if the vehicle does not offer it."""
         if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
-            nav, yaw = self.nav, yaw_enu_to_ned(self.nav.yaw)
-            return self.imu.sample(self.t, (*tilt(nav.accel, yaw), yaw), (0.0, 0.0, -self._yaw_rate), nav.accel,
-                                   self.home.alt_m + float(nav.pos[2]))
+            return self._imu_now()
         name = telemetry.MSG_IDS.get(msg_id)
         return None if name is None else telemetry.BUILDERS[name](self.snapshot())
+
+    def _imu_now(self):
+        """One HIGHRES_IMU sample of the present state (level yaw rate, the tilt the vehicle flies)."""
+        nav, yaw = self.nav, yaw_enu_to_ned(self.nav.yaw)
+        att = tilt(nav.accel, yaw) if nav.attitude is None else tuple(nav.attitude[:2])
+        return self.imu.sample(self.t, (*att, yaw), (0.0, 0.0, -self._yaw_rate), nav.accel,
+                               self.home.alt_m + float(nav.pos[2]))
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
         if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
@@ -360,6 +374,7 @@ class Vehicle(SimVehicle):
 
     def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         log.info("STATUSTEXT: %s", text)
+        self.ulog.text(self.t, severity, text)
         self._text_id = (self._text_id + 1) % 65536
         for m in telemetry.statustext(text, severity, self._text_id):
             self.link.send(m)
@@ -415,6 +430,7 @@ class Vehicle(SimVehicle):
                 if self._for_us(msg):
                     for m in self.params.handle(msg):
                         self.link.send(m, ep)
+                    self._log_param_changes()
             elif kind == "FOLLOW_TARGET":
                 self.follow.receive(msg, self.t, now_wall)
             elif kind == "MANUAL_CONTROL":
@@ -442,6 +458,13 @@ class Vehicle(SimVehicle):
         except Exception as exc:  # noqa: BLE001 - bad input is ignored and logged, never fatal
             log.warning("%s from %d/%d ignored: %s: %s", kind, msg.get_srcSystem(), msg.get_srcComponent(),
                         type(exc).__name__, exc)
+
+    def _log_param_changes(self) -> None:
+        """A parameter set in flight goes into the ULog where it happened (PX4's logger does the same)."""
+        for p in self.params.params:
+            if self._logged_params[p.name] != p.value:
+                self._logged_params[p.name] = p.value
+                self.ulog.param_changed(p.name, p.value, p.ptype == INT32)
 
     def flush_bulk(self, n: int = BULK_PER_TURN) -> None:
         """Send up to ``n`` queued file-transfer packets (FTP replies first, then the log download's)."""
@@ -517,6 +540,9 @@ class Vehicle(SimVehicle):
         for m in self.imu.step(self.t, dt, nav.accel, nav.yaw, self._yaw_rate, self.home.alt_m + float(nav.pos[2]),
                                float(nav.vel[2]), None if nav.attitude is None else nav.attitude[:2]):
             self.link.send(m)
+        due = self.ulog.due(self.t)
+        if due:
+            self.ulog.record(self.snapshot(), self._imu_now() if "sensor_combined" in due else None, due)
         for ev in events:
             if ev.kind == "reached":
                 self.link.send(M.MAVLink_mission_item_reached_message(int(ev.data)))
