@@ -3,14 +3,17 @@ a frame the detector says it did not send is lost at once; one it says it sent, 
 reached yet, is waited for (a slow detector on a loaded host must not change the recorded flight)."""
 
 import asyncio
+import logging
 from types import SimpleNamespace
 
+from mission.key_accounts import KeyAccounts
 from mission.mission_process import _Stream
 from radseek import topics
 
 
 def _sample(msg) -> SimpleNamespace:
-    return SimpleNamespace(payload=SimpleNamespace(to_bytes=msg.to_bytes))
+    return SimpleNamespace(key_expr=topics.key(topics.DETECTOR_STATUS, "uav0"),
+                           payload=SimpleNamespace(to_bytes=msg.to_bytes))
 
 
 def _status(t: float, last_hist: float | None) -> SimpleNamespace:
@@ -20,7 +23,7 @@ def _status(t: float, last_hist: float | None) -> SimpleNamespace:
 def test_frame_fate_follows_detector_status():
     loop = asyncio.new_event_loop()
     try:
-        s = _Stream(loop, recorder=None)
+        s = _Stream(loop, recorder=None, accounts=KeyAccounts(logging.getLogger("test")))
         assert s.frame_fate(1.0)[0] == "pending"  # nothing heard: wait (only silence is judged on wall time)
         s.on_status(_status(0.9, 0.9))
         assert s.frame_fate(1.0)[0] == "pending"  # alive, behind: wait however long it takes

@@ -2,10 +2,12 @@
 capture the history; a gap or an owner restart that a second pose confirms is followed."""
 
 import asyncio
+import logging
 from types import SimpleNamespace
 
 import pytest
 
+from mission.key_accounts import KeyAccounts
 from mission.mission_process import _Stream
 from radseek import topics
 from radseek.pose_history import PoseHistory
@@ -59,13 +61,13 @@ def test_a_real_gap_confirmed_by_two_poses_keeps_the_history():
 
 
 def _sample(msg) -> SimpleNamespace:
-    return SimpleNamespace(payload=SimpleNamespace(to_bytes=msg.to_bytes))
+    return SimpleNamespace(key_expr=topics.key(topics.POSE, "uav0"), payload=SimpleNamespace(to_bytes=msg.to_bytes))
 
 
 def test_mission_stream_is_not_captured_by_a_far_future_pose():
     loop = asyncio.new_event_loop()
     try:
-        s = _Stream(loop, recorder=None)
+        s = _Stream(loop, recorder=None, accounts=KeyAccounts(logging.getLogger("test")))
         for k in range(50):
             s.on_pose(_sample(pose(0.1 * k, x=0.1 * k)))
         s.on_pose(_sample(pose(1e9, x=99.0)))  # schema-valid, off the timeline
