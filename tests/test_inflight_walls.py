@@ -61,13 +61,14 @@ def test_a_walled_refit_escalates_a_new_misfit_once_and_a_persistent_one_not_at_
     """The injected fault: every fit after the first misfits (p = 1e-6, a physical effect the model lacks).
     After a walled record that fit, the warm refit (its own basin alone when still the best) misfits and
     escalates once to the best two basins of the warm and grid starts (WARM_WALLED_STARTS). Once the last record
-    itself misfit, the refit searches those basins directly, once: a misfit that persists is the model's."""
+    itself misfit, the refit searches those basins directly, once: a misfit that persists is the model's. Each
+    walled refit is then checked against a warm wall-free fit (one start), which misfits too: the walls stay."""
     calls, misfit = counted_fits
     est = InflightEstimator(lattice_wall.scenario)
     first = est.update(lattice_wall.frames, dwell=9)
     assert first["effects"] == ["wall_attenuation"] and first["p_value"] >= GOOD_FIT_P
     misfit["on"] = True
-    for dwell, expected in ((10, [WARM_WALLED_STARTS] * 2), (11, [WARM_WALLED_STARTS])):
+    for dwell, expected in ((10, [WARM_WALLED_STARTS] * 2 + [1]), (11, [WARM_WALLED_STARTS, 1])):
         calls.clear()
         rec = est.update(lattice_wall.frames, dwell=dwell)
         assert calls == expected

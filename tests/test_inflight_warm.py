@@ -69,7 +69,8 @@ def test_a_walled_estimate_is_refitted_from_itself_when_the_plain_fit_misfits(sh
 
 def test_a_wall_free_estimate_the_walls_now_shadow_goes_straight_to_the_walled_fit(shared_datasets, monkeypatch):
     """The last estimate was wall-free (injected) and a recorded line of sight near it crosses a wall: the
-    refit is the walled model with its starts, and no wall-free fit first (the shadow would discard it)."""
+    refit is the walled model with its starts, and no wall-free fit first (the shadow would discard it); only
+    then one warm wall-free fit, which the walls' likelihood-ratio test (mu = 3 /m here) discards."""
     ds = read_dataset_with_truth(shared_datasets / "lattice-wall")
     real_fit = InflightEstimator._fit
     calls: list[tuple[tuple[str, ...], int]] = []
@@ -86,7 +87,7 @@ def test_a_wall_free_estimate_the_walls_now_shadow_goes_straight_to_the_walled_f
     assert est._shadowed(ds.frames, [first[k] for k in ("x", "y", "z")])
     calls.clear()
     second = est.update(ds.frames, dwell=len(dwells))
-    assert calls == [(("wall_attenuation",), WARM_WALLED_STARTS)]
+    assert calls == [(("wall_attenuation",), WARM_WALLED_STARTS), ((), 1)]
     assert second["effects"] == ["wall_attenuation"] and second["converged"]
     truth = ds.truth.sources[0]
     assert np.hypot(second["x"] - truth.x, second["y"] - truth.y) < 3 * second["sigma_m"]
