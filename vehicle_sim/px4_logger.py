@@ -26,7 +26,7 @@ import numpy as np
 from radseek.coordinates import enu_to_geodetic, enu_to_ned, yaw_enu_to_ned
 from vehicle_sim.imu import tilt
 from vehicle_sim.navigator import Mode
-from vehicle_sim.telemetry import Snapshot
+from vehicle_sim.telemetry import Snapshot, quaternion
 from vehicle_sim.ulog_log import DEFAULT_MAX_BYTES, Format, UlogWriter
 
 # PX4's vehicle_status.nav_state numbering (msg/VehicleStatus.msg)
@@ -61,15 +61,6 @@ FORMATS = [
 #: s of sim time between two records of a topic (PX4's logged_topics.cpp defaults, on the 50 ms step grid)
 INTERVAL_S = {"vehicle_attitude": 0.05, "vehicle_local_position": 0.1, "sensor_combined": 0.1,
               "vehicle_global_position": 0.2, "vehicle_status": 0.2, "battery_status": 0.2}
-
-
-def quaternion(roll: float, pitch: float, yaw: float) -> list[float]:
-    """Body FRD -> NED rotation (ZYX Euler angles, rad) as (w, x, y, z)."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy]
 
 
 def us(t: float) -> int:

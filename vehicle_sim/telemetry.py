@@ -79,7 +79,8 @@ def _tilt(s: Snapshot) -> tuple[float, float]:
     return s.tilt if s.tilt is not None else tilt(s.accel, yaw_enu_to_ned(s.yaw))
 
 
-def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
+def quaternion(roll: float, pitch: float, yaw: float) -> list[float]:
+    """Body FRD -> NED rotation (ZYX Euler angles, rad) as (w, x, y, z): ATTITUDE_QUATERNION's and ULog's q."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
@@ -156,7 +157,7 @@ def odometry(s: Snapshot):
     vel_cov = [math.nan] + [0.0] * 20  # unknown
     quality = max(0, min(100, int(100 - 100 * math.sqrt(float(s.var[0] + s.var[1])))))
     return M.MAVLink_odometry_message(int(s.t * 1e6), M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_BODY_FRD,
-                                      *map(float, p), _quat(roll, pitch, yaw), *map(float, v_body),
+                                      *map(float, p), quaternion(roll, pitch, yaw), *map(float, v_body),
                                       0.0, 0.0, -s.yaw_rate, cov, vel_cov, s.reset_counter,
                                       M.MAV_ESTIMATOR_TYPE_VIO, quality)
 
