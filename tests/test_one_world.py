@@ -14,6 +14,7 @@ from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import SearchConfig
 from tests.conftest import free_port
+from tests.support.team_frames import assert_same_team_flight
 from vehicle_sim.harness import free_udp_port
 
 RUN_TIMEOUT_S = 600
@@ -57,7 +58,6 @@ def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path)
     """``radseek run --vehicles 2`` (four processes taking their frames in turn over zenoh) and
     ``launch.offline_team.fly_team_offline`` (two executives in one process): each vehicle's frames.csv row for
     row, and the same joint estimate."""
-    from launch.offline_team import fly_team_offline
 
     seed = 3
     cmd = [sys.executable, "-m", "radseek_cli", "run", "--vehicles", "2", "--out", str(tmp_path), "--quiet",
@@ -65,16 +65,4 @@ def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path)
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 60)
     assert p.returncode in (0, 3), p.stderr[-3000:]
     stack = json.loads((tmp_path / "summary.json").read_text())
-    r = fly_team_offline(load_scene("default"), 2, seed=seed)
-    assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
-    f = r.dataset.frames
-    for v in (0, 1):
-        with open(tmp_path / "dataset" / f"uav{v}" / "frames.csv") as fh:
-            rows = list(csv.DictReader(fh))
-        mine = f.select(f.vehicle == v)
-        assert len(rows) == len(mine) > 100
-        for i, row in enumerate(rows):
-            got = (mine.t[i], mine.x[i], mine.y[i], mine.z[i], *(int(c) for c in mine.counts[i]))
-            want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]),
-                    *(int(row[f"c{k:02d}"]) for k in range(32)))
-            assert got == want, f"uav{v} frame {i} differs"
+    assert_same_team_flight(tmp_path, stack, "default", seed)

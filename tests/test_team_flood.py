@@ -7,7 +7,6 @@ in-process team of `launch.offline_team`, frame for frame: lockstep makes the fl
 
 from __future__ import annotations
 
-import csv
 import json
 import subprocess
 import sys
@@ -16,11 +15,11 @@ import time
 
 import pytest
 
-from detector_fw_sim.scene import load_scene
 from radseek import topics
 from radseek.zenoh_auth import read_credentials
 from radseek.zenoh_session import RouterRefused, open_session
 from tests.conftest import free_port
+from tests.support.team_frames import assert_same_team_flight
 from tests.test_team_run import free_udp_block
 
 RUN_TIMEOUT_S = 900
@@ -54,7 +53,6 @@ def _flood(session, stop: threading.Event, counter: list[int]) -> None:
 @pytest.mark.io
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
 def test_a_flooded_and_forged_team_run_keeps_its_result_and_its_flight(tmp_path):
-    from launch.offline_team import fly_team_offline
 
     out = tmp_path / "run"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -98,15 +96,4 @@ def test_a_flooded_and_forged_team_run_keeps_its_result_and_its_flight(tmp_path)
         log = (out / "logs" / f"mission-{name}.log").read_text()
         assert "Traceback" not in log, log[-3000:]
     # the flight an unflooded team flies, frame for frame
-    r = fly_team_offline(load_scene("default"), 2, seed=SEED)
-    assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
-    f = r.dataset.frames
-    for v in (0, 1):
-        with open(out / "dataset" / f"uav{v}" / "frames.csv") as fh:
-            rows_v = list(csv.DictReader(fh))
-        mine = f.select(f.vehicle == v)
-        assert len(rows_v) == len(mine) > 100
-        for i, row in enumerate(rows_v):
-            got = (mine.t[i], mine.x[i], mine.y[i], *(int(c) for c in mine.counts[i]))
-            want = (float(row["t"]), float(row["x"]), float(row["y"]), *(int(row[f"c{k:02d}"]) for k in range(32)))
-            assert got == want, f"uav{v} frame {i} differs"
+    assert_same_team_flight(out, summary, "default", SEED)
