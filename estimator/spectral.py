@@ -267,17 +267,23 @@ class SpectralModel:
         return _em(Ms, Mb, n, x0, iters=iters, fix_s=self.source_template is not None)
 
     def fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
-            max_shift: float = 0.15) -> SpectralFit:
+            max_shift: float = 0.15, second: tuple[np.ndarray, np.ndarray] | None = None) -> SpectralFit:
         """See ``_fit``; run with one BLAS thread (its matrices are ~200 x 200: a thread pool only adds
         synchronisation, ten times slower on a loaded machine)."""
         from estimator.diagnose.threads import blas_threads
 
         with blas_threads(1):
-            return self._fit(frames, labels, drift, max_shift)
+            return self._fit(frames, labels, drift, max_shift, second)
 
     def _fit(self, frames: Frames, labels: np.ndarray | None = None, drift: bool = True,
-             max_shift: float = 0.15) -> SpectralFit:
+             max_shift: float = 0.15, second: tuple[np.ndarray, np.ndarray] | None = None) -> SpectralFit:
         """Fit with zero drift and (if ``drift``) with the drift free, |shift| <= ``max_shift`` over the flight.
+
+        ``second``: per frame, the count model's expected counts of the primary source and of a second source.
+        The second source's spectrum (free masses, its own nuclide's whatever it is) then joins the model in
+        place of the shape nuisance, with each group's amount in the ratio the count model gives: a second
+        nuclide whose share changes along the flight changes the spectrum's shape over time, which one source
+        template cannot follow (the verdict called every Co-60 second source unexplained for it).
 
         Every fit is damped Fisher scoring on all parameters at once (template log masses, source amplitudes,
         background rate, the optional shape nuisance and the drift itself); the drifting fit starts from the
@@ -310,7 +316,9 @@ class SpectralModel:
                   bb=bb, a_b=fitter.background(bb), c=None, gamma=0.0)
         nll0, p0 = fitter.fit(p0, None, gamma_free=False)
         z = None
-        if self.nuisance == "auto":
+        if second is not None:
+            z = self._share(second, lab, g_)
+        elif self.nuisance == "auto":
             # the scattered continuum joins only when the no-drift fit misfits by more than 3 sd of its Pearson
             # chi-square per dof: it can also take part of a drift, and without misfit it is not needed
             mu = fitter.mu(p0, None)
@@ -363,6 +371,17 @@ class SpectralModel:
             deviance_per_dof=2 * (float(res["nll"]) - sat) / max(dof - 1, 1),
             nuisance=p0["c"], pearson_per_dof=pearson,
         )
+
+    @staticmethod
+    def _share(second: tuple[np.ndarray, np.ndarray], lab: np.ndarray, g_: int) -> np.ndarray:
+        """(G,) the second source's expected counts per group over the primary's (the covariate of its
+        component: its amplitude is the primary's times this ratio times its masses' sum)."""
+        first, other = (np.asarray(a, dtype=float) for a in second)
+        ok = lab >= 0
+        s1 = np.bincount(lab[ok], weights=first[ok], minlength=g_)[:g_]
+        s2 = np.bincount(lab[ok], weights=other[ok], minlength=g_)[:g_]
+        r = s2 / np.maximum(s1, 1e-9 * max(float(s1.max()), 1e-300))
+        return r / max(float(r.max()), 1e-300)
 
     @staticmethod
     def _durations(frames: Frames, lab: np.ndarray, g_: int) -> np.ndarray:

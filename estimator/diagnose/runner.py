@@ -269,6 +269,9 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     if named and final is not after:  # --add with more still missing: judge the model with those in too
         tc, ts = split_effects((*final.effects, *named))
         final = analyse(ds, (*tc, *ts), fitter.fit(tc, init=dict(final.fit.values)), spectral)
+    if "second_source" in final.effects and spectral is not None:
+        # the spectral verdict with the second source's own spectrum in (its share per frame from the count model)
+        final = analyse(ds, final.effects, final.fit, second_source_spectral(ds, final))
     ok = adequate(final, ds.frames)
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
@@ -334,17 +337,32 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     return dropped, (full if dropped else None)
 
 
-def second_nuclide(ds: Dataset, rep: ModelReport) -> NuclideChoice:
-    """The second source's nuclide from the flight's spectra (``nuclide``), with the count model's expected
-    counts of each source and the background split out of the final fit."""
-    fit = rep.fit
-    model, th = fit.model, dict(fit.values)
+def _source_counts(ds: Dataset, rep: ModelReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame, the final fit's expected counts of the primary source, of the second source and of the
+    background."""
+    model, th = rep.fit.model, dict(rep.fit.values)
     no2 = {**th, "second_source.cps_at_1m": 0.0}
     mu = model.expected_counts(th, ds.frames)
     mu1 = model.expected_counts(no2, ds.frames)
     bg = model.expected_counts({**no2, "cps_at_1m": 0.0}, ds.frames)
+    return np.maximum(mu1 - bg, 0.0), np.maximum(mu - mu1, 0.0), bg
+
+
+def second_source_spectral(ds: Dataset, rep: ModelReport) -> SpectralFit:
+    """The spectral fit with the second source's spectrum as a component of its own, in the ratio to the
+    primary's counts the count model gives each frame (``SpectralModel.fit(second=...)``): drift free when the
+    model has ``gain_drift``."""
+    first, other, _ = _source_counts(ds, rep)
+    return SpectralModel(ds.scenario.channel_edges_keV).fit(ds.frames, drift="gain_drift" in rep.effects,
+                                                            second=(first, other))
+
+
+def second_nuclide(ds: Dataset, rep: ModelReport) -> NuclideChoice:
+    """The second source's nuclide from the flight's spectra (``nuclide``), with the count model's expected
+    counts of each source and the background split out of the final fit."""
+    first, other, bg = _source_counts(ds, rep)
     return identify_second_nuclide(ds.frames, ds.scenario.channel_edges_keV, ds.scenario.nuclide or "Cs-137",
-                                   np.maximum(mu1 - bg, 0.0), np.maximum(mu - mu1, 0.0), bg)
+                                   first, other, bg)
 
 
 def _report_names(effects: list[str]) -> list[str]:
