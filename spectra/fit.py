@@ -424,6 +424,8 @@ def line_groups(problem: Problem | Joint, min_yield: float = SPREAD_MIN_YIELD,
 
 
 def identifiable(effect: str, problem: Problem | Joint) -> bool:
+    if effect == "coincidence_summing":  # only a cascade the library's yields force together (Co-60)
+        return bool(M.cascade_pairs(problem.nuclides))
     if effect in SPREAD_EFFECTS:
         g = line_groups(problem)
         return len(g) >= SPREAD_MIN_GROUPS and g[-1] >= SPREAD_MIN_RATIO * g[0]

@@ -125,6 +125,12 @@ DECLARED: dict[str, Effect] = {
         "interaction depth 1 - exp(-mu L) and escape length 2V/S (response.Crystal)",
         Param("crystal_mm", 10.0, 4.0, 25.0, "crystal diameter = length", "mm", discrete=True),
         Param("escape_scale", 1.0, 0.3, 3.0, "scale of the scattered photon's escape length", discrete=True)),
+    "coincidence_summing": Effect(
+        "true coincidence summing of a cascade's photons in the crystal: summing-out of each line, the summed "
+        "deposit (sum peak at E1 + E2) added; efficiency = on-axis solid angle of the crystal face x the "
+        "crystal's interaction probability (spectra.coincidence; Knoll sec. 12.VI)",
+        Param("source_distance_mm", 1000.0, 1.0, 1000.0, "source to crystal face on the axis (1000: no summing)",
+              "mm", start=30.0)),
     "k_xray_escape": Effect(
         "Cs/I K fluorescence escape, semi-infinite slab, xraydb (Elam et al. 2002)",
         Param("k_escape", 0.0, 0.0, 1.0, "K X-ray escape on (1) or off (0)", discrete=True)),
@@ -210,6 +216,9 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     t_lines = _transmission_at(tuple(energies), g)
     t_nodes = _transmission_at(tuple(response.INCIDENT_NODES_KEV), g)
     a = yields * direct * t_lines
+    sums = None
+    if params.get("source_distance_mm", NO_SUMMING_MM) < NO_SUMMING_MM:
+        a, yields, sums = _coincidence(params, nuclides, yields, a, energies, pk_e, pk_w, pk_line, conts)
     side = nodes["side"]
     if params["scatter_side"] > 0 and theta_min != response.SIDE_SCATTER_DEG[0]:
         side = _side_nodes(nuclides, theta_min)
@@ -221,6 +230,8 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     e = np.r_[pk_e, centres]
     w = np.r_[pk_w * a[pk_line], cont]
     var = np.r_[np.zeros(len(pk_e)), np.full(len(centres), response.GRID_STEP_KEV**2 / 12)]
+    if sums is not None:
+        e, w, var = np.r_[e, sums[0]], np.r_[w, sums[1]], np.r_[var, sums[2]]
     p = params["pileup"]
     if p > 0:
         step = response.GRID_STEP_KEV
@@ -231,6 +242,59 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
         var = np.r_[var, np.full(len(centres), 2 * step**2 / 12)]
     keep = w > 1e-12 * w.max()
     return e[keep], w[keep], var[keep]
+
+
+#: ``source_distance_mm`` at or above this: no coincidence summing (the baseline)
+NO_SUMMING_MM = 1000.0
+
+
+@lru_cache(maxsize=64)
+def cascade_pairs(nuclides: tuple[str, ...]) -> tuple[tuple[int, int, float], ...]:
+    """``coincidence.forced_pairs`` of each nuclide's lines, as indices into the lines of all ``nuclides``."""
+    from spectra import coincidence
+
+    out, start = [], 0
+    for n in nuclides:
+        ys = [y for _, y in source_lines(n)]
+        out += [(start + i, start + j, c) for i, j, c in coincidence.forced_pairs(ys)]
+        start += len(ys)
+    return tuple(out)
+
+
+def _coincidence(params, nuclides, yields, a, energies, pk_e, pk_w, pk_line, conts):
+    """True coincidence summing of the lines the yields force together (``spectra.coincidence``): each line's
+    yield lowered by the partner's total efficiency (summing-out), and the summed deposits of the two photons'
+    direct spectra (exact sum peak, peak + continuum, continuum * continuum). Returns the new direct weights,
+    the new yields and the sum points (energies, weights, variances)."""
+    from spectra import coincidence
+
+    g = coincidence.solid_angle_fraction(params["source_distance_mm"], params["crystal_mm"] / 2)
+    step = response.GRID_STEP_KEV
+    centres = 0.5 * (response.energy_grid()[1:] + response.energy_grid()[:-1])
+    direct = a / np.maximum(yields, 1e-300)  # per photon: share reaching the crystal unscattered
+    total = np.array([pk_w[pk_line == i].sum() + conts[i].sum() for i in range(len(energies))]) * direct
+    y = yields.copy()
+    se, sw, sv = [], [], []
+    for i, j, c in cascade_pairs(nuclides):
+        y[i] -= g * c * total[j]  # photon i recorded alone only when j deposits nothing
+        y[j] -= g * c * total[i]
+        pi, pj = pk_line == i, pk_line == j
+        ei, wi, ej, wj = pk_e[pi], pk_w[pi] * direct[i], pk_e[pj], pk_w[pj] * direct[j]
+        ci, cj = conts[i] * direct[i], conts[j] * direct[j]
+        se.append((ei[:, None] + ej[None, :]).ravel())  # both full: the sum peaks
+        sw.append(g * c * (wi[:, None] * wj[None, :]).ravel())
+        sv.append(np.zeros(ei.size * ej.size))
+        for e_pk, w_pk, cont in ((ei, wi, cj), (ej, wj, ci)):  # one full, the other's continuum
+            se.append((e_pk[:, None] + centres[None, :]).ravel())
+            sw.append(g * c * (w_pk[:, None] * cont[None, :]).ravel())
+            sv.append(np.full(e_pk.size * centres.size, step**2 / 12))
+        cc = np.convolve(ci, cj)  # both in the continuum: bin k + l sits at (k + l + 1) step
+        se.append((np.arange(cc.size) + 1.0) * step)
+        sw.append(g * c * cc)
+        sv.append(np.full(cc.size, 2 * step**2 / 12))
+    if not se:
+        return a, yields, None
+    return y * direct, y, (np.concatenate(se), np.concatenate(sw), np.concatenate(sv))
 
 
 def file_energy(params: dict[str, float], e: np.ndarray | float) -> np.ndarray:
