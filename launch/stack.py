@@ -255,6 +255,10 @@ class StackRun:
                 return True
             return False
         finally:
+            # the MCAP log is finished first, with its own grace: stopped with the rest of the stack under one
+            # 10 s grace, a loaded machine's recorder was killed before it wrote its buffer (an aborted run's
+            # flight.mcap held no magic in a 2-worker CI run)
+            stop_recorder(self.stack, self.out)
             self.stack.stop()
 
 

@@ -157,7 +157,7 @@ class KeyAccounts:
                 self._keys[key].invalid += 1
                 n = self._keys[key].invalid
             if worth_reporting(n, self._first, 100):
-                self._log.warning("invalid sample #%d on %s from %s: %s", n, key, publisher_of(sample), exc)
+                self._log.warning("dropped invalid sample #%d on %s from %s: %s", n, key, publisher_of(sample), exc)
             return None
         with self._lock:
             self._keys[key].accepted += 1
