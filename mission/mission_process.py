@@ -48,6 +48,7 @@ from mission.team_link import TeamLinkBase, label_dwells
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.frame_record import POSE_KEEP_S, FrameRecord, pose_for
+from radseek.payload_drops import worth_reporting
 from radseek_io.outdir import atomic_write_json
 
 log = logging.getLogger("radseek.mission")
@@ -210,7 +211,7 @@ class _Stream(_PosedHistograms):
         if self.queue.full():
             self.queue.get_nowait()
             self.queue_dropped += 1
-            if self.queue_dropped in (1, 10) or self.queue_dropped % 1000 == 0:
+            if worth_reporting(self.queue_dropped, 1, 1000):
                 log.warning("histogram queue full (%d): dropped the oldest untaken histogram (%d so far)",
                             QUEUE_CAP, self.queue_dropped)
         self.queue.put_nowait(hist)
