@@ -111,15 +111,34 @@ def test_nuclides_table_right_rate_per_true_nuclide():
 
 
 def test_offlist_table_counts_unexplained_and_any_named_effect_as_wrong():
-    rows = [_row("offlist", [], ["moving_source"], effect="moving_source", unexplained=True),
-            _row("offlist", ["pose_drift"], ["moving_source"], effect="moving_source", unexplained=True),
+    carried = {"effect": "moving_source", "variant": "source_carried"}
+    rows = [_row("offlist", [], ["moving_source"], unexplained=True, **carried),
+            _row("offlist", ["pose_drift"], ["moving_source"], unexplained=True, **carried),
             _row("offlist", [], ["background_drift"], effect="background_drift", unexplained=False, hotspots=2)]
     text, s = E.offlist_table(rows)
-    assert s["moving_source"] == {"n": 2, "unexplained": 1.0, "wrong": 1}
+    assert s["source_carried"] == {"n": 2, "unexplained": 1.0, "wrong": 1}
     assert s["background_drift"] == {"n": 1, "unexplained": 0.0, "wrong": 0}
     assert "67%, 1 wrong: NOT met" in text and "(pose_drift)" in text
-    ok = [_row("offlist", [], ["moving_source"], effect="moving_source", unexplained=True)] * 10
+    ok = [_row("offlist", [], ["moving_source"], unexplained=True, **carried)] * 10
     assert "100%, 0 wrong: met" in E.offlist_table(ok)[0]
+
+
+def test_a_constant_velocity_source_is_scored_as_its_pose_drift_equivalent_not_as_off_list():
+    truth = {"moving_source": {"vx": 0.010, "vy": -0.020}}
+
+    def row(named, vx, vy, sd=0.001):
+        return _row("offlist", named, ["moving_source"], effect="moving_source", variant="moving_source",
+                    unexplained=False, truth_params=truth,
+                    params={"pose_drift.vx": [vx, sd], "pose_drift.vy": [vy, sd]} if named else {})
+
+    rows = [row(["pose_drift"], 0.011, -0.021),  # within 3 sd + 2 mm/s: the equivalent, right
+            row(["pose_drift"], -0.010, 0.020),  # the opposite sign: not the same counts
+            row(["pose_drift", "dead_time"], 0.010, -0.020),  # another effect beside it: not the equivalent
+            row([], 0, 0)]
+    assert [E.equivalent_named(r) for r in rows] == [True, False, False, False]
+    text, s = E.offlist_table(rows)
+    assert s == {"moving_source (= pose_drift)": {"n": 4, "equivalent_named": 1}}
+    assert "Target" not in text and "in 1/4" in text
 
 
 def test_conull_false_alarms_allow_the_true_over_dispersion_and_count_unexplained():

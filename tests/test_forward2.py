@@ -314,3 +314,27 @@ def test_background_drift_sine_and_ramp():
     got = f.total_counts.sum()
     assert abs(got - want) < 5 * np.sqrt(want)
     assert abs(got - np.sum(30.0 * f.duration)) > 10 * np.sqrt(want)  # the ramp is far outside a flat background
+
+
+def test_a_source_carried_off_mid_flight_stays_put_until_it_is_picked_up():
+    v, start = (0.05, 0.0), 0.5
+    ds = simulate(FlightSpec("lattice", {"moving_source": {"vx": v[0], "vy": v[1], "start_fraction": start}}), 6)
+    f, s0 = ds.frames, ds.truth.sources[0].position
+    tm = f.t - f.duration / 2
+    t0 = start * (f.t.max() + 0.05)  # the track's duration, to a frame
+    moved = np.maximum(tm - t0, 0.0)
+    carried = s0 + np.column_stack([v[0] * moved, v[1] * moved, 0 * tm])
+    early_off = late_off = 0
+    for k in range(1, int(f.dwell.max()) + 1):
+        w = f.dwell == k
+        n = f.total_counts[w].sum()
+        exp_car = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - carried[w]) ** 2, 1) + 30.0))
+        exp_fix = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - s0) ** 2, 1) + 30.0))
+        assert abs(n - exp_car) < 5 * np.sqrt(exp_car) + 0.12 * exp_car, (k, n, exp_car)
+        bad = abs(n / exp_fix - 1) > 0.3
+        if tm[w].max() < t0:
+            early_off += bad
+        else:
+            late_off += bad
+    assert early_off == 0  # before it is picked up the fixed source explains every dwell
+    assert late_off >= 2  # carried 2-3 m afterwards: the start position misses dwells

@@ -16,11 +16,12 @@ distance flown (``"random_walk"``), plus ``pose_drift`` v t.
 Besides the diagnose vocabulary (dataset-format.md) it makes ``unmapped_wall`` (slabs absent from
 scenario.walls; U_ij the path length inside them), a ``second_source`` of another ``nuclide`` (its measured
 spectrum), a primary of another nuclide (``FlightSpec.nuclide``), and two effects that vocabulary lacks, to test
-an honest "none of these": ``moving_source`` (the primary moves at a constant ``vx``, ``vy`` m/s; truth holds
-its position at t = 0) and ``background_drift`` (``amplitude`` a, ``period_s`` T, ``phase`` phi and
-``percent_per_min`` r in the formula above, each optional). Every nuclide is seen through the flight's
-``crystal`` (``fill`` is Cs-137 only: other nuclides then get their measured ``real`` spectrum); the
-scattered-photon buildup (``scatter``) keeps its Cs-137 continuum whatever the nuclide.
+an honest "none of these": ``moving_source`` (the primary moves at a constant ``vx``, ``vy`` m/s, from
+``start_s`` (or ``start_fraction`` of the flight) on when given, else from t = 0: only then is it not the same
+counts as a ``pose_drift``; truth holds its position at t = 0) and ``background_drift`` (``amplitude`` a,
+``period_s`` T, ``phase`` phi and ``percent_per_min`` r in the formula above, each optional). Every nuclide is
+seen through the flight's ``crystal`` (``fill`` is Cs-137 only: other nuclides then get their measured ``real``
+spectrum); the scattered-photon buildup (``scatter``) keeps its Cs-137 continuum whatever the nuclide.
 """
 
 from __future__ import annotations
@@ -242,7 +243,10 @@ def simulate(spec: FlightSpec, seed: int = 0) -> Dataset:
     src_t = np.broadcast_to(src0, pos.shape)  # the primary's position per frame
     if "moving_source" in fx:
         v = fx["moving_source"]
-        src_t = src0[None, :] + np.column_stack([v["vx"] * t_mid, v["vy"] * t_mid, np.zeros_like(t_mid)])
+        # picked up at start_s (or start_fraction of the flight), then carried at v
+        t0 = float(v.get("start_s", v.get("start_fraction", 0.0) * track.duration))
+        moved = np.maximum(t_mid - t0, 0.0)
+        src_t = src0[None, :] + np.column_stack([v["vx"] * moved, v["vy"] * moved, np.zeros_like(t_mid)])
     sources = [(src_t, S, spec.nuclide)]
     if "second_source" in fx:
         p = fx["second_source"]
