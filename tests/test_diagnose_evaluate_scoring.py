@@ -69,14 +69,19 @@ def test_walls_table_rates_per_mu_t_and_the_target():
     text, s = E.walls_table(rows)
     # the shaded part's centre stands in for the centre where a row has none
     assert s[0.3] == {"n": 2, "detected": 0.5, "located_segment": 1 / 3, "located_centre": 1 / 3,
-                      "located_shaded": 2 / 3, "every_located": 0.0}
+                      "located_shaded": 2 / 3, "every_located": 0.0, "flights_located": 0.5}
     assert s[1.0] == {"n": 1, "detected": 1.0, "located_segment": 1.0, "located_centre": 1.0,
-                      "located_shaded": 1.0, "every_located": 1.0}
-    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 / 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another effect
+                      "located_shaded": 1.0, "every_located": 1.0, "flights_located": 1.0}
+    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 / 1/1 | 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another
     assert "NOT met" in text
     good = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.4}], 1, 1) for mt in (0.3, 0.5, 1.0)]
     text, _ = E.walls_table(good + [_wall_row(0.1, [], [], 1, 0)])  # weak walls do not count for the target
-    assert "lowest detection 100%, lowest located (centre) 100%, (shaded part's centre) 100%: met" in text
+    assert "lowest detection 100%, lowest located (centre) 100%, (shaded part's centre) 100%: met per true" in text
+    # one of two true walls located on every flight: met per flight, not per wall
+    half = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.4}, {"segment": 0.9, "centre": 1.2}], 2, 1)
+            for mt in (0.3, 0.5, 1.0)]
+    text, _ = E.walls_table(half)
+    assert "(centre) 50%" in text and "NOT met per true wall" in text and "located 100%: met per flight" in text
     far = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.6}], 1, 1) for mt in (0.3, 0.5, 1.0)]
     assert "NOT met" in E.walls_table(far)[0]  # the target is the centre, not the segment
 
