@@ -405,7 +405,9 @@ LOW_ENERGY_EFFECTS = ("absorber", "k_xray_escape")
 #: effects that need photopeaks spread over the energy range: at least ``SPREAD_MIN_GROUPS`` lines of at least
 #: ``SPREAD_MIN_YIELD`` per decay, each more than ``SPREAD_MIN_GAP_KEV`` above the previous one, spanning a factor
 #: ``SPREAD_MIN_RATIO`` in energy (Eu-152, Ba-133, Th-232 or Cs-137 with Co-60; not Cs-137 or Co-60 alone)
-SPREAD_EFFECTS = ("energy_nonlinearity", "resolution_curvature")
+#: electron_escape too: its signature is how the peak-to-total ratio falls with energy, which one line cannot tell
+#: from the scatter shares
+SPREAD_EFFECTS = ("energy_nonlinearity", "resolution_curvature", "electron_escape")
 SPREAD_MIN_YIELD, SPREAD_MIN_GAP_KEV, SPREAD_MIN_GROUPS, SPREAD_MIN_RATIO = 0.02, 100.0, 3, 3.0
 
 

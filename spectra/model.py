@@ -131,6 +131,11 @@ DECLARED: dict[str, Effect] = {
         "crystal's interaction probability (spectra.coincidence; Knoll sec. 12.VI)",
         Param("source_distance_mm", 1000.0, 1.0, 1000.0, "source to crystal face on the axis (1000: no summing)",
               "mm", start=30.0)),
+    "electron_escape": Effect(
+        "electrons leaving the crystal near a face: escape probability f R_CSDA(T) / mean chord, R from NIST ESTAR "
+        "for CsI (spectra.electron_escape; Knoll sec. 10.I)",
+        Param("electron_range_factor", 0.0, 0.0, 1.0, "f: mean projected range / CSDA range of the crystal's "
+              "electrons (0: no escape)", start=0.4)),
     "k_xray_escape": Effect(
         "Cs/I K fluorescence escape, semi-infinite slab, xraydb (Elam et al. 2002)",
         Param("k_escape", 0.0, 0.0, 1.0, "K X-ray escape on (1) or off (0)", discrete=True)),
@@ -227,8 +232,15 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     cont = a @ conts + (node_vec * t_nodes) @ D
     grid = response.energy_grid()
     centres = 0.5 * (grid[1:] + grid[:-1])
+    pk_kept = pk_w * a[pk_line]
+    f = params.get("electron_range_factor", 0.0)
+    if f > 0:
+        from spectra import electron_escape
+
+        chord = electron_escape.mean_chord_cm(params["crystal_mm"], params["crystal_mm"])
+        pk_kept, cont = electron_escape.apply(pk_e, pk_kept, cont, grid, f, chord)
     e = np.r_[pk_e, centres]
-    w = np.r_[pk_w * a[pk_line], cont]
+    w = np.r_[pk_kept, cont]
     var = np.r_[np.zeros(len(pk_e)), np.full(len(centres), response.GRID_STEP_KEV**2 / 12)]
     if sums is not None:
         e, w, var = np.r_[e, sums[0]], np.r_[w, sums[1]], np.r_[var, sums[2]]
