@@ -13,14 +13,19 @@ one-line warning names the key, the publisher, the observed and the expected rat
 Every key has one publisher by contract, so a key's samples are taken from one publisher at a time, its *owner*:
 the first publisher heard within its rate. Samples of another publisher while the owner speaks are dropped as
 ``foreign`` (a forgery, or a second board on one key), named the same way; an owner silent for
-``OWNER_SILENT_WALL_S`` hands the key to the next publisher heard (a restarted detector).
+``OWNER_SILENT_WALL_S`` hands the key to the next new publisher heard (a restarted detector): one first heard
+after the owner's last sample. A publisher already refused while the owner spoke never takes the key over, so a
+flooder cannot wait out the owner's pauses (a detector sends no histogram while lockstep holds sim time for a fit).
 
 A forger may also copy the owner's id into its own samples' ``source_info`` (zenoh lets a publisher give any).
 radseek's publishers number their samples 1, 2, 3... (``topics.StampedPublisher``, in order per publisher as
 zenoh delivers them), so a copy that repeats a number already taken, or goes back, is dropped as
-``sequence`` and named "forged (sequence)". A forger that numbers ahead of the owner gets its copy taken and the
-owner's own sample of that number dropped: that still names the forgery, and only the router's authentication
-keeps it out. ``counts()`` gives per key the accepted, flood-dropped, foreign, sequence and invalid samples, and
+``sequence`` and named "forged (sequence)". A forger that numbers ahead of the owner, or whose copy gets here
+first (a router passes a sample to its subscribers one after the other: under load the forger may hear it and
+have its copy routed before this subscriber's turn), gets its copy taken and the owner's own sample of that number
+dropped: that still names the forgery, and only the router's authentication keeps it out.
+
+``counts()`` gives per key the accepted, flood-dropped, foreign, sequence and invalid samples, and
 ``dropped_from``: the same per publisher that had any dropped, for ``mission_summary.json``::
 
     accounts = KeyAccounts(log, speedup=20.0)
@@ -144,7 +149,8 @@ class KeyAccounts:
                 kind = "flood"
             else:
                 b.tokens -= 1.0
-                owner = acct.owner is None or acct.owner == publisher or now - acct.owner_heard > OWNER_SILENT_WALL_S
+                owner = acct.owner is None or acct.owner == publisher or (
+                    now - acct.owner_heard > OWNER_SILENT_WALL_S and b.since > acct.owner_heard)
                 if not owner:
                     kind = "foreign"
                 elif sn is not None and sn <= b.last_sn:
