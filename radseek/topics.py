@@ -538,19 +538,6 @@ def encoding(topic: str) -> str:
     raise KeyError(f"{topic!r} is not a radseek topic")
 
 
-#: the zenoh priority every radseek publisher sends at (one for all: their samples keep their order across keys).
-#: Above zenoh's default (DATA), so a flood at the default priority waits behind the stack's own samples on a
-#: congested link: a router serves a link's higher priorities first.
-PRIORITY = "DATA_HIGH"
-#: topics whose samples a router never drops for congestion (zenoh CongestionControl.BLOCK): what the mission
-#: records, the frames and the pose they are placed at, and the status its lost-frame rule reads. Under the
-#: default (DROP) a router gives up on a sample after 1 ms in a full queue: a flood that kept the mission's link
-#: busy cost 6-11 frames of 900 and, where a forger re-sent the same sequence number, put its copy in their place
-#: (``tests/test_run_flood_summary.py``). A receiver that takes none for 5 s is disconnected by the router instead
-#: (zenoh's ``wait_before_close``).
-BLOCKING = (HISTOGRAM, RAW_FRAME, DETECTOR_STATUS, POSE)
-
-
 class StampedPublisher:
     """A zenoh publisher whose every ``put`` carries ``source_info`` (its entity id and a sequence number 1, 2,
     3...), so a receiver can tell its samples from another publisher's on the same key and a copy of its id from
@@ -576,14 +563,10 @@ class StampedPublisher:
 
 def declare_publisher(session: Any, topic: str, vehicle: str = DEFAULT_VEHICLE) -> StampedPublisher:
     """``session.declare_publisher`` for ``key(topic, vehicle)`` with the topic's :func:`encoding`, stamping its
-    samples with its id (:class:`StampedPublisher`), at zenoh priority :data:`PRIORITY`, never dropped for
-    congestion if the topic is one of :data:`BLOCKING`."""
+    samples with its id (:class:`StampedPublisher`)."""
     import zenoh
 
-    congestion = zenoh.CongestionControl.BLOCK if topic in BLOCKING else zenoh.CongestionControl.DROP
-    return StampedPublisher(session.declare_publisher(key(topic, vehicle), encoding=zenoh.Encoding(encoding(topic)),
-                                                      priority=getattr(zenoh.Priority, PRIORITY),
-                                                      congestion_control=congestion))
+    return StampedPublisher(session.declare_publisher(key(topic, vehicle), encoding=zenoh.Encoding(encoding(topic))))
 
 
 def topic_of(full_key: str) -> str:

@@ -28,18 +28,6 @@ from radseek import zenoh_auth
 from radseek.zenoh_auth import CredentialsError, User
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-#: the kernel's send and receive buffer of every radseek TCP link (router and clients). Small, so that what is
-#: queued for a slow receiver waits in zenoh's per-priority queues, where the router sends radseek's own samples
-#: (``topics.PRIORITY``) first, rather than in the kernel's first-in first-out buffers (megabytes when left to
-#: Linux's autotuning: under a flood, seconds of someone else's samples ahead of every frame; the mission then
-#: took its frames for lost). 64 KiB still carries a hundred megabytes a second on loopback.
-TCP_BUFFER_BYTES = 65536
-
-
-def _small_tcp_buffers(conf: zenoh.Config) -> None:
-    """Give ``conf``'s TCP links :data:`TCP_BUFFER_BYTES` of kernel buffer each way."""
-    conf.insert_json5("transport/link/tcp/so_sndbuf", str(TCP_BUFFER_BYTES))
-    conf.insert_json5("transport/link/tcp/so_rcvbuf", str(TCP_BUFFER_BYTES))
 
 
 class RouterRefused(ConnectionError):
@@ -56,7 +44,6 @@ def router_config(endpoint: str = DEFAULT_ENDPOINT, credentials: str | Path | No
     conf.insert_json5("mode", json.dumps("router"))
     conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
-    _small_tcp_buffers(conf)
     if credentials is not None:
         users = zenoh_auth.read_credentials(credentials)
         conf.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": str(Path(credentials).resolve())}))
@@ -77,7 +64,6 @@ def client_config(config_file: str | Path | None = None, connect: str = DEFAULT_
     conf.insert_json5("connect/endpoints", json.dumps([connect]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
-    _small_tcp_buffers(conf)
     if user is not None:
         conf.insert_json5("transport/auth/usrpwd", json.dumps({"user": user.name, "password": user.password}))
     return conf
