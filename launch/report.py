@@ -18,7 +18,9 @@ over time.
 ``angle_deg`` of the major axis from east), ``bound_m`` (drift-aware Cramér-Rao bound, rms horizontal, m),
 ``p_value`` (goodness of fit), ``warnings``, ``estimate`` (the whole record), ``estimate_source``
 (``in-flight`` or ``post-flight``), ``stop_sigma_m``, the mission's counts and times, ``truth``, ``stop_reason``
-(for people) and ``outcome`` (``radseek.outcome.Outcome``'s value, for programs).
+(for people) and ``outcome`` (``radseek.outcome.Outcome``'s value, for programs), ``samples`` (per key the
+mission subscribed to: samples taken and dropped, and per publisher what was dropped, ``mission.key_accounts``;
+a flood or forgery is also a line of ``warnings``) and ``histogram_queue``.
 """
 
 from __future__ import annotations
@@ -285,13 +287,14 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     plt.close(fig)
 
     warning = gof_warning(est.p_value, out / "dataset")
+    samples = mission.get("samples") or {}
     summary = {
         "error_m": err,
         "sigma_m": float(est.sigma_m),
         "ellipse_95": dict(est.ellipse_95 or {}),
         "bound_m": float(est.bound_m if est.bound_m is not None else math.nan),
         "p_value": float(est.p_value),
-        "warnings": [warning] if warning else [],
+        "warnings": ([warning] if warning else []) + dropped_warnings(samples),
         "estimate_source": est_source,
         "estimate": {**est.to_json(), "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
         "stop_sigma_m": stop_sigma,
@@ -305,11 +308,32 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         "frames_received": mission.get("frames_received"),
         "frames_recorded": mission.get("frames_recorded"),
         "frames_flagged": mission.get("frames_flagged"),
+        "samples": samples,
+        "histogram_queue": mission.get("histogram_queue"),
         "wall_time_s": wall_time_s,
         "speedup": speedup,
     }
     atomic_write_json(out / "summary.json", summary)  # last, and whole or not at all
     return summary
+
+
+#: the kinds of dropped sample a summary warns about: another's (or a forged copy's) samples and floods (invalid
+#: payloads are ``bad_payloads``, e.g. a board's corrupted frames)
+HOSTILE_DROPS = ("flood", "foreign", "sequence")
+
+
+def dropped_warnings(samples: dict[str, Any], log: str = "logs/mission.log") -> list[str]:
+    """One line per key and publisher whose samples the mission dropped as a flood, as another publisher's or
+    as a forged sequence (``mission.key_accounts``: ``mission_summary.json``'s ``samples``)."""
+    lines = []
+    for key, row in samples.items():
+        for publisher, dropped in row.get("dropped_from", {}).items():
+            kinds = {k: dropped.get(k, 0) for k in HOSTILE_DROPS if dropped.get(k, 0)}
+            if kinds:
+                what = ", ".join(f"{k} {n}" for k, n in kinds.items())
+                lines.append(f"dropped {sum(kinds.values())} samples on {key} from {publisher} ({what}; "
+                             f"{row.get('accepted', 0)} taken on the key): see {log}")
+    return lines
 
 
 #: one colour per vehicle of a team (``radseek run --vehicles N``)

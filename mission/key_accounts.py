@@ -13,8 +13,20 @@ one-line warning names the key, the publisher, the observed and the expected rat
 Every key has one publisher by contract, so a key's samples are taken from one publisher at a time, its *owner*:
 the first publisher heard within its rate. Samples of another publisher while the owner speaks are dropped as
 ``foreign`` (a forgery, or a second board on one key), named the same way; an owner silent for
-``OWNER_SILENT_WALL_S`` hands the key to the next publisher heard (a restarted detector). ``counts()`` gives per
-key the accepted, flood-dropped, foreign and invalid samples, for ``mission_summary.json``::
+``OWNER_SILENT_WALL_S`` hands the key to the next new publisher heard (a restarted detector): one first heard
+after the owner's last sample. A publisher already refused while the owner spoke never takes the key over, so a
+flooder cannot wait out the owner's pauses (a detector sends no histogram while lockstep holds sim time for a fit).
+
+A forger may also copy the owner's id into its own samples' ``source_info`` (zenoh lets a publisher give any).
+radseek's publishers number their samples 1, 2, 3... (``topics.StampedPublisher``, in order per publisher as
+zenoh delivers them), so a copy that repeats a number already taken, or goes back, is dropped as
+``sequence`` and named "forged (sequence)". A forger that numbers ahead of the owner, or whose copy gets here
+first (a router passes a sample to its subscribers one after the other: under load the forger may hear it and
+have its copy routed before this subscriber's turn), gets its copy taken and the owner's own sample of that number
+dropped: that still names the forgery, and only the router's authentication keeps it out.
+
+``counts()`` gives per key the accepted, flood-dropped, foreign, sequence and invalid samples, and
+``dropped_from``: the same per publisher that had any dropped, for ``mission_summary.json``::
 
     accounts = KeyAccounts(log, speedup=20.0)
     pose = accounts.decode(topics.Pose, sample)   # None: a flood or an invalid payload (counted, maybe logged)
@@ -40,6 +52,14 @@ MIN_BURST = 20.0  # samples a publisher may always send at once (a slow key's st
 WARN_EVERY_WALL_S = 5.0  # a flooded key and publisher is named at most this often
 UNKNOWN_PUBLISHER = "unknown publisher"
 OWNER_SILENT_WALL_S = 3.0  # wall s of silence after which a key's publisher is replaced by the next one heard
+DROP_KINDS = ("flood", "foreign", "sequence", "invalid")
+
+
+def sequence_of(sample: Any) -> int | None:
+    """The publisher's sequence number of ``sample`` (``source_info.source_sn``), None without one."""
+    info = getattr(sample, "source_info", None)
+    sn = getattr(info, "source_sn", None) if info is not None else None
+    return sn if isinstance(sn, int) else None
 
 
 def publisher_of(sample: Any) -> str:
@@ -60,6 +80,9 @@ class _Bucket:
     refilled: float  # wall time of the last refill
     since: float  # wall time of its first sample
     arrived: int = 0
+    last_sn: int = 0  # the highest sequence number (``source_info.source_sn``) taken from it
+    #: its samples dropped, per kind ("flood", "foreign", "sequence", "invalid")
+    dropped: dict[str, int] = field(default_factory=dict)
     #: per kind of warning ("flood", "foreign"): the wall time and the arrivals at its last line
     warned: dict[str, tuple[float, int]] = field(default_factory=dict)
 
@@ -77,6 +100,7 @@ class _Key:
     flood: int = 0
     invalid: int = 0
     foreign: int = 0
+    sequence: int = 0
     owner: str | None = None  # the publisher whose samples are taken
     owner_heard: float = 0.0  # wall time of the owner's last sample taken
     buckets: dict[str, _Bucket] = field(default_factory=dict)
@@ -102,10 +126,11 @@ class KeyAccounts:
         return rate.per_sim_s * self.speedup + rate.per_wall_s
 
     def admit(self, sample: Any) -> bool:
-        """Whether ``sample`` is taken: from its key's owner, within its rate (False: dropped as a flood or as
-        foreign, counted)."""
+        """Whether ``sample`` is taken: from its key's owner, within its rate, its sequence number after the last
+        taken (False: dropped as a flood, as foreign or as a forged sequence, counted)."""
         key = str(sample.key_expr)
         publisher = publisher_of(sample)
+        sn = sequence_of(sample) if publisher != UNKNOWN_PUBLISHER else None
         now = self._clock()
         warn: tuple | None = None
         with self._lock:
@@ -120,25 +145,36 @@ class KeyAccounts:
             b.tokens = min(burst, b.tokens + (now - b.refilled) * limit)
             b.refilled = now
             b.arrived += 1
-            kind = "flood" if b.tokens < 1.0 else "foreign"
-            due = kind not in b.warned or now - b.warned[kind][0] >= WARN_EVERY_WALL_S
-            if kind == "flood":
-                acct.flood += 1
-                if due:
-                    warn = ("flood on %s from %s: %s, %.4g/s expected (x%g speed-up); the excess is dropped "
-                            "(%d so far on this key)", key, publisher, b.rate_since(kind, now),
-                            self.expected_wall_hz(acct.topic), self.speedup, acct.flood)
+            if b.tokens < 1.0:
+                kind = "flood"
             else:
                 b.tokens -= 1.0
-                if acct.owner is None or acct.owner == publisher or now - acct.owner_heard > OWNER_SILENT_WALL_S:
+                owner = acct.owner is None or acct.owner == publisher or (
+                    now - acct.owner_heard > OWNER_SILENT_WALL_S and b.since > acct.owner_heard)
+                if not owner:
+                    kind = "foreign"
+                elif sn is not None and sn <= b.last_sn:
+                    kind = "sequence"
+                else:
                     acct.owner, acct.owner_heard = publisher, now
+                    b.last_sn = sn if sn is not None else b.last_sn
                     return True
-                acct.foreign += 1
-                if due:
+            b.dropped[kind] = b.dropped.get(kind, 0) + 1
+            setattr(acct, kind, getattr(acct, kind) + 1)
+            if kind not in b.warned or now - b.warned[kind][0] >= WARN_EVERY_WALL_S:
+                so_far = getattr(acct, kind)
+                if kind == "flood":
+                    warn = ("flood on %s from %s: %s, %.4g/s expected (x%g speed-up); the excess is dropped "
+                            "(%d so far on this key)", key, publisher, b.rate_since(kind, now),
+                            self.expected_wall_hz(acct.topic), self.speedup, so_far)
+                elif kind == "foreign":
                     warn = ("second publisher on %s: %s (%s) while %s publishes it; its samples are dropped as "
                             "forged (%d so far on this key)", key, publisher, b.rate_since(kind, now), acct.owner,
-                            acct.foreign)
-            if warn is not None:
+                            so_far)
+                else:
+                    warn = ("forged (sequence) on %s from %s: sequence number %d after %d already taken from it "
+                            "(a copy of its id); dropped (%d so far on this key)", key, publisher, sn, b.last_sn,
+                            so_far)
                 b.warned[kind] = (now, b.arrived)
         if warn is not None:
             self._log.warning(*warn)
@@ -154,8 +190,11 @@ class KeyAccounts:
             msg = schema.from_bytes(sample.payload.to_bytes())  # type: ignore[attr-defined]
         except topics.PayloadError as exc:
             with self._lock:
-                self._keys[key].invalid += 1
-                n = self._keys[key].invalid
+                acct = self._keys[key]
+                acct.invalid += 1
+                n = acct.invalid
+                b = acct.buckets[publisher_of(sample)]
+                b.dropped["invalid"] = b.dropped.get("invalid", 0) + 1
             if worth_reporting(n, self._first, 100):
                 self._log.warning("dropped invalid sample #%d on %s from %s: %s", n, key, publisher_of(sample), exc)
             return None
@@ -169,9 +208,18 @@ class KeyAccounts:
         with self._lock:
             return sum(a.invalid for a in self._keys.values())
 
-    def counts(self) -> dict[str, dict[str, int]]:
+    def counts(self) -> dict[str, dict[str, Any]]:
         """Per key heard: ``accepted``, ``flood`` (dropped over the rate), ``foreign`` (dropped: not the key's
-        publisher) and ``invalid`` samples."""
+        publisher), ``sequence`` (dropped: a sequence number repeated or going back) and ``invalid`` samples;
+        with any dropped, ``dropped_from``: per publisher, its dropped samples of each kind."""
         with self._lock:
-            return {k: {"accepted": a.accepted, "flood": a.flood, "foreign": a.foreign, "invalid": a.invalid}
-                    for k, a in sorted(self._keys.items())}
+            out: dict[str, dict[str, Any]] = {}
+            for k, a in sorted(self._keys.items()):
+                row: dict[str, Any] = {"accepted": a.accepted, "flood": a.flood, "foreign": a.foreign,
+                                       "sequence": a.sequence, "invalid": a.invalid}
+                dropped = {p: {kind: b.dropped.get(kind, 0) for kind in DROP_KINDS}
+                           for p, b in sorted(a.buckets.items()) if b.dropped}
+                if dropped:
+                    row["dropped_from"] = dropped
+                out[k] = row
+            return out

@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import threading
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, ClassVar, Self
 
@@ -538,9 +539,11 @@ def encoding(topic: str) -> str:
 
 
 class StampedPublisher:
-    """A zenoh publisher whose every ``put`` carries ``source_info`` (its entity id and a sequence number), so a
-    receiver can tell its samples from another publisher's on the same key (``mission.key_accounts``: rate
-    accounting per publisher). Anything else is the zenoh publisher's own."""
+    """A zenoh publisher whose every ``put`` carries ``source_info`` (its entity id and a sequence number 1, 2,
+    3...), so a receiver can tell its samples from another publisher's on the same key and a copy of its id from
+    itself (``mission.key_accounts``: rate accounting per publisher; a repeated or backward sequence number is a
+    forgery). Puts from several threads go out one at a time, in sequence order. Anything else is the zenoh
+    publisher's own."""
 
     def __init__(self, publisher: Any):
         import zenoh
@@ -548,9 +551,11 @@ class StampedPublisher:
         self._pub = publisher
         self._sn = itertools.count(1)
         self._info = zenoh.SourceInfo  # looked up once: put is on every 10 Hz stream's path
+        self._lock = threading.Lock()
 
     def put(self, payload: Any, **kwargs: Any) -> None:
-        self._pub.put(payload, source_info=self._info(self._pub.id, next(self._sn)), **kwargs)
+        with self._lock:  # numbered and sent together: a receiver sees the numbers in order
+            self._pub.put(payload, source_info=self._info(self._pub.id, next(self._sn)), **kwargs)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._pub, name)

@@ -52,7 +52,10 @@ def test_a_publisher_over_its_rate_is_dropped_as_a_flood_and_named_once_per_peri
     clock.now = 1.0  # one wall second refills one second at the limit
     taken = sum(acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), "board")) is not None for _ in range(5000))
     assert taken == limit
-    assert acc.counts()[KEY] == {"accepted": burst + limit, "flood": 10000 - burst - limit, "foreign": 0, "invalid": 0}
+    flood = 10000 - burst - limit
+    assert acc.counts()[KEY] == {"accepted": burst + limit, "flood": flood, "foreign": 0, "sequence": 0, "invalid": 0,
+                                 "dropped_from": {"board/1": {"flood": flood, "foreign": 0, "sequence": 0,
+                                                              "invalid": 0}}}
     floods = [r.getMessage() for r in caplog.records if r.getMessage().startswith("flood on")]
     assert len(floods) == 1, floods  # at most one line per WARN_EVERY_WALL_S
     assert KEY in floods[0] and "board/1" in floods[0] and "20/s expected" in floods[0]
@@ -70,13 +73,91 @@ def test_a_second_publisher_is_dropped_as_forged_until_the_first_falls_silent(ca
     assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), "board")) is not None
     assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), None)) is None
     assert acc.decode(topics.Histogram, _sample(KEY, b"{junk", "board")) is None
-    assert acc.counts()[KEY] == {"accepted": 1, "flood": 0, "foreign": 1, "invalid": 1}
+    counts = acc.counts()[KEY]
+    assert {k: counts[k] for k in key_accounts.DROP_KINDS} == {"flood": 0, "foreign": 1, "sequence": 0, "invalid": 1}
+    assert counts["accepted"] == 1
+    assert counts["dropped_from"] == {"board/1": {"flood": 0, "foreign": 0, "sequence": 0, "invalid": 1},
+                                      "unknown publisher": {"flood": 0, "foreign": 1, "sequence": 0, "invalid": 0}}
     text = caplog.text
     assert f"second publisher on {KEY}: unknown publisher" in text and "while board/1 publishes it" in text
     assert f"invalid sample #1 on {KEY} from board/1" in text
     clock.now = key_accounts.OWNER_SILENT_WALL_S + 0.1  # the board fell silent: a restarted board takes the key
+    # ... but not the publisher refused while the board spoke (a flooder waiting out a lockstep pause)
+    assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), None)) is None
     assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), "board2")) is not None
     assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), "board")) is None
+
+
+def test_an_honest_run_reports_no_publisher_for_its_keys():
+    """Nothing dropped on a key: no ``dropped_from`` (the summary of an honest run names nobody)."""
+    acc = KeyAccounts(logging.getLogger("t.honest"), clock=_Clock())
+    for _ in range(5):
+        assert acc.decode(topics.Histogram, _sample(KEY, HIST.to_bytes(), "board")) is not None
+    assert acc.counts() == {KEY: {"accepted": 5, "flood": 0, "foreign": 0, "sequence": 0, "invalid": 0}}
+
+
+def _forge_copies(endpoint: str, n_honest: int, got: list) -> str:
+    """Honest publisher and forger on real sessions: a stamped publisher puts ``n_honest`` histograms; once
+    they are in ``got``, a forger that heard them puts, with the honest publisher's own zenoh id, a copy of each
+    sequence number (forged counts) and then numbers going back from the last. Returns the honest id."""
+    import zenoh
+
+    from radseek.zenoh_session import open_session
+
+    heard: list = []
+    with open_session(connect=endpoint) as honest_s, open_session(connect=endpoint) as forger_s:
+        forged = topics.Histogram(seq=10**7, board_time=1.0, t=1.0, duration=0.1, counts=[65535] * 32).to_bytes()
+        spy = forger_s.declare_subscriber(  # a session hears its own puts too: not its forged ones
+            KEY, lambda s: s.payload.to_bytes() != forged and heard.append(s.source_info))
+        time.sleep(0.5)  # no history in zenoh: the subscribers join before the first put
+        honest = topics.declare_publisher(honest_s, topics.HISTOGRAM, "uav0")
+        for i in range(n_honest):
+            honest.put(topics.Histogram(seq=i, board_time=0.1 * i, t=0.1 * i, duration=0.1, counts=[1] * 32)
+                       .to_bytes())
+        deadline = time.monotonic() + 30
+        while (len(heard) < n_honest or len(got) < n_honest) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        forger = forger_s.declare_publisher(KEY)
+        heard = heard[:n_honest]
+        last = heard[-1].source_sn
+        for info in heard:  # the very source_info each honest sample carried: same id, same number
+            forger.put(forged, source_info=zenoh.SourceInfo(info.source_id, info.source_sn))
+        for sn in range(last - 1, 0, -1):  # its own numbers, going back from the last taken
+            forger.put(forged, source_info=zenoh.SourceInfo(heard[0].source_id, sn))
+        time.sleep(1.0)  # the router passes the last ones on before the sessions close
+        spy.undeclare()
+        return f"{honest.id.zid}/{honest.id.eid}"
+
+
+@pytest.mark.io
+@pytest.mark.timeout(120)
+def test_a_copy_of_the_detectors_id_with_a_taken_sequence_number_is_dropped_as_forged(router, caplog):
+    """Issue 34 (b): a forger that copies the detector's zenoh ``source_info`` passes the rate limit and the
+    one-publisher rule; its repeated and backward sequence numbers are dropped and named "forged (sequence)"."""
+    from radseek.zenoh_session import open_session
+
+    n = 20
+    caplog.set_level(logging.WARNING, "t.seq")
+    accounts = KeyAccounts(logging.getLogger("t.seq"), speedup=1.0)
+    got: list = []
+    with open_session(connect=router) as session:
+        sub = session.declare_subscriber(
+            KEY, lambda s: (h := accounts.decode(topics.Histogram, s)) is not None and got.append(h))
+        time.sleep(0.5)
+        publisher = _forge_copies(router, n, got)  # the honest publisher's id, as the forger copied it
+        deadline = time.monotonic() + 30
+        forged = n + (n - 1)  # a copy of each number taken, then n-1 .. 1
+        while accounts.counts()[KEY]["sequence"] < forged and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sub.undeclare()
+    assert [h.seq for h in got] == list(range(n)) and all(h.counts == [1] * 32 for h in got)
+    counts = accounts.counts()[KEY]
+    assert counts["accepted"] == n and counts["sequence"] == forged, counts
+    assert counts["flood"] == counts["foreign"] == counts["invalid"] == 0, counts
+    assert counts["dropped_from"] == {publisher: {"flood": 0, "foreign": 0, "sequence": forged, "invalid": 0}}
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("forged (sequence)")]
+    assert len(lines) == 1, lines  # named once per WARN_EVERY_WALL_S, not per sample
+    assert lines[0].startswith(f"forged (sequence) on {KEY} from {publisher}: sequence number 1 after {n} ")
 
 
 def _flood(endpoint: str, n: int, sent: list[int]) -> None:
@@ -146,7 +227,7 @@ def test_a_flood_on_the_detector_key_is_dropped_named_and_counted_while_the_10hz
     counts = accounts.counts()[KEY]
     # every flood sample heard was dropped (over the rate, or a second publisher on the key), none recorded
     assert counts["flood"] + counts["foreign"] == 5000, counts
-    assert counts["flood"] > 0 and counts["invalid"] == 0, counts
+    assert counts["flood"] > 0 and counts["invalid"] == counts["sequence"] == 0, counts
     assert all(h.seq < 10**7 for h in taken)
     # the detector's own frames, every one, 10 per sim second: consecutive sequence numbers 0.1 s of sim time apart
     seqs = [h.seq for h in taken]

@@ -68,6 +68,7 @@ class VehicleConfig:
     speedup: float = 1.0  # sim s per wall s, (0, 1000]
     dt: float = 0.05  # s, fixed sim step, (0, 0.2]
     seed: int = 0
+    imu_noise: bool = True  # PX4 SITL's IMU noise densities (vehicle_sim.imu.ImuNoise); False: noise-free readings
     home: Home = field(default_factory=Home)
     fence: Geofence = field(default_factory=Geofence)
     limits: MotionLimits = field(default_factory=MotionLimits)
@@ -186,7 +187,9 @@ class Vehicle(SimVehicle):
             sysid=cfg.sysid, compid=cfg.compid, signing_key=cfg.signing_key, drop_rate=cfg.drop_rate,
             seed=cfg.seed, wall_time_s=time.time())
         self.params = self._make_params()
-        self.imu = ImuStream(cfg.home, cfg.speedup)
+        noise = (imu_model.ImuNoise.seeded(cfg.seed, 0), imu_model.ImuNoise.seeded(cfg.seed, 1)) if cfg.imu_noise \
+            else (None, None)
+        self.imu = ImuStream(cfg.home, cfg.speedup, *noise)
         # two logs of one boot: the ULog PX4 writes (log 0 of the log protocol, as on PX4) and the telemetry log
         # of what the vehicle sent (.tlog, beside it in the log folder, by MAVLink FTP)
         self.flight_log = FlightLog()
@@ -347,7 +350,7 @@ class Vehicle(SimVehicle):
         nav, yaw = self.nav, yaw_enu_to_ned(self.nav.yaw)
         att = tilt(nav.accel, yaw) if nav.attitude is None else tuple(nav.attitude[:2])
         return self.imu.sample(self.t, (*att, yaw), (0.0, 0.0, -self._yaw_rate), nav.accel,
-                               self.home.alt_m + float(nav.pos[2]))
+                               self.home.alt_m + float(nav.pos[2]), self.imu.noise_now)
 
     def set_message_interval(self, msg_id: int, interval_us: float) -> bool:
         if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
