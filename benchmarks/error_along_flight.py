@@ -69,8 +69,19 @@ def error_by(row: dict, t: float) -> float:
     return got[-1] if got else math.nan
 
 
-def report(rows: list[dict], times: tuple[float, ...] = TIMES) -> list[str]:
-    """Markdown lines: per scene and strategy the median error by each time; paired against the lattice."""
+def paired(a: list[float], b: list[float]) -> str:
+    """Mean +- standard error of a - b over the pairs where both are known."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    d = d[np.isfinite(d)]
+    if len(d) < 2:
+        return "-"
+    se = d.std(ddof=1) / math.sqrt(len(d))
+    return f"{d.mean():+.4f} +- {se:.4f} m over {len(d)} seeds (median {np.median(d):+.4f})"
+
+
+def report(rows: list[dict], times: tuple[float, ...] = TIMES, base_s: float = 60.0) -> list[str]:
+    """Markdown lines: per scene and strategy the median error by each time; paired against the strategy's own
+    estimate by ``base_s`` (what more time buys) and against the lattice flown out."""
     lines = []
     for scene in sorted({r["scene"] for r in rows}):
         at = {s: {r["seed"]: r for r in rows if r["scene"] == scene and r["strategy"] == s}
@@ -90,20 +101,21 @@ def report(rows: list[dict], times: tuple[float, ...] = TIMES) -> list[str]:
                 e = e[np.isfinite(e)]
                 cells.append(f"{np.median(e):.3f} ({len(e)})" if len(e) else "-")
             lines.append(f"| {s} | {len(by_seed)} | " + " | ".join(cells) + " |")
-        if "lattice" not in at:
-            continue
-        lattice = at["lattice"]
-        end = ts[-1]
         for s, by_seed in at.items():
             if s == "lattice":
                 continue
+            for t in ts:
+                if t > base_s:
+                    mine = [(error_by(r, t), error_by(r, base_s)) for r in by_seed.values()]
+                    lines.append(f"{scene}: {s} by {t:g} s - {s} by {base_s:g} s: "
+                                 + paired([a for a, _ in mine], [b for _, b in mine]))
+            if "lattice" not in at:
+                continue
+            lattice = at["lattice"]
             seeds = sorted(set(by_seed) & set(lattice))
             for t in ts[:-1]:
-                d = np.array([error_by(by_seed[k], t) - error_by(lattice[k], end) for k in seeds])
-                d = d[np.isfinite(d)]
-                if len(d) > 1:
-                    lines.append(f"{scene}: {s} by {t:g} s - lattice flown out, paired over {len(d)} seeds: "
-                                 f"{d.mean():+.4f} +- {d.std(ddof=1) / math.sqrt(len(d)):.4f} m")
+                lines.append(f"{scene}: {s} by {t:g} s - lattice flown out: " + paired(
+                    [error_by(by_seed[k], t) for k in seeds], [error_by(lattice[k], ts[-1]) for k in seeds]))
     return lines
 
 
