@@ -74,6 +74,9 @@ class SearchConfig:
     pattern_spacing_m: float | None = None  # lattice / lawnmower spacing (None: a quarter of the bounds)
     stop_sigma_m: float = 0.10  # m: stop when the source's 1-sigma semi-major axis (x-y) is below this
     min_search_dwells: int = 2  # dwell points after exploration before the sigma criterion may stop
+    #: stop "drift-limited" when the 1-sigma has stopped falling at the odometry-drift floor (False: fly on to the
+    #: sigma target or the budget, as ``benchmarks/error_along_flight.py`` does to see what more dwells buy)
+    stop_at_drift_floor: bool = True
     max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
     max_dwells: int = 16  # dwell points in all (battery budget)
     #: the in-flight estimate (``estimator.inflight``: pooling, warm start, wall test, sigma) fits this
@@ -214,7 +217,7 @@ class SearchBrain:
         searched = belief is not None and self.search_dwells >= self.config.min_search_dwells
         if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
-        floor = self._drift_limited()
+        floor = self._drift_limited() if self.config.stop_at_drift_floor else 0.0
         if searched and floor and self._stable() and not misfit:
             return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the odometry-drift "
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "

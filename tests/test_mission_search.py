@@ -130,3 +130,24 @@ def test_drift_limited_rule(sigmas, floor, dwells, limited, pose_sd):
                                   "drift_floor_m": floor, "pose_sd_m": pose_sd}
                                  for d, s in zip(dwells, sigmas, strict=True)]
     assert brain._drift_limited() == (floor if limited else 0.0)
+
+
+@pytest.mark.parametrize("at_floor", [True, False])
+def test_the_drift_limited_stop_can_be_switched_off(at_floor):
+    """At the floor (outdoor seed 13's state above) the rule stops "drift-limited"; with the stop switched off
+    (``benchmarks/error_along_flight.py`` flies on to see what more dwells buy) the same state flies on."""
+    from estimator.inflight import InflightEstimator
+    from mission.search import SearchBrain, belief_of
+
+    brain = SearchBrain(load_scene("outdoor").scenario(), SearchConfig(stop_at_drift_floor=at_floor))
+    brain.estimator = InflightEstimator(brain.scenario)
+    brain.estimator.estimates = [{"dwell": d, "x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 1000.0,
+                                  "background_cps": 30.0, "covariance": (0.01 * np.eye(3)).tolist(),
+                                  "sigma_m": 0.137, "drift_floor_m": 0.137, "pose_sd_m": 0.15, "p_value": 0.5}
+                                 for d in (8, 9)]
+    brain.search_dwells = 3
+    stop = brain.stop_rule(belief_of(brain.estimate), 0.137)
+    if at_floor:
+        assert stop is not None and stop[1] is Outcome.DRIFT_LIMITED
+    else:
+        assert stop is None
