@@ -6,24 +6,44 @@ here): shared by the emulator's detector response (``detector_fw_sim.response``)
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
+from functools import cache, lru_cache
 from typing import Any
 
-import pydecay
-from pydecay.nuclide import Nuclide
+from pydecay.data import load_catalog, load_rad_for
+from pydecay.exceptions import NuclideNotFoundError
+from pydecay.nuclide import Nuclide, normalize_nuclide_name
 
 MIN_LINE_KEV = 10.0  # lines below this never reach a 40 keV threshold
 MIN_LINE_YIELD = 1e-3
 
 
+@cache
+def _nuclide(name: str) -> Nuclide:
+    """``Nuclide.load(name)`` from pydecay's cached catalog, once per name and process: ``Nuclide.load`` parses the
+    whole ICRP-107 table (0.9 MB of JSON, ~45 ms) on every call, and one scene's validation made ~20 such calls.
+    Raises pydecay's NuclideNotFoundError / DataFormatError as ``Nuclide.load`` does (errors are not cached)."""
+    norm = normalize_nuclide_name(name)
+    records = load_catalog()
+    if norm not in records:
+        raise NuclideNotFoundError(f"nuclide {norm!r} not found in ICRP-107 catalog")
+    return Nuclide.from_record(norm, records[norm])
+
+
+@cache
+def _emissions(name: str) -> tuple[dict[str, Any], ...]:
+    """``pydecay.emissions(name)`` (its RAD rows of a known nuclide) without its uncached ``Nuclide.load``, once per
+    name and process; () when pydecay has none or does not know the name."""
+    try:
+        _nuclide(name)
+        return tuple(load_rad_for(name))
+    except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
+        return ()
+
+
 def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:
     """Add ``weight`` x the photons per decay of ``nuclide`` (pydecay's ICRP-107 emissions, >= ``MIN_LINE_KEV``)
     to ``lines`` (energy keV rounded to 1 eV -> photons); a nuclide pydecay has no emissions for adds none."""
-    try:
-        rows = pydecay.emissions(nuclide)
-    except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
-        rows = []
-    for r in rows:
+    for r in _emissions(nuclide):
         if r.get("is_photon") and r["E_MeV"] * 1000.0 >= MIN_LINE_KEV:
             e = round(r["E_MeV"] * 1000.0, 3)
             lines[e] = lines.get(e, 0.0) + weight * float(r["prob"])
@@ -40,14 +60,14 @@ def chain_photon_lines(head: str, follow: Callable[[Any, float], bool], max_dept
         if depth > max_depth:
             return
         try:
-            nuc = Nuclide.load(name)
+            nuc = _nuclide(name)
         except Exception:  # pydecay's own errors: a name it cannot load has no progeny to follow
             return
         if nuc.is_stable:
             return
         for daughter, branch in zip(nuc.progeny, nuc.branching, strict=False):
             try:
-                d = Nuclide.load(daughter)
+                d = _nuclide(daughter)
             except Exception:
                 continue
             w = weight * float(branch)
@@ -66,7 +86,7 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
     contribute with their branching ratio. Raises ``ValueError`` naming an unknown nuclide.
     """
     try:
-        parent = Nuclide.load(nuclide)
+        parent = _nuclide(nuclide)
     except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
         raise ValueError(f"unknown nuclide {nuclide!r} ({exc})") from None
     lines = chain_photon_lines(
@@ -98,7 +118,7 @@ def equilibrium_lines(head: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tup
     ICRP-107 (ENSDF-based) emissions. Th-232 gives Tl-208's 2614.5 keV line at 0.3594 x its own 0.99 intensity.
     """
     try:
-        Nuclide.load(head)
+        _nuclide(head)
     except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
         raise ValueError(f"unknown nuclide {head!r} ({exc})") from None
     lines = chain_photon_lines(head, max_depth=40, follow=lambda _d, w: w >= CHAIN_MIN_BRANCH)
@@ -117,8 +137,8 @@ NATURAL_U235_U238_ATOMS = 0.007204 / 0.992742
 
 def natural_uranium_activity_ratio() -> float:
     """Activity of U-235 per U-238 decay in natural uranium: the atom ratio times T(U-238) / T(U-235)."""
-    t238 = Nuclide.load("U-238").half_life_s
-    t235 = Nuclide.load("U-235").half_life_s
+    t238 = _nuclide("U-238").half_life_s
+    t235 = _nuclide("U-235").half_life_s
     return NATURAL_U235_U238_ATOMS * t238 / t235
 
 
