@@ -13,6 +13,7 @@ from radseek_io import spectrum_io as sf
 from radseek_io.detector_file import DetectorFileError, read_detector_file
 from spectra import fit as F
 from spectra import model as M
+from tests.support.once_per_run import once_per_run
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 TRUE = {"gain": 1.02, "fwhm_at_662": 0.095, "fwhm_exponent": 0.42, "scatter_side": 0.12}
@@ -109,11 +110,14 @@ def test_shape_distance_is_zero_for_the_model_itself():
 def detector_file(tmp_path_factory) -> Path:
     from radseek_cli.calibrate_cli import main
 
-    out = tmp_path_factory.mktemp("det") / "rc102.json"
-    rc = main([str(DATA / "Cs137_b.xml"), "--nuclide", "Cs-137", "--background", str(DATA / "bg.xml"),
-               "--effects", "resolution_law,energy_calibration", "--out", str(out), "--json"])
-    assert rc == 0
-    return out
+    def calibrate(folder: Path) -> Path:
+        out = folder / "rc102.json"
+        rc = main([str(DATA / "Cs137_b.xml"), "--nuclide", "Cs-137", "--background", str(DATA / "bg.xml"),
+                   "--effects", "resolution_law,energy_calibration", "--out", str(out), "--json"])
+        assert rc == 0
+        return out
+
+    return once_per_run(tmp_path_factory, "calibrate-rc102", calibrate)
 
 
 @pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check

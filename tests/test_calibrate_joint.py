@@ -14,6 +14,7 @@ import pytest
 from radseek.photon_lines import equilibrium_lines, gamma_lines, source_lines
 from radseek_cli import calibrate_cli as C
 from radseek_io.detector_file import DetectorFile, DetectorFileError, read_detector_file
+from tests.support.once_per_run import once_per_run
 
 DATA = Path(__file__).resolve().parent / "data" / "real-spectra"
 
@@ -197,21 +198,24 @@ MARGIN = 0.003
 
 
 @pytest.fixture(scope="module")
-def joint_fit():
+def joint_fit(tmp_path_factory):
     """The joint fit on the real Cs-137 + Eu-152 (+ bg.xml), in a small configuration: started from the saved joint
     response, the energy law (4 parameters) refitted with a short MIGRAD (the full forward selection from the
-    emulator's response takes ~15 min: the benchmark)."""
+    emulator's response takes ~15 min: the benchmark). Once per run, whichever worker asks first."""
     from radseek_io.spectrum_io import read_spectrum
     from spectra import fit as F
     from spectra import model as M
 
-    bg = read_spectrum(DATA / "bg.xml")
-    joint = F.Joint(tuple(F.Problem(read_spectrum(DATA / f), (n,), bg, name=f)
-                          for f, n in (("Cs137_b.xml", "Cs-137"), ("Eu152_b.xml", "Eu-152"))))
-    det = read_detector_file(JOINT_DET)
-    start = {k: v for k, v in det.parameters.items() if k in M.PARAMS}
-    start["pileup"] = 2 * joint.parts[0].rate_cps * det.parameters["pileup_resolving_time_s"]
-    return joint, F.fit(joint, start, ("energy_nonlinearity",), maxfev=300, hesse=False)
+    def fit_joint(_folder):
+        bg = read_spectrum(DATA / "bg.xml")
+        joint = F.Joint(tuple(F.Problem(read_spectrum(DATA / f), (n,), bg, name=f)
+                              for f, n in (("Cs137_b.xml", "Cs-137"), ("Eu152_b.xml", "Eu-152"))))
+        det = read_detector_file(JOINT_DET)
+        start = {k: v for k, v in det.parameters.items() if k in M.PARAMS}
+        start["pileup"] = 2 * joint.parts[0].rate_cps * det.parameters["pileup_resolving_time_s"]
+        return joint, F.fit(joint, start, ("energy_nonlinearity",), maxfev=300, hesse=False)
+
+    return once_per_run(tmp_path_factory, "joint-fit", fit_joint)
 
 
 @pytest.mark.slow  # a whole calibration fit (7-15 s a worker): make test, not make check

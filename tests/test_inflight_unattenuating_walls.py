@@ -15,19 +15,25 @@ from detector_fw_sim.scene import load_scene
 from estimator.inflight import GOOD_FIT_P, InflightEstimator, error_sigmas
 from launch.offline import fly_offline
 from mission.search import SearchConfig
+from tests.support.once_per_run import once_per_run
 
 DRAWS = 20
 
 
 @pytest.fixture(scope="module")
-def outdoor_76():
-    """The flown frames up to the last dwell, the true poses they were measured at, and the source."""
-    r = fly_offline(load_scene("outdoor"), SearchConfig(strategy="active"), seed=76)
-    frames = r.dataset.frames
-    assert len(r.true_path) == len(frames)  # no flagged frames: the true path lines up with the records
-    last = int(np.flatnonzero(frames.dwell >= 0)[-1]) + 1
-    cut = frames.select(np.arange(len(frames)) < last)
-    return r.dataset.scenario, cut, r.true_path[:last], r.dataset.truth.sources[0]
+def outdoor_76(tmp_path_factory):
+    """The flown frames up to the last dwell, the true poses they were measured at, and the source (flown once
+    per run, whichever worker asks first)."""
+
+    def fly(_folder):
+        r = fly_offline(load_scene("outdoor"), SearchConfig(strategy="active"), seed=76)
+        frames = r.dataset.frames
+        assert len(r.true_path) == len(frames)  # no flagged frames: the true path lines up with the records
+        last = int(np.flatnonzero(frames.dwell >= 0)[-1]) + 1
+        cut = frames.select(np.arange(len(frames)) < last)
+        return r.dataset.scenario, cut, r.true_path[:last], r.dataset.truth.sources[0]
+
+    return once_per_run(tmp_path_factory, "outdoor-76", fly)
 
 
 def _redrawn(frames, true_path, rng):
