@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import subprocess
 from pathlib import Path
@@ -18,6 +19,7 @@ import pytest
 from pyulog import ULog
 
 from tests import test_mavsdk_examples as ex
+from vehicle_sim.imu import ACCEL_NOISE_DENSITY, IMU_HZ
 
 pytestmark = [pytest.mark.slow, pytest.mark.io]
 UPSTREAM = Path(os.environ.get("RADSEEK_MAVSDK_PYTHON_EXAMPLES", Path(__file__).parent / "mavsdk_upstream"))
@@ -114,8 +116,12 @@ def test_highres_imu_streams_at_the_requested_200_hz():
     steps = np.diff(stamps)
     # MAVSDK hands on every sample; at 1x the vehicle keeps 200 Hz of simulated time (loopback loses none)
     assert np.median(steps) == 5000 and (steps > 0).all() and np.mean(steps == 5000) > 0.95
-    z = [float(line.split(":")[1]) for line in out.splitlines() if line.startswith("Z Acceleration")]
-    assert np.allclose(z, -9.80665, atol=1e-4)  # standing on the ground: the specific force is -g on z
+    z = np.array([float(line.split(":")[1]) for line in out.splitlines() if line.startswith("Z Acceleration")])
+    # standing on the ground: the specific force is -g on z, plus PX4 SITL's accelerometer noise (white, sigma per
+    # sample at the IMU's 250 Hz: vehicle_sim.imu); bounds at ~1e-6 for ~200 samples
+    sigma = ACCEL_NOISE_DENSITY * math.sqrt(IMU_HZ)
+    assert len(z) >= 200 and abs(z.mean() + 9.80665) < 5 * sigma / math.sqrt(len(z))
+    assert np.abs(z + 9.80665).max() < 6 * sigma and 0.65 < z.std(ddof=1) / sigma < 1.35
 
 
 def test_offboard_attitude_flies_the_commanded_tilts():
