@@ -3,7 +3,6 @@ lockstep) and the in-process driver the campaigns and benchmarks use (``launch.o
 the same flight: the same frames.csv row for row (times, estimated poses, counts, dwell indices), the same
 dwell points, mission time and error. Two scenes, a short honest configuration (3 dwells) at 50x."""
 
-import csv
 import json
 import subprocess
 import sys
@@ -14,7 +13,7 @@ from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import SearchConfig
 from tests.conftest import free_port
-from tests.support.team_frames import assert_same_team_flight
+from tests.support.team_frames import assert_frames_csv, assert_same_team_flight
 from vehicle_sim.harness import free_udp_port
 
 RUN_TIMEOUT_S = 600
@@ -43,15 +42,8 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path, scene, seed):
         assert r.summary[key] == stack[key], key
     assert r.summary["estimate"]["x"] == stack["estimate"]["x"] and r.summary["outcome"] == stack["outcome"]
     assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
-    with open(tmp_path / "dataset" / "frames.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    f = r.dataset.frames
-    assert len(rows) == len(f) > 100
-    for i, row in enumerate(rows):
-        got = (f.t[i], *f.positions[i], int(f.dwell[i]), *(int(c) for c in f.counts[i]))
-        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]), int(row["dwell"]),
-                *(int(row[f"c{k:02d}"]) for k in range(32)))
-        assert got == want, f"frame {i} differs"
+    rows = assert_frames_csv(tmp_path / "dataset" / "frames.csv", r.dataset.frames)
+    assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
 
 
 def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path):

@@ -14,14 +14,12 @@ forged sequence; stderr says it in one line per key and publisher.
 
 from __future__ import annotations
 
-import csv
 import json
 import queue
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 import zenoh
@@ -34,6 +32,7 @@ from mission.search import SearchConfig
 from radseek import topics
 from radseek.zenoh_auth import find_user, read_credentials
 from radseek.zenoh_session import open_session
+from tests.support.team_frames import assert_frames_csv
 
 INSTANCE = 6  # fixed ports (PX4's -i 6), held machine-wide by the exclusive mark
 SPEEDUP = 5.0
@@ -115,18 +114,6 @@ class Board:
             time.sleep(0.01)
 
 
-def _frames_equal(out: Path, r) -> None:
-    with open(out / "dataset" / "frames.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    f = r.dataset.frames
-    assert len(rows) == len(f) > 100
-    for i, row in enumerate(rows):
-        got = (f.t[i], *f.positions[i], int(f.dwell[i]), *(int(c) for c in f.counts[i]))
-        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]), int(row["dwell"]),
-                *(int(row[f"c{k:02d}"]) for k in range(32)))
-        assert got == want, f"frame {i} differs"
-
-
 def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_and_changes_nothing(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "radseek_cli", "run", "default", "--out", str(out), "--quiet", "--instance",
@@ -172,7 +159,8 @@ def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_
     for key in ("reason", "dwell_points", "mission_time_s", "frames_recorded", "frames_lost"):
         assert r.summary[key] == mission[key], key
     assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
-    _frames_equal(out, r)
+    rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
+    assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
 
     honest = board.honest
     hist = summary["samples"][HIST]

@@ -1,5 +1,5 @@
-"""A team run's recorded frames against the in-process team flight of the same scene and seed
-(``launch.offline_team``): the one world, flown through real processes or in one, frame for frame."""
+"""A run's recorded frames against the in-process flight of the same scene and seed (``launch.offline``,
+``launch.offline_team``): the one world, flown through real processes or in one, frame for frame."""
 
 from __future__ import annotations
 
@@ -7,6 +7,21 @@ import csv
 from pathlib import Path
 
 import pytest
+
+
+def assert_frames_csv(path: Path, frames, label: str = "") -> list[dict[str, str]]:
+    """``path`` (a frames.csv) holds exactly ``frames``: time, position and all 32 channels, row for row (a team's
+    dwells are numbered across the team in the flight, per vehicle in its file: callers compare those). Returns
+    the rows."""
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == len(frames) > 100, (label, len(rows), len(frames))
+    for i, row in enumerate(rows):
+        got = (frames.t[i], frames.x[i], frames.y[i], frames.z[i], *(int(c) for c in frames.counts[i]))
+        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]),
+                *(int(row[f"c{k:02d}"]) for k in range(32)))
+        assert got == want, f"{label} frame {i} differs"
+    return rows
 
 
 def assert_same_team_flight(out: Path, summary: dict, scene: str, seed: int, vehicles: int = 2) -> None:
@@ -19,12 +34,4 @@ def assert_same_team_flight(out: Path, summary: dict, scene: str, seed: int, veh
     assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
     f = r.dataset.frames
     for v in range(vehicles):
-        with open(out / "dataset" / f"uav{v}" / "frames.csv") as fh:
-            rows = list(csv.DictReader(fh))
-        mine = f.select(f.vehicle == v)
-        assert len(rows) == len(mine) > 100
-        for i, row in enumerate(rows):
-            got = (mine.t[i], mine.x[i], mine.y[i], mine.z[i], *(int(c) for c in mine.counts[i]))
-            want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]),
-                    *(int(row[f"c{k:02d}"]) for k in range(32)))
-            assert got == want, f"uav{v} frame {i} differs"
+        assert_frames_csv(out / "dataset" / f"uav{v}" / "frames.csv", f.select(f.vehicle == v), f"uav{v}")
