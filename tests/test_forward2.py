@@ -284,15 +284,22 @@ def test_moving_source_counts_follow_the_moving_position_not_the_start():
     tm = f.t - f.duration / 2
     moving = s0 + np.column_stack([v[0] * tm, v[1] * tm, 0 * tm])
     off = 0
-    for k in range(1, int(f.dwell.max()) + 1):
-        w = f.dwell == k
-        n = f.total_counts[w].sum()
-        exp_mov = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - moving[w]) ** 2, 1) + 30.0))
-        exp_fix = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - s0) ** 2, 1) + 30.0))
+    for k, n, exp_mov, exp_fix, _ in _dwell_counts(f, moving, s0):
         # Poisson plus the recorded pose's ~5 cm at >= 1 m (<= 12 % of the rate)
         assert abs(n - exp_mov) < 5 * np.sqrt(exp_mov) + 0.12 * exp_mov, (k, n, exp_mov)
         off += abs(n / exp_fix - 1) > 0.3
     assert off >= 3  # the source moved 2-4 m during the flight: a fixed source misses several dwells
+
+
+def _dwell_counts(f, src_t: np.ndarray, s0: np.ndarray):
+    """Per dwell (k >= 1): observed counts, expected with the source at ``src_t`` (per frame) and at ``s0``
+    (2,000 cps at 1 m over 30 cps), and the dwell's last frame mid-time."""
+    tm = f.t - f.duration / 2
+    for k in range(1, int(f.dwell.max()) + 1):
+        w = f.dwell == k
+        exp = [np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - s) ** 2, 1) + 30.0))
+               for s in (src_t[w], s0)]
+        yield k, f.total_counts[w].sum(), exp[0], exp[1], tm[w].max()
 
 
 def test_background_drift_sine_and_ramp():
@@ -325,14 +332,10 @@ def test_a_source_carried_off_mid_flight_stays_put_until_it_is_picked_up():
     moved = np.maximum(tm - t0, 0.0)
     carried = s0 + np.column_stack([v[0] * moved, v[1] * moved, 0 * tm])
     early_off = late_off = 0
-    for k in range(1, int(f.dwell.max()) + 1):
-        w = f.dwell == k
-        n = f.total_counts[w].sum()
-        exp_car = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - carried[w]) ** 2, 1) + 30.0))
-        exp_fix = np.sum(f.duration[w] * (2000.0 / np.sum((f.positions[w] - s0) ** 2, 1) + 30.0))
+    for k, n, exp_car, exp_fix, t_last in _dwell_counts(f, carried, s0):
         assert abs(n - exp_car) < 5 * np.sqrt(exp_car) + 0.12 * exp_car, (k, n, exp_car)
         bad = abs(n / exp_fix - 1) > 0.3
-        if tm[w].max() < t0:
+        if t_last < t0:
             early_off += bad
         else:
             late_off += bad
