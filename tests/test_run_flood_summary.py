@@ -30,8 +30,9 @@ from launch.ports import ZENOH_BASE
 from mission.key_accounts import UNKNOWN_PUBLISHER
 from mission.search import SearchConfig
 from radseek import topics
-from radseek.zenoh_auth import find_user, read_credentials
+from radseek.zenoh_auth import find_user
 from radseek.zenoh_session import open_session
+from tests.support.run_credentials import wait_for_credentials
 from tests.support.team_frames import assert_frames_csv
 
 INSTANCE = 6  # fixed ports (PX4's -i 6), held machine-wide by the exclusive mark
@@ -124,12 +125,7 @@ def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_
     threads: list[threading.Thread] = []
     session = None
     try:
-        credentials = out / "zenoh" / "credentials"
-        deadline = time.monotonic() + 300
-        while not credentials.is_file() and run.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(0.5)  # written whole before the router starts; let it start
-        detector = find_user(read_credentials(credentials), "detector", "uav0")
+        detector = find_user(wait_for_credentials(out, run), "detector", "uav0")
         session = open_session(connect=f"tcp/127.0.0.1:{ZENOH_BASE + INSTANCE}", user=detector,
                                wait_for_router_s=120)
         board = Board(session)

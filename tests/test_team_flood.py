@@ -16,9 +16,9 @@ import time
 import pytest
 
 from radseek import topics
-from radseek.zenoh_auth import read_credentials
 from radseek.zenoh_session import RouterRefused, open_session
 from tests.conftest import free_port
+from tests.support.run_credentials import wait_for_credentials
 from tests.support.team_frames import assert_same_team_flight
 from tests.test_team_run import free_udp_block
 
@@ -65,14 +65,10 @@ def test_a_flooded_and_forged_team_run_keeps_its_result_and_its_flight(tmp_path)
     floods: list[threading.Thread] = []
     session = None
     try:
-        credentials = out / "zenoh" / "credentials"
-        deadline = time.monotonic() + 300
-        while not credentials.is_file() and run.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(0.5)  # the file is written whole before the router starts; let it start
+        users = wait_for_credentials(out, run)
         with pytest.raises(RouterRefused):  # an outsider cannot speak at all
             open_session(connect=endpoint, user=None, wait_for_router_s=120)
-        observer = next(u for u in read_credentials(credentials) if u.name == "observer")
+        observer = next(u for u in users if u.name == "observer")
         session = open_session(connect=endpoint, user=observer, wait_for_router_s=120)
         floods = [threading.Thread(target=_flood, args=(session, stop, sent), daemon=True) for _ in range(2)]
         for t in floods:
