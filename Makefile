@@ -2,7 +2,7 @@
 # and `make test` (the whole test suite, what CI runs: every test, in 2 parallel pytest-xdist workers
 # handed one test at a time, the slow ones first; tests taking the same fixed port are marked
 # `exclusive` and never overlap).
-# `make check` is the edit-test loop's unit tier (about a minute): lint plus every test that is neither
+# `make check` is the edit-test loop's unit tier (about 100 s on 2 idle cores): lint plus every test that is neither
 # `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
 # All create .venv and install radseek on first use.
 PY ?= python3
