@@ -97,13 +97,13 @@ class _Bucket:
 class _Key:
     topic: str
     accepted: int = 0
-    flood: int = 0
-    invalid: int = 0
-    foreign: int = 0
-    sequence: int = 0
     owner: str | None = None  # the publisher whose samples are taken
     owner_heard: float = 0.0  # wall time of the owner's last sample taken
     buckets: dict[str, _Bucket] = field(default_factory=dict)
+
+    def dropped(self, kind: str) -> int:
+        """Its samples dropped as ``kind``, from every publisher (the buckets count them)."""
+        return sum(b.dropped.get(kind, 0) for b in self.buckets.values())
 
 
 class KeyAccounts:
@@ -160,9 +160,8 @@ class KeyAccounts:
                     b.last_sn = sn if sn is not None else b.last_sn
                     return True
             b.dropped[kind] = b.dropped.get(kind, 0) + 1
-            setattr(acct, kind, getattr(acct, kind) + 1)
             if kind not in b.warned or now - b.warned[kind][0] >= WARN_EVERY_WALL_S:
-                so_far = getattr(acct, kind)
+                so_far = acct.dropped(kind)
                 if kind == "flood":
                     warn = ("flood on %s from %s: %s, %.4g/s expected (x%g speed-up); the excess is dropped "
                             "(%d so far on this key)", key, publisher, b.rate_since(kind, now),
@@ -191,10 +190,9 @@ class KeyAccounts:
         except topics.PayloadError as exc:
             with self._lock:
                 acct = self._keys[key]
-                acct.invalid += 1
-                n = acct.invalid
                 b = acct.buckets[publisher_of(sample)]
                 b.dropped["invalid"] = b.dropped.get("invalid", 0) + 1
+                n = acct.dropped("invalid")
             if worth_reporting(n, self._first, 100):
                 self._log.warning("dropped invalid sample #%d on %s from %s: %s", n, key, publisher_of(sample), exc)
             return None
@@ -206,7 +204,7 @@ class KeyAccounts:
     def invalid(self) -> int:
         """Invalid samples on every key."""
         with self._lock:
-            return sum(a.invalid for a in self._keys.values())
+            return sum(a.dropped("invalid") for a in self._keys.values())
 
     def counts(self) -> dict[str, dict[str, Any]]:
         """Per key heard: ``accepted``, ``flood`` (dropped over the rate), ``foreign`` (dropped: not the key's
@@ -215,8 +213,7 @@ class KeyAccounts:
         with self._lock:
             out: dict[str, dict[str, Any]] = {}
             for k, a in sorted(self._keys.items()):
-                row: dict[str, Any] = {"accepted": a.accepted, "flood": a.flood, "foreign": a.foreign,
-                                       "sequence": a.sequence, "invalid": a.invalid}
+                row: dict[str, Any] = {"accepted": a.accepted, **{kind: a.dropped(kind) for kind in DROP_KINDS}}
                 dropped = {p: {kind: b.dropped.get(kind, 0) for kind in DROP_KINDS}
                            for p, b in sorted(a.buckets.items()) if b.dropped}
                 if dropped:
