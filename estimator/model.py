@@ -467,17 +467,41 @@ class PoseDrift(Effect):
         return pos - np.stack([sx, sy, np.zeros_like(sx)], axis=-1)
 
 
+class SourceMotion(Effect):
+    """The source moving against the recorded path from a time ``t0`` on, at a constant velocity: the detector's
+    position relative to the source is recorded - v max(t - t0, 0). Off the dataset spec's list (a source carried
+    off mid-flight), so never a candidate of the selection: the diagnose evaluation fits it, ``t0`` fixed at the
+    truth's, to measure whether a moved source is told apart from the effects diagnose named by the counts at all
+    (``benchmarks.diagnose_evaluate.truth_model_gap``)."""
+
+    name = "source_motion"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [
+            Param("source_motion.vx", 0.0, -2.0, 2.0, unit="m/s", step=2e-3),
+            Param("source_motion.vy", 0.0, -2.0, 2.0, unit="m/s", step=2e-3),
+            Param("source_motion.t0", 0.0, 0.0, 1e7, fixed=True, unit="s"),
+        ]
+
+    def positions(self, th, pos, t):
+        dt = np.maximum(t - th["source_motion.t0"], 0.0)
+        sx, sy = np.broadcast_arrays(th["source_motion.vx"] * dt, th["source_motion.vy"] * dt)
+        return pos - np.stack([sx, sy, np.zeros_like(sx)], axis=-1)
+
+
 EFFECT_PARTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (DeadTime, WallAttenuation, UnmappedWall, UnmappedWall2, Anisotropy, AirAttenuation, SecondSource,
-                BackgroundGradient, PoseDrift)
+                BackgroundGradient, PoseDrift, SourceMotion)
 }
 #: effects beyond the dataset spec's base table (EFFECTS, which the emulator's scenes mirror): a wall the map
 #: lacks (the spec's ``unmapped_wall``; ``unmapped_wall_2`` is a second one, reported under the same name)
 OPEN_WORLD_EFFECTS = ("unmapped_wall", "unmapped_wall_2")
 #: every count-model effect, in the order models and fits are keyed by
 COUNT_EFFECTS: tuple[str, ...] = tuple(EFFECT_PARTS)
-assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS) | set(OPEN_WORLD_EFFECTS)
+#: count-model parts the selection never offers (off the spec's list: see SourceMotion)
+UNOFFERED_EFFECTS = ("source_motion",)
+assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS) | set(OPEN_WORLD_EFFECTS) | set(UNOFFERED_EFFECTS)
 
 
 # ------------------------------------------------------------------------------------------ model

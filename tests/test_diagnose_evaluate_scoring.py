@@ -121,11 +121,25 @@ def test_offlist_table_counts_unexplained_and_any_named_effect_as_wrong():
             _row("offlist", ["pose_drift"], ["moving_source"], unexplained=True, **carried),
             _row("offlist", [], ["background_drift"], effect="background_drift", unexplained=False, hotspots=2)]
     text, s = E.offlist_table(rows)
-    assert s["source_carried"] == {"n": 2, "unexplained": 1.0, "wrong": 1}
-    assert s["background_drift"] == {"n": 1, "unexplained": 0.0, "wrong": 0}
+    assert s["source_carried"] == {"n": 2, "unexplained": 1.0, "wrong": 1, "told_apart": None}
+    assert s["background_drift"] == {"n": 1, "unexplained": 0.0, "wrong": 0, "told_apart": None}
     assert "67%, 1 wrong: NOT met" in text and "(pose_drift)" in text
     ok = [_row("offlist", [], ["moving_source"], unexplained=True, **carried)] * 10
     assert "100%, 0 wrong: met" in E.offlist_table(ok)[0]
+
+
+def test_offlist_table_counts_the_flights_whose_truth_the_counts_tell_apart():
+    """A carried source whose true model beats the named one by AIC >= 10 is told apart; only those could be
+    called unexplained from the counts, and the table says how many of them were."""
+    carried = {"effect": "moving_source", "variant": "source_carried"}
+
+    def gap(aic, unexplained):
+        return _row("offlist", [] if unexplained else ["pose_drift"], ["moving_source"], unexplained=unexplained,
+                    truth_model={"aic_gap": aic, "told_apart": aic >= E.TOLD_APART_AIC}, **carried)
+
+    text, s = E.offlist_table([gap(-3.0, False), gap(4.0, False), gap(40.0, True), gap(12.0, False)])
+    assert s["source_carried"]["told_apart"] == 2
+    assert "| 2/4 (AIC gap -3 to +40) | 1/2 |" in text
 
 
 def test_a_constant_velocity_source_is_scored_as_its_pose_drift_equivalent_not_as_off_list():

@@ -84,6 +84,22 @@ def test_air_attenuation_second_source_gradient_and_drift():
     assert np.isclose(drift[0], 0.1 * (1000 / 4 + 30))
 
 
+def test_a_source_carried_off_from_t0_is_the_still_source_before_and_the_moved_one_after():
+    """source_motion: until t0 the counts are the still source's; after it, those of a source at
+    src0 + v (t - t0), for scalar and vectorised hypotheses alike."""
+    sc = scenario()
+    t = np.array([10.0, 20.0, 30.0, 40.0])
+    f = frames([[5, 5, 1]] * 4, t=t)
+    th = {**SRC, "source_motion.vx": 0.1, "source_motion.vy": -0.05, "source_motion.t0": 20.0}
+    mu = MeasurementModel(sc, ["source_motion"]).expected_counts(th, f)
+    moved = np.maximum(t - 20.0, 0.0)
+    d2 = (0.1 * moved) ** 2 + (0.05 * moved) ** 2 + 1.0
+    assert np.allclose(mu, 0.1 * (1000 / d2 + 30))
+    many = MeasurementModel(sc, ["source_motion"]).expected_counts({**th, "source_motion.vx": np.array([0.1, 0.0])}, f)
+    assert np.allclose(many[0], mu) and np.allclose(many[1], 0.1 * (1000 / ((0.05 * moved) ** 2 + 1.0) + 30))
+    assert MeasurementModel(sc, ["source_motion"]).param("source_motion.t0").fixed
+
+
 def test_vectorised_hypotheses_match_one_at_a_time():
     wall = Wall((0.0, 3.0), (10.0, 3.0), 0.2, 3.0)
     rng = np.random.default_rng(1)
