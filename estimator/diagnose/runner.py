@@ -27,6 +27,8 @@ from estimator.diagnose.backend import (
 from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
+from estimator.diagnose.motion import BREAKS as MOTION_BREAKS
+from estimator.diagnose.motion import MotionCheck, motion_check
 from estimator.diagnose.nuclide import NuclideChoice, identify_second_nuclide
 from estimator.diagnose.residuals import (
     GoodnessOfFit,
@@ -196,6 +198,9 @@ class Diagnosis:
     final_report: ModelReport | None = None
     #: the second source's nuclide, when the final model has one (``estimator.diagnose.nuclide``)
     nuclide: NuclideChoice | None = None
+    #: whether one source that moved mid-flight explains the counts better than several named effects
+    #: (``estimator.diagnose.motion``; checked when two or more count effects were named)
+    motion: MotionCheck | None = None
 
     @property
     def final(self) -> ModelReport:
@@ -273,16 +278,25 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
         # the spectral verdict with the second source's own spectrum in (its share per frame from the count model)
         final = analyse(ds, final.effects, final.fit, second_source_spectral(ds, final))
     ok = adequate(final, ds.frames)
+    if ok and len([e for e in named if e not in NON_COUNT_EFFECTS]) >= 2 and final.fit.model.channels is None:
+        # an adequate fit that needed several effects: do they stand in for one source that moved?
+        progress(f"checking whether one moved source explains the counts better ({len(MOTION_BREAKS)} break times)",
+                 quiet)
+        d.motion = motion_check(fitter.model(count), fitter.fit_frames, final.fit, seed=fitter.seed)
+        ok = not d.motion.significant
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
     d.hotspots = hotspots(final, ds.scenario.channel_edges_keV)
+    if d.motion is not None and d.motion.significant:
+        d.hotspots.insert(0, {"kind": "motion", "z": round(math.sqrt(max(d.motion.aic_gap, 0.0)), 1),
+                              "where": d.motion.text(), **d.motion.to_json()})
     d.final_report = final
     if "second_source" in final.effects:
         d.nuclide = second_nuclide(ds, final)
         progress(f"second source: {d.nuclide.note}", quiet)
     if d.unexplained:
-        progress(f"the final model misses something none of the candidates explains "
-                 f"({misfit_text(final, ds.frames)})", quiet)
+        why = d.motion.text() if d.motion is not None and d.motion.significant else misfit_text(final, ds.frames)
+        progress(f"the final model misses something none of the candidates explains ({why})", quiet)
     return d
 
 
