@@ -464,6 +464,9 @@ class _Scorer:
         self.masses = [np.maximum(q, 0.0) for q in templates]
         self.gmax = np.inf
         self._cache: dict[int, tuple[np.ndarray, ...]] = {}
+        #: the last drift interpolated and its matrices: a scoring iteration asks for one drift several times
+        #: (Jacobian, model, step), each answer read only
+        self._last: tuple[float, tuple[np.ndarray, ...]] | None = None
 
     def background(self, bb: np.ndarray) -> np.ndarray:
         """(G,) background amplitudes: duration x exp(b0 + b1 t~), t~ the standardised group time."""
@@ -475,13 +478,16 @@ class _Scorer:
         piecewise-constant sub-bin leaks mass over an edge where the density has fallen to zero)."""
         # exact on a grid of drifts GAMMA_STEP apart, linear in between (the scoring steps and the derivative's
         # finite difference then reuse a few grid points instead of integrating anew at every trial drift)
-        u = float(gamma) / GAMMA_STEP
+        gamma = float(gamma)
+        if self._last is not None and self._last[0] == gamma:
+            return self._last[1]
+        u = gamma / GAMMA_STEP
         i = int(np.floor(u))
         w = u - i
         lo_m, hi_m = self._exact(i), self._exact(i + 1)
-        if w == 0.0:
-            return lo_m
-        return tuple(x + w * (y - x) for x, y in zip(lo_m, hi_m, strict=True))
+        out = lo_m if w == 0.0 else tuple(x + w * (y - x) for x, y in zip(lo_m, hi_m, strict=True))
+        self._last = (gamma, out)
+        return out
 
     def _exact(self, i: int) -> tuple[np.ndarray, ...]:
         key = i

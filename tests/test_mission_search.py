@@ -8,11 +8,12 @@ import pytest
 from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import Outcome, Phase, SearchConfig
+from tests.support.offline_flights import default_flight
 
 
 @pytest.mark.parametrize("seed", [1, 2])
-def test_search_finds_the_default_source(seed):
-    r = fly_offline(load_scene(), SearchConfig(), seed=seed)
+def test_search_finds_the_default_source(seed, tmp_path_factory):
+    r = default_flight(tmp_path_factory, seed)
     assert r.decisions[-1].phase is Phase.DONE
     assert len(r.dwell_rates) <= SearchConfig().max_dwells
     # exploration ends only with three readings above background, then the estimate drives the search
@@ -65,11 +66,11 @@ def _misfit_everywhere(monkeypatch):
     monkeypatch.setattr(inflight.InflightEstimator, "update", misfit)
 
 
-def test_a_fit_that_misses_the_counts_is_no_found_source(monkeypatch):
+def test_a_fit_that_misses_the_counts_is_no_found_source(monkeypatch, tmp_path_factory):
     """Same seed, same flight up to the stop: the honest fit stops "source found"; when every fit fails its
     goodness of fit the search flies on to its budget and says why."""
     config = SearchConfig()
-    honest = fly_offline(load_scene(), config, seed=1)
+    honest = default_flight(tmp_path_factory, 1)
     assert honest.decisions[-1].outcome.found
     _misfit_everywhere(monkeypatch)
     r = fly_offline(load_scene(), config, seed=1)

@@ -11,16 +11,15 @@ import pytest
 
 from detector_fw_sim.scene import load_scene
 from estimator.inflight import MIN_SIGMA_M, sigma_m
-from launch.offline import fly_offline
-from mission.search import SearchConfig
 from radseek_cli.replay_cli import flown_first_dwell, replay
 from radseek_io.truth import read_dataset_with_truth
+from tests.support.offline_flights import default_flight
 
 
-def test_replay_reproduces_the_flown_estimates():
+def test_replay_reproduces_the_flown_estimates(tmp_path_factory):
     """The brain's in-flight estimates, dwell for dwell, from nothing but the recorded dataset: the same
     frames up to the end of each dwell, pooling, warm start from the previous estimate and wall test."""
-    r = fly_offline(load_scene(), SearchConfig(), seed=3)
+    r = default_flight(tmp_path_factory, 3)
     flown = r.brain.estimates
     assert len(flown) >= 2, r.log
     # the mission estimates from the end of exploration on; its mission_log.jsonl records that dwell

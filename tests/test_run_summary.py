@@ -15,13 +15,12 @@ import sys
 import numpy as np
 import pytest
 
-from detector_fw_sim.scene import load_scene
 from estimator.inflight import GOOD_FIT_P, ellipse, gof_warning
-from launch.offline import fly_offline
 from launch.report import write_report
 from launch.stack import print_summary
 from mission.search import SearchConfig
 from radseek_io.dataset import write_dataset
+from tests.support.offline_flights import default_flight
 
 SUMMARY_KEYS = {"error_m", "sigma_m", "ellipse_95", "bound_m", "p_value", "warnings", "estimate", "estimate_source",
                 "stop_sigma_m", "dwell_points", "search_dwell_points", "mission_time_s", "stop_reason", "truth"}
@@ -36,8 +35,8 @@ def _as_run_output(r, out):
     (out / "dataset" / "mission_summary.json").write_text(json.dumps(mission, default=float))
 
 
-def test_summary_is_the_flown_estimate_with_bound_and_ellipse(tmp_path):
-    r = fly_offline(load_scene(), SearchConfig(), seed=3)
+def test_summary_is_the_flown_estimate_with_bound_and_ellipse(tmp_path, tmp_path_factory):
+    r = default_flight(tmp_path_factory, 3)
     assert r.estimate is not None
     flown = r.estimate.to_json()
     assert {"bound_m", "ellipse_95"} <= set(flown), "the brain finalizes its last estimate"

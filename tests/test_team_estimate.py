@@ -13,12 +13,17 @@ from detector_fw_sim.scene import load_scene
 from estimator.mle import _MIN_INCREMENT, PoseGroups, walk_starts
 from launch.offline import fly_offline
 from mission.team import split_walks, team_dwell, team_frames
+from tests.support.once_per_run import once_per_run
 
 
 @pytest.fixture(scope="module")
-def two_flights():
-    scene = load_scene("default")
-    return [fly_offline(scene, seed=s).dataset.frames for s in (4, 5)]
+def two_flights(tmp_path_factory):
+    """Seeds 4 and 5 flown offline, once per run (both xdist workers use them)."""
+    def fly(_folder):
+        scene = load_scene("default")
+        return [fly_offline(scene, seed=s).dataset.frames for s in (4, 5)]
+
+    return once_per_run(tmp_path_factory, "team-estimate-two-flights", fly)
 
 
 def _dense_precision(groups: PoseGroups) -> np.ndarray:
