@@ -81,14 +81,18 @@ class InfoConfig:
     prior_sd_m: float = 10.0  # m, weak prior on the source's x, y (keeps C finite before the counts pin it)
     drift: str = "random_walk"  # the pose errors: one random walk along the path, or independent per dwell
     landmarks: bool = True  # a pose offset moves the detector alone (mapped walls tell the drift), or the world
+    #: 1/m, the mapped walls' attenuation the score assumes while no flown line of sight has crossed one (the
+    #: in-flight fit has none to estimate then, and mu = 0 would hide the shadow edges that tell the drift): the
+    #: walled model's start value (``estimator.model.WallAttenuation``); 0 plans as if walls did not attenuate
+    wall_mu_prior_per_m: float = 1.0
 
     def __post_init__(self) -> None:
         if self.drift not in DRIFT_MODELS:
             raise ValueError(f"drift must be one of {DRIFT_MODELS}, got {self.drift!r}")
         if not self.dwell_lengths_s or min(self.dwell_lengths_s) <= 0:
             raise ValueError("dwell_lengths_s must be a non-empty tuple of lengths > 0")
-        if self.overhead_s < 0 or self.speed_m_s <= 0 or self.prior_sd_m <= 0:
-            raise ValueError("need overhead_s >= 0, speed_m_s > 0 and prior_sd_m > 0")
+        if self.overhead_s < 0 or self.speed_m_s <= 0 or self.prior_sd_m <= 0 or self.wall_mu_prior_per_m < 0:
+            raise ValueError("need overhead_s >= 0, speed_m_s > 0, prior_sd_m > 0 and wall_mu_prior_per_m >= 0")
 
 
 def rate_and_gradient(points: np.ndarray, belief: SourceBelief, walls: Sequence[Wall] = (),
