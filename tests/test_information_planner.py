@@ -26,6 +26,7 @@ from planner.information import (
     walk_precision,
 )
 from radseek.dataset import Frames
+from radseek.geometry import path_lengths
 
 S, B = 1500.0, 40.0
 SOURCE = np.array([0.0, 0.0, 0.0])
@@ -342,3 +343,26 @@ def test_the_score_sends_the_search_to_the_walls_shadow_edge_where_the_drift_is_
     assert abs(math.degrees(angles[np.argmax(scores[False])]) - corner) > 10.0
     k = int(np.argmax(scores[True]))
     assert scores[False][k] < max(scores[False][k - 1], scores[False][(k + 1) % len(angles)])
+
+
+def test_until_a_line_of_sight_crosses_a_wall_the_info_search_plans_with_the_walls_prior_attenuation():
+    # the in-flight fit estimates mu only once a flown line of sight crosses a wall; before that the information
+    # planner assumes InfoConfig.wall_mu_prior_per_m (else mu = 0 would hide the shadow edges), after it (and still
+    # no walled fit) the walls were tested and do not attenuate; eq. 6 and wall-free scenes plan as before
+    _, walls, b, _ = _lattice_wall_setup()
+    scenario = load_scene("lattice-wall").scenario()
+    open_side = walk_frames([(3.0, 4.0), (3.5, 5.5), (3.2, 2.8)], 0.003, var0=0.001, transit=20)
+    dwells = np.asarray(open_side.dwell) >= 0
+    pos = np.column_stack([open_side.x, open_side.y, open_side.z])[dwells]
+    assert not (path_lengths(pos, b.mean, walls) > 0).any()
+    behind = walk_frames([(3.2, 4.0), (7.0, 4.0)], 0.003, var0=0.001, transit=20)  # (7, 4): through the wall
+    info = SearchBrain(scenario, SearchConfig(strategy="info"))
+    prior = info.config.planner.info.wall_mu_prior_per_m
+    assert prior > 0
+    assert info._planner(open_side, b).wall_mu_per_m == prior
+    assert info._planner(behind, b).wall_mu_per_m == 0.0
+    assert SearchBrain(scenario, SearchConfig(strategy="active"))._planner(open_side, b).wall_mu_per_m == 0.0
+    assert SearchBrain(load_scene().scenario(), SearchConfig(strategy="info"))._planner(open_side, b).wall_mu_per_m \
+        == 0.0
+    with pytest.raises(ValueError, match="wall_mu_prior_per_m"):
+        InfoConfig(wall_mu_prior_per_m=-1.0)
