@@ -40,7 +40,7 @@ from planner.plan import DwellPlan
 from radseek import topics
 from radseek.dataset import Frames, Scenario
 from radseek.estimate import SourceEstimate
-from radseek.geometry import semi_major_axis
+from radseek.geometry import path_lengths, semi_major_axis
 from radseek.outcome import Outcome, parse_outcome
 
 
@@ -198,8 +198,9 @@ class SearchBrain:
             return self._explore(current, "no estimate yet: keep exploring")
         var_now = (np.array([frames.var_x[-1], frames.var_y[-1], frames.var_z[-1]], dtype=float) if len(frames.t)
                    else np.zeros(3))
-        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ, self._planner(),
-                               rng=self.rng, frames=frames, pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
+        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ,
+                               self._planner(frames, belief), rng=self.rng, frames=frames,
+                               pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
         if not plan.ok:
             # every tree node inside the belief's ellipse or predicted too weak (a broad early belief covers
             # the whole tree): gather counts where none were taken yet rather than give up with budget left
@@ -249,14 +250,30 @@ class SearchBrain:
             return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)
 
-    def _planner(self) -> NextBestConfig:
+    def _planner(self, frames: Frames | None = None, belief: SourceBelief | None = None) -> NextBestConfig:
         """The planner's settings for the next dwell: the information planner predicts the rate through the
-        walls with the attenuation the in-flight fit estimated (the localizers' model, ``wall_attenuation``)."""
+        walls with the attenuation the in-flight fit estimated (the localizers' model, ``wall_attenuation``);
+        while no flown line of sight to the belief's source has crossed a mapped wall the fit has no
+        attenuation to estimate, and the score assumes ``InfoConfig.wall_mu_prior_per_m`` (the walls' shadow
+        edges tell the drift, and with mu = 0 the score cannot see them). A wall crossed and still no walled
+        fit: the walls were tested and do not attenuate (mu 0)."""
         cfg = self.config.planner
+        if cfg.gain_kind != "info" or not self.occ.walls:
+            return cfg
         mu = self.estimate.params.get("wall_attenuation.mu_per_m") if self.estimate is not None else None
-        if cfg.gain_kind == "info" and mu is not None and math.isfinite(mu) and mu > 0 and self.occ.walls:
+        if mu is None and frames is not None and belief is not None and not self._walls_crossed(frames, belief):
+            mu = cfg.info.wall_mu_prior_per_m
+        if mu is not None and math.isfinite(mu) and mu > 0:
             cfg = dataclasses.replace(cfg, wall_mu_per_m=float(mu))
         return cfg
+
+    def _walls_crossed(self, frames: Frames, belief: SourceBelief) -> bool:
+        """Whether a line of sight from a flown dwell to the belief's source crosses a mapped wall."""
+        dwell = np.asarray(frames.dwell) >= 0
+        if not dwell.any():
+            return False
+        pos = np.column_stack([frames.x, frames.y, frames.z])[dwell]
+        return bool((path_lengths(pos, belief.mean, self.occ.walls) > 0).any())
 
     def _misfit(self) -> str:
         """A note when the last estimate's goodness of fit fails (p < ``GOOD_FIT_P``: the model misses
