@@ -362,9 +362,9 @@ def profile_offsets(
     This fixed number of steps keeps the objective smooth in theta for MIGRAD; the goodness of fit at the
     optimum goes on to the maximum (:func:`converged_profile`).
 
-    Each iterate's counts come from the same model evaluation as its Jacobian (:func:`_counts_and_jacobian`):
-    four evaluations of the model a call instead of seven (three scoring steps), three instead of four (chord),
-    the same numbers.
+    Each iterate's counts come from the same model evaluation as its Jacobian (:func:`_counts_and_jacobian`:
+    one evaluation with the closed-form derivative, or the frames and three shifted copies): four evaluations
+    of the model a call instead of seven (three scoring steps), three instead of four (chord).
 
     Returns (offsets (G, 3), expected counts (N,) with offsets applied, penalty delta^T Sigma^-1 delta).
     """
