@@ -103,6 +103,32 @@ class Effect:
         """Recorded rate from the true total rate (dead_time)."""
         return n
 
+    # -- derivatives in the detector's position (MeasurementModel.expected_counts_and_jacobian): an effect that
+    # overrides a hook above and not its derivative here makes the model fall back to finite differences
+
+    #: ``positions`` shifts the recorded positions by an amount that does not depend on them (d true / d recorded
+    #: is the identity)
+    shifts_positions = False
+
+    def source_factor_grad(self, th: dict[str, np.ndarray], src: np.ndarray, ctx: Context, dist: np.ndarray
+                           ) -> tuple[Any, Any] | None:
+        """(factor (N,), d factor / d position (N, 3)) for one scalar hypothesis, or None (not available)."""
+        return (1.0, 0.0) if type(self).source_factor is Effect.source_factor else None
+
+    def background_grad(self, th: dict[str, np.ndarray], b: np.ndarray, db: Any, ctx: Context
+                        ) -> tuple[np.ndarray, Any] | None:
+        """(background, its gradient in the position) from ``b`` and its gradient ``db``, or None."""
+        return (b, db) if type(self).background is Effect.background else None
+
+    def recorded_rate_grad(self, th: dict[str, np.ndarray], n: np.ndarray, dn: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(recorded rate, its gradient) from the true rate ``n`` and its gradient ``dn``, or None."""
+        return (n, dn) if type(self).recorded_rate is Effect.recorded_rate else None
+
+    def supports_position_grad(self) -> bool:
+        """Every hook this effect overrides has its analytic derivative in the position."""
+        return type(self).positions is Effect.positions or self.shifts_positions
+
 
 class DeadTime(Effect):
     """Paralyzable dead time, paper 000 eq. 10: m = n exp(-n tau) on the total true rate n."""
@@ -114,6 +140,11 @@ class DeadTime(Effect):
 
     def recorded_rate(self, th, n):
         return dead_time(n, th["dead_time.tau_s"])
+
+    def recorded_rate_grad(self, th, n, dn):
+        tau = th["dead_time.tau_s"]
+        e = np.exp(-n * tau)
+        return n * e, (e * (1.0 - n * tau))[:, None] * dn
 
 
 class WallAttenuation(Effect):
@@ -136,7 +167,8 @@ class WallAttenuation(Effect):
     def __init__(self) -> None:
         self._near: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
         self._frame: tuple[bytes, tuple[_SlabFrame, _SlabFrame]] | None = None
-        self._memo: dict[tuple[bytes, bytes], np.ndarray] = {}  # (source and walls, poses) -> lengths
+        # (source and walls, poses) -> lengths, or (lengths, their gradient) under keys starting b"grad"
+        self._memo: dict[tuple[bytes, bytes], Any] = {}
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [Param("wall_attenuation.mu_per_m", 1.0, 0.0, 100.0, unit="1/m", step=0.5)]
@@ -145,6 +177,37 @@ class WallAttenuation(Effect):
         if ctx.walls.shape[0] == 0:
             return 1.0
         return np.exp(-th["wall_attenuation.mu_per_m"] * self._lengths(ctx.pos, src, ctx.walls))
+
+    def source_factor_grad(self, th, src, ctx, dist):
+        if ctx.walls.shape[0] == 0:
+            return 1.0, 0.0
+        mu = th["wall_attenuation.mu_per_m"]
+        lengths, grad = self._lengths_grad(ctx.pos, np.asarray(src, dtype=float).reshape(3), ctx.walls)
+        f = np.exp(-mu * lengths)
+        return f, (-mu * f)[:, None] * grad
+
+    def _lengths_grad(self, pos: np.ndarray, s: np.ndarray, walls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_lengths` of one source (3,) at poses (N, 3) and their gradient in the poses (N, 3)
+        (:meth:`_SlabFrame.lengths_grad`), on many frames only where a wall is near (the same mask as
+        :meth:`_near_lengths`), the last :data:`MEMO_SIZE` kept."""
+        key = (b"grad" + s.tobytes() + walls.tobytes(), np.ascontiguousarray(pos).tobytes())
+        out = self._memo.get(key)
+        if out is not None:
+            return out
+        frame = self._slabs(walls)[0]
+        near = self._near_mask(pos, s, walls) if len(pos) >= self.NEAR_MIN_FRAMES else None
+        if near is None or near.all():
+            lengths, grad = frame.lengths_grad(pos, s)
+        else:
+            lengths, grad = np.zeros(len(pos)), np.zeros((len(pos), 3))
+            if near.any():
+                lengths[near], grad[near] = frame.lengths_grad(pos[near], s)
+        for a in (lengths, grad):
+            a.flags.writeable = False
+        if len(self._memo) >= self.MEMO_SIZE:
+            del self._memo[next(iter(self._memo))]
+        self._memo[key] = (lengths, grad)
+        return lengths, grad
 
     def _lengths(self, pos: np.ndarray, src: np.ndarray, walls: np.ndarray) -> np.ndarray:
         """Path lengths (..., N) through the walls with their ramped edges (:meth:`_SlabFrame._soft_span`), computed
@@ -175,6 +238,17 @@ class WallAttenuation(Effect):
         """:meth:`_lengths` computed: all of them, or on many frames only those near a wall."""
         if len(pos) < self.NEAR_MIN_FRAMES:
             return self._slabs(walls)[0].lengths(pos, s)
+        near = self._near_mask(pos, s, walls)
+        if near.all():
+            return self._slabs(walls)[0].lengths(pos, s)
+        out = np.zeros(len(pos))
+        if near.any():
+            out[near] = self._slabs(walls)[0].lengths(pos[near], s)
+        return out
+
+    def _near_mask(self, pos: np.ndarray, s: np.ndarray, walls: np.ndarray) -> np.ndarray:
+        """(N,) bool: the frames whose line of sight to ``s`` may cross a wall (kept per source position while
+        the poses stay within ``NEAR_M / 2`` of those it was computed for)."""
         key = s.tobytes()
         ref = self._near.get(key)
         if ref is None or ref[0].shape != pos.shape or float(np.max(np.linalg.norm(pos - ref[0], axis=1))) > \
@@ -182,12 +256,7 @@ class WallAttenuation(Effect):
             if len(self._near) >= 16:
                 self._near.clear()
             ref = self._near[key] = (pos.copy(), self._slabs(walls)[1].lengths(pos, s) > 0)
-        if ref[1].all():
-            return self._slabs(walls)[0].lengths(pos, s)
-        out = np.zeros(len(pos))
-        if ref[1].any():
-            out[ref[1]] = self._slabs(walls)[0].lengths(pos[ref[1]], s)
-        return out
+        return ref[1]
 
     def _slabs(self, walls: np.ndarray) -> tuple[_SlabFrame, _SlabFrame]:
         """The walls' frames and those of the walls grown by ``NEAR_M`` (ends, thickness, top), set up once
@@ -254,6 +323,70 @@ class _SlabFrame:
                 span = np.where(self.solid, np.clip(exit_ - enter, 0.0, None), 0.0)
         return (span * seg).sum(-1)
 
+    def lengths_grad(self, pos: np.ndarray, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """pos (N, 3), src (3,): the soft lengths (N,) of :meth:`lengths` (``edge_m`` > 0) and their analytic
+        gradient in ``pos`` (N, 3).
+
+        Each slab-method parameter t = (c - a) / d along an axis (a the detector's local coordinate, d = s - a
+        the segment's) moves as dt/da = (t - 1) / d; the soft max and min are log-sum-exps, whose derivatives are
+        their softmax weights (and, in the ramp width eps = edge_m / |d|, (lse - sum w x) / eps); the soft span
+        eps softplus(z), z = (out - in) / eps, and the length span |d| follow by the chain rule."""
+        if self.edge_m <= 0:
+            raise ValueError("lengths_grad needs soft edges (edge_m > 0)")
+        w, n = self.n, len(pos)
+        a = pos[:, :2] @ self.to_local - self.origin  # (N, 2W)
+        d = (src[:2] @ self.to_local - self.origin) - a
+        az = pos[:, 2:3]
+        dz = src[2] - az  # (N, 1)
+        shape = (n, w)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            axes = ((a[:, :w], d[:, :w], 0.0, self.length), (a[:, w:], d[:, w:], -self.half, self.half),
+                    (az, dz, 0.0, self.height))
+            entries, exits = [], []
+            for a_k, d_k, lo, hi in axes:
+                inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
+                t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
+                entries.append(np.broadcast_to(np.minimum(t1, t2), shape))
+                exits.append(np.broadcast_to(np.maximum(t1, t2), shape))
+            enter = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
+            exit_ = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
+            seg = np.sqrt(d[:, :w] ** 2 + d[:, w:] ** 2 + dz**2)  # (N, W)
+        eps = self.edge_m / np.maximum(seg, 1e-9)
+        near = ((exit_ - enter) > -self._FAR * eps) & self.solid
+        if not near.any():
+            return np.zeros(n), np.zeros((n, 3))
+        rows, cols = np.nonzero(near)
+        e, sg = eps[near], seg[near]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            xin = [x[near] for x in entries]
+            xout = [x[near] for x in exits]
+            soft_in, w_in, de_in = _soft_max_grad(xin + [np.zeros_like(e)], enter[near], e)
+            neg_out, w_out, de_out = _soft_max_grad([-x for x in xout] + [-np.ones_like(e)], -exit_[near], e)
+            # the chosen t of an axis moves as (t - 1) / d per unit of its local coordinate a (weight 0: far)
+            slope = [np.where(wo > 0, wo * (xo - 1.0), 0.0) - np.where(wi > 0, wi * (xi - 1.0), 0.0)
+                     for wi, wo, xi, xo in zip(w_in, w_out, xin, xout, strict=False)]
+            r = [np.where(x[near] == 0, 0.0, 1.0 / x[near]) for x in (d[:, :w], d[:, w:], np.broadcast_to(dz, shape))]
+        z = (-neg_out - soft_in) / e  # (soft out - soft in) / eps
+        softplus = np.maximum(z, 0.0) + np.log1p(np.exp(-np.abs(z)))
+        sig = 0.5 * (1.0 + np.tanh(0.5 * z))
+        span = e * softplus
+        # length = span |d|, span = eps softplus(z): with d eps = -eps / |d| d|d| and d|d| / d pos = (pos - src) / |d|,
+        # d length = c_seg (pos - src) / |d| + |d| sig sum_k slope_k r_k d a_k / d pos
+        c_seg = span - e * (softplus - z * sig - sig * (de_out + de_in))
+        k = sg * sig
+        cu, cv, cz = (k * sl * rk for sl, rk in zip(slope, r, strict=True))
+        c_seg = c_seg / sg
+        lengths = np.bincount(rows, span * sg, minlength=n)
+        ux, uy = self.to_local[0, :w][cols], self.to_local[1, :w][cols]
+        vx, vy = self.to_local[0, w:][cols], self.to_local[1, w:][cols]
+        diff = pos - src
+        grad = np.column_stack([
+            np.bincount(rows, c_seg * diff[rows, 0] + cu * ux + cv * vx, minlength=n),
+            np.bincount(rows, c_seg * diff[rows, 1] + cu * uy + cv * vy, minlength=n),
+            np.bincount(rows, c_seg * diff[rows, 2] + cz, minlength=n),
+        ])
+        return lengths, grad
+
     def _soft_span(self, entries: list[np.ndarray], exits: list[np.ndarray], enter: np.ndarray, exit_: np.ndarray,
                    seg: np.ndarray) -> np.ndarray:
         """The segment fractions inside the slabs with every max and min of the slab method (``enter``,
@@ -282,6 +415,21 @@ def _soft_max(values: list[np.ndarray], top: np.ndarray, eps: np.ndarray) -> np.
     for v in values:
         acc += np.exp((v - top) / eps)
     return top + eps * np.log(acc)
+
+
+def _soft_max_grad(values: list[np.ndarray], top: np.ndarray, eps: np.ndarray
+                   ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """:func:`_soft_max` with its softmax weights (d value / d v_j) and d value / d eps = (value - sum w v) / eps."""
+    ex = [np.exp((v - top) / eps) for v in values]
+    acc = ex[0].copy()
+    for x in ex[1:]:
+        acc += x
+    weights = [x / acc for x in ex]
+    value = top + eps * np.log(acc)
+    mean = np.zeros_like(top)
+    for wt, v in zip(weights, values, strict=True):
+        mean += np.where(wt > 0, wt * v, 0.0)
+    return value, weights, (value - mean) / eps
 
 
 class UnmappedWall(Effect):
@@ -316,7 +464,8 @@ class UnmappedWall(Effect):
     MEMO_SIZE = 8
 
     def __init__(self) -> None:
-        self._memo: dict[bytes, np.ndarray] = {}
+        self._memo: dict[bytes, Any] = {}  # lengths, or (lengths, gradient) under keys starting b"grad"
+        self._frame: tuple[bytes, _SlabFrame] | None = None
 
     def params(self, scenario: Scenario) -> list[Param]:
         p = self.name
@@ -358,6 +507,13 @@ class UnmappedWall(Effect):
             return None
         return {"r": r, "phi_deg": phi, "tilt_deg": tilt, "length": float(np.hypot(*d))}
 
+    def _slab(self, wall: np.ndarray) -> _SlabFrame:
+        """The slab's frame, set up once per placement (every source and pose of an evaluation shares it)."""
+        key = wall.tobytes()
+        if self._frame is None or self._frame[0] != key:
+            self._frame = (key, _SlabFrame(wall[None, :], self.EDGE_M))
+        return self._frame[1]
+
     def source_factor(self, th, src, ctx, dist):
         p = self.name
         if any(np.size(th[k]) != 1 for k in ("x", "y", f"{p}.r", f"{p}.phi_deg", f"{p}.tilt_deg", f"{p}.length")):
@@ -367,11 +523,27 @@ class UnmappedWall(Effect):
         key = wall.tobytes() + s.tobytes() + np.ascontiguousarray(ctx.pos).tobytes()
         lengths = self._memo.get(key)
         if lengths is None:
-            lengths = _SlabFrame(wall[None, :], self.EDGE_M).lengths(ctx.pos, s)
+            lengths = self._slab(wall).lengths(ctx.pos, s)
             if len(self._memo) >= self.MEMO_SIZE:
                 del self._memo[next(iter(self._memo))]
             self._memo[key] = lengths
         return np.exp(-th[f"{p}.mu_per_m"] * lengths)
+
+    def source_factor_grad(self, th, src, ctx, dist):
+        p = self.name
+        wall = self.wall_of(th, p)
+        s = np.asarray(src, dtype=float).reshape(3)
+        key = b"grad" + wall.tobytes() + s.tobytes() + np.ascontiguousarray(ctx.pos).tobytes()
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = self._slab(wall).lengths_grad(ctx.pos, s)
+            if len(self._memo) >= self.MEMO_SIZE:
+                del self._memo[next(iter(self._memo))]
+            self._memo[key] = hit
+        lengths, grad = hit
+        mu = th[f"{p}.mu_per_m"]
+        f = np.exp(-mu * lengths)
+        return f, (-mu * f)[:, None] * grad
 
 
 class UnmappedWall2(UnmappedWall):
@@ -403,6 +575,23 @@ class Anisotropy(Effect):
         cone = 0.5 * (1.0 - np.tanh((theta - th["anisotropy.half_angle_deg"]) / edge))
         return 1.0 - th["anisotropy.fraction"] * cone
 
+    def source_factor_grad(self, th, src, ctx, dist):
+        d = src - ctx.pos  # (N, 3)
+        back = np.column_stack([-np.cos(ctx.yaw), -np.sin(ctx.yaw), np.zeros(len(ctx.yaw))])  # (N, 3)
+        r = np.maximum(dist, 1e-9)
+        cos_t = (d * back).sum(-1) / r
+        theta = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+        edge = th["anisotropy.edge_deg"]
+        tanh = np.tanh((theta - th["anisotropy.half_angle_deg"]) / edge)
+        cone = 0.5 * (1.0 - tanh)
+        # d dist / d pos = -d / dist where dist is not clamped; d cos / d pos = -back / r - cos d(dist) / r
+        ddist = np.where((np.sqrt((d**2).sum(-1)) > MIN_DISTANCE_M)[:, None], -d / r[:, None], 0.0)
+        dcos = (-back - cos_t[:, None] * ddist) / r[:, None]
+        inside = np.abs(cos_t) < 1.0
+        dtheta = np.where(inside, -np.degrees(1.0) / np.sqrt(np.maximum(1.0 - cos_t**2, 1e-300)), 0.0)
+        dcone = (-0.5 * (1.0 - tanh**2) / edge * dtheta)[:, None] * dcos
+        return 1.0 - th["anisotropy.fraction"] * cone, -th["anisotropy.fraction"] * dcone
+
 
 class AirAttenuation(Effect):
     """Attenuation in air along the whole line of sight: exp(-mu d) (~0.0093 /m at 662 keV)."""
@@ -414,6 +603,13 @@ class AirAttenuation(Effect):
 
     def source_factor(self, th, src, ctx, dist):
         return np.exp(-th["air_attenuation.mu_per_m"] * dist)
+
+    def source_factor_grad(self, th, src, ctx, dist):
+        mu = th["air_attenuation.mu_per_m"]
+        f = np.exp(-mu * dist)
+        diff = ctx.pos - src
+        ddist = np.where((dist > MIN_DISTANCE_M)[:, None], diff / np.maximum(dist, 1e-12)[:, None], 0.0)
+        return f, (-mu * f)[:, None] * ddist
 
 
 class SecondSource(Effect):
@@ -450,11 +646,18 @@ class BackgroundGradient(Effect):
         x, y = ctx.pos[..., 0], ctx.pos[..., 1]
         return np.maximum(b + th["background_gradient.gx"] * x + th["background_gradient.gy"] * y, 1e-3)
 
+    def background_grad(self, th, b, db, ctx):
+        gx, gy = th["background_gradient.gx"], th["background_gradient.gy"]
+        raw = b + gx * ctx.pos[:, 0] + gy * ctx.pos[:, 1]
+        g = db + np.array([float(gx), float(gy), 0.0])
+        return np.maximum(raw, 1e-3), np.where((raw > 1e-3)[:, None], g, 0.0)
+
 
 class PoseDrift(Effect):
     """Odometry drift: recorded = true + v t, so the true position is recorded - v t."""
 
     name = "pose_drift"
+    shifts_positions = True  # recorded - v t: the shift does not depend on the recorded position
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [
@@ -642,3 +845,50 @@ class MeasurementModel:
         for part in self._parts:
             n = part.recorded_rate(th, n)
         return n * frames.duration
+
+    def expected_counts_and_jacobian(self, theta: Theta, frames: Frames, offsets: np.ndarray | None = None
+                                     ) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`expected_counts` (N,) of one hypothesis (scalar theta) and their analytic derivative in the
+        position offsets (N, 3), or None when an effect has no analytic derivative in the position (the caller
+        then takes finite differences). One evaluation of the frames instead of four shifted copies."""
+        if not all(part.supports_position_grad() for part in self._parts):
+            return None
+        th = self._theta(theta)
+        if any(np.size(v) != 1 for v in th.values()):
+            return None
+        ctx = self._context(th, frames, offsets)
+        total: Any = 0.0
+        dtotal: Any = 0.0
+        for sx, sy, sz, s in self._sources(th):
+            src = np.stack(np.broadcast_arrays(sx, sy, sz), axis=-1).reshape(3)
+            diff = ctx.pos - src
+            d2 = (diff**2).sum(-1)
+            dist = np.maximum(np.sqrt(d2), MIN_DISTANCE_M)
+            term = expected_rate(d2, s)
+            # d (s / max(d2, m^2)) / d pos = -2 s (pos - src) / d2^2 where the distance is not clamped
+            dterm = np.where((d2 > MIN_DISTANCE_M**2)[:, None], (-2.0 * term / np.maximum(d2, 1e-300))[:, None] * diff,
+                             0.0)
+            for part in self._parts:
+                got = part.source_factor_grad(th, src, ctx, dist)
+                if got is None:
+                    return None
+                f, df = got
+                dterm = dterm * (np.reshape(f, (-1, 1)) if np.ndim(f) else f) + term[:, None] * df
+                term = term * f
+            total = total + term
+            dtotal = dtotal + dterm
+        b = th["background_cps"] * np.ones(len(ctx.t))
+        db: Any = 0.0
+        for part in self._parts:
+            got = part.background_grad(th, b, db, ctx)
+            if got is None:
+                return None
+            b, db = got
+        n = total + b
+        dn = np.broadcast_to(dtotal + db, (len(n), 3))
+        for part in self._parts:
+            got = part.recorded_rate_grad(th, n, dn)
+            if got is None:
+                return None
+            n, dn = got
+        return n * frames.duration, dn * frames.duration[:, None]

@@ -216,3 +216,53 @@ def test_wall_lengths_asked_again_are_kept_and_never_stale():
             np.testing.assert_array_equal(got, direct.lengths(p, src))
             assert eff._lengths(p.copy(), src.copy(), walls) is got  # equal inputs: the kept array
             assert not got.flags.writeable
+
+
+def _central_jacobian(m, th, f, h=1e-6):
+    """d counts / d position offset by central differences (h small against every ramp)."""
+    out = np.zeros((len(f), 3))
+    for k in range(3):
+        o = np.zeros((len(f), 3))
+        o[:, k] = h
+        out[:, k] = (m.expected_counts(th, f, offsets=o) - m.expected_counts(th, f, offsets=-o)) / (2 * h)
+    return out
+
+
+@pytest.mark.parametrize("effects", [("wall_attenuation",), ("unmapped_wall",), (
+    "wall_attenuation", "unmapped_wall", "unmapped_wall_2", "dead_time", "air_attenuation", "anisotropy",
+    "background_gradient", "pose_drift", "second_source")])
+def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(effects):
+    """A detector crossing a slab's shadow at 1.5 m (source at the floor behind a wall at y = 3, east end at
+    x = 6): its counts and their derivative in the position, from one evaluation, are the model's counts and
+    their central differences, in the open, on the shadow's ramps (1 cm mapped, 8 cm unmapped) and behind it;
+    and the wall is in the derivative (it differs from the wall-free model's inside the shadow)."""
+    wall = Wall((4.0, 3.0), (6.0, 3.0), 0.2, 3.0)
+    xs = np.r_[np.linspace(6.0, 9.0, 301), np.linspace(7.1, 7.4, 61)]  # the east end's shadow ends at x 7.14-7.37
+    f = frames(np.column_stack([xs, np.full_like(xs, 0.5), np.full_like(xs, 1.5)]),
+               yaw=np.linspace(-3.0, 3.0, len(xs)))
+    m = MeasurementModel(scenario([wall]), effects)
+    th = {**SRC, "wall_attenuation.mu_per_m": 5.0, "unmapped_wall.r": 2.0, "unmapped_wall.phi_deg": -90.0,
+          "unmapped_wall.length": 2.0, "unmapped_wall.mu_per_m": 4.0, "unmapped_wall_2.r": 1.5,
+          "unmapped_wall_2.phi_deg": 30.0, "dead_time.tau_s": 1e-4, "background_gradient.gx": 1.0,
+          "pose_drift.vx": 0.01, "second_source.x": 8.0, "second_source.y": 2.0, "second_source.cps_at_1m": 300.0,
+          "anisotropy.fraction": 0.4}
+    th = {k: v for k, v in th.items() if k in m.param_names}
+    mu, jac = m.expected_counts_and_jacobian(th, f)
+    np.testing.assert_allclose(mu, m.expected_counts(th, f), rtol=1e-12)
+    fd = _central_jacobian(m, th, f)
+    np.testing.assert_allclose(jac, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+    free = MeasurementModel(scenario(), tuple(e for e in effects if "wall" not in e))
+    th_free = {k: v for k, v in th.items() if k in free.param_names}
+    shaded = xs < 7.1
+    jac_free = free.expected_counts_and_jacobian(th_free, f)[1][shaded]
+    assert np.abs(jac[shaded] - jac_free).max() > 0.2 * np.abs(jac_free).max()
+    # at offsets (the profile's later iterates) too
+    off = np.random.default_rng(7).normal(0, 0.03, (len(f), 3))
+    mu_o, jac_o = m.expected_counts_and_jacobian(th, f, offsets=off)
+    np.testing.assert_allclose(mu_o, m.expected_counts(th, f, offsets=off), rtol=1e-12)
+    h = 1e-6
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = h
+        col = (m.expected_counts(th, f, offsets=off + e) - m.expected_counts(th, f, offsets=off - e)) / (2 * h)
+        np.testing.assert_allclose(jac_o[:, k], col, rtol=1e-5, atol=1e-6 * np.abs(col).max())
