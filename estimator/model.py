@@ -678,6 +678,7 @@ class SourceMotion(Effect):
     (``benchmarks.diagnose_evaluate.truth_model_gap``)."""
 
     name = "source_motion"
+    shifts_positions = True  # recorded - v max(t - t0, 0): the shift does not depend on the recorded position
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [

@@ -230,7 +230,7 @@ def _central_jacobian(m, th, f, h=1e-6):
 
 @pytest.mark.parametrize("effects", [("wall_attenuation",), ("unmapped_wall",), (
     "wall_attenuation", "unmapped_wall", "unmapped_wall_2", "dead_time", "air_attenuation", "anisotropy",
-    "background_gradient", "pose_drift", "second_source")])
+    "background_gradient", "pose_drift", "second_source", "source_motion")])
 def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(effects):
     """A detector crossing a slab's shadow at 1.5 m (source at the floor behind a wall at y = 3, east end at
     x = 6): its counts and their derivative in the position, from one evaluation, are the model's counts and
@@ -245,7 +245,7 @@ def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(
           "unmapped_wall.length": 2.0, "unmapped_wall.mu_per_m": 4.0, "unmapped_wall_2.r": 1.5,
           "unmapped_wall_2.phi_deg": 30.0, "dead_time.tau_s": 1e-4, "background_gradient.gx": 1.0,
           "pose_drift.vx": 0.01, "second_source.x": 8.0, "second_source.y": 2.0, "second_source.cps_at_1m": 300.0,
-          "anisotropy.fraction": 0.4}
+          "anisotropy.fraction": 0.4, "source_motion.vx": 0.02, "source_motion.vy": -0.01, "source_motion.t0": 10.0}
     th = {k: v for k, v in th.items() if k in m.param_names}
     mu, jac = m.expected_counts_and_jacobian(th, f)
     np.testing.assert_allclose(mu, m.expected_counts(th, f), rtol=1e-12)
