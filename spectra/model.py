@@ -36,11 +36,14 @@ from radseek.photon_lines import source_lines as _chain_lines
 
 def source_lines(name: str) -> tuple[tuple[float, float], ...]:
     """Photon lines of a source: ``radseek.photon_lines.source_lines``, or for ``brems:NAME`` the bremsstrahlung
-    of NAME's betas (``spectra.bremsstrahlung``)."""
-    from spectra import bremsstrahlung
+    of NAME's betas (``spectra.bremsstrahlung``), for ``backscatter:NAME`` NAME's lines backscattered once by
+    material around the source (``spectra.surroundings``)."""
+    from spectra import bremsstrahlung, surroundings
 
     if name.startswith(bremsstrahlung.PREFIX):
         return bremsstrahlung.lines(name[len(bremsstrahlung.PREFIX):])
+    if name.startswith(surroundings.PREFIX):
+        return surroundings.lines(name[len(surroundings.PREFIX):])
     return _chain_lines(name)
 
 
