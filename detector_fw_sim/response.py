@@ -36,13 +36,15 @@ spectrum at (possibly gain-shifted) edges, so gain drift costs one interpolation
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 import pydecay
 from scipy.special import erf
+
+from detector_fw_sim import electron_escape
 
 # the photon lines of a nuclide and its short-lived progeny are shared with the flight software's nuclide test
 # (estimator.diagnose.nuclide): they live in the contracts package and are re-exported here for the emulator's users
@@ -208,6 +210,8 @@ class ResponseEffects:
       wrapping differ from the ideal cylinder).
     - ``side_scatter_min_deg``: the smallest angle of the side scatter (default ``SIDE_SCATTER_DEG[0]``, 20 deg);
       scatterers off the source-crystal line see no small angles (fitted by ``radseek calibrate``).
+    - ``electron_range_factor`` f: electrons leaving the crystal near a face (``electron_escape``; mean projected
+      over CSDA range, 0 = every electron stops inside), applied to every deposit, the scattered photons' too.
     """
 
     fwhm_exponent: float = 0.5
@@ -218,6 +222,7 @@ class ResponseEffects:
     scatter_multiple: float = 0.0
     escape_scale: float = 1.0
     side_scatter_min_deg: float = 20.0  # = SIDE_SCATTER_DEG[0]
+    electron_range_factor: float = 0.0
 
 
 SIDE_SCATTER_DEG = (20.0, 110.0)
@@ -294,6 +299,11 @@ class Crystal:
         surface = 2 * math.pi * r * r + 2 * math.pi * r * h
         scale = self.effects.escape_scale if self.effects is not None else 1.0
         return 2 * volume / surface * scale
+
+    @property
+    def mean_chord_cm(self) -> float:
+        """Cauchy's mean chord 4V/S, the electrons' escape length (``electron_escape``)."""
+        return electron_escape.mean_chord_cm(self.diameter_mm, self.length_mm)
 
 
 def energy_grid() -> np.ndarray:
@@ -496,9 +506,18 @@ def scatter_components(E_keV: float, backscatter_fraction: float, effects: Respo
 INCIDENT_NODES_KEV = np.geomspace(12.0, GRID_MAX_KEV, 160)
 
 
-@lru_cache(maxsize=16)
 def incident_deposit_matrix(crystal: Crystal) -> np.ndarray:
-    """(nodes, n_grid) deposited spectra of photons at ``INCIDENT_NODES_KEV`` (read-only)."""
+    """(nodes, n_grid) deposited spectra of photons at ``INCIDENT_NODES_KEV`` (read-only). Photon transport only:
+    the electrons' escape acts on the summed deposits (``deposited_line``), so crystals that differ only in
+    ``electron_range_factor`` share one matrix."""
+    eff = crystal.effects
+    if eff is not None and eff.electron_range_factor:
+        crystal = replace(crystal, effects=replace(eff, electron_range_factor=0.0))
+    return _incident_deposit_matrix(crystal)
+
+
+@lru_cache(maxsize=16)
+def _incident_deposit_matrix(crystal: Crystal) -> np.ndarray:
     m = np.stack([deposit_spectrum(float(e), crystal) for e in INCIDENT_NODES_KEV])
     m.setflags(write=False)
     return m
@@ -549,7 +568,33 @@ def deposited_line(E_keV: float, crystal: Crystal, backscatter_fraction: float) 
     nodes = np.zeros(len(INCIDENT_NODES_KEV))
     for share, energies, weights in comps:
         nodes += node_weights(energies, share * weights * absorber_transmission(energies, eff))
-    return dep + nodes @ incident_deposit_matrix(crystal)
+    if eff.electron_range_factor <= 0:
+        return dep + nodes @ incident_deposit_matrix(crystal)
+    # electrons leaving the crystal, on the line's exact peaks and on every continuum deposit, as the calibrated
+    # response (spectra.model.deposited) applies them
+    peaks, cont = deposit_parts(E_keV, crystal)
+    a = direct * float(absorber_transmission(E_keV, eff)[0])
+    pk_e = np.array([e for e, _ in peaks])
+    pk_w, cont = electron_escape.apply(pk_e, a * np.array([w for _, w in peaks]),
+                                       a * cont + nodes @ incident_deposit_matrix(crystal), energy_grid(),
+                                       eff.electron_range_factor, crystal.mean_chord_cm)
+    return cont + _binned(pk_e, pk_w)
+
+
+def _binned(energies: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Peaks at exact energies as weights on the fine grid (each in the bin holding its energy)."""
+    n = len(energy_grid()) - 1
+    return np.bincount(np.clip((energies // GRID_STEP_KEV).astype(int), 0, n - 1), weights=weights, minlength=n)
+
+
+def escaped_electrons(deposits: np.ndarray, crystal: Crystal) -> np.ndarray:
+    """A deposit spectrum on the fine grid with the crystal's electron escape applied (each bin's deposits at its
+    centre; unchanged without ``electron_range_factor``)."""
+    eff = crystal.effects
+    if eff is None or eff.electron_range_factor <= 0:
+        return deposits
+    return electron_escape.apply(np.zeros(0), np.zeros(0), deposits, energy_grid(), eff.electron_range_factor,
+                                 crystal.mean_chord_cm)[1]
 
 
 def measured_spectrum(E_keV: float, crystal: Crystal, fwhm_at_662: float, backscatter_fraction: float) -> np.ndarray:

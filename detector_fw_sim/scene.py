@@ -172,6 +172,8 @@ class DetectorSpec(_Model):
     escape_scale: float = Field(default=1.0, gt=0)
     #: smallest angle of the side scatter (deg; ``radseek calibrate``'s side_scatter_angle effect)
     side_scatter_min_deg: float = Field(default=response.SIDE_SCATTER_DEG[0], ge=0, le=100)
+    #: electrons leaving the crystal: mean projected / CSDA range (``radseek calibrate``'s electron_escape effect)
+    electron_range_factor: float = Field(default=0.0, ge=0, le=1)
     #: a calibrated detector file (``radseek calibrate --out``, radseek_io.detector_file); its physical parameters
     #: fill the fields above that the scene does not set. ``detector = "rc102.json"`` is short for this.
     file: str | None = None
@@ -193,8 +195,9 @@ class DetectorSpec(_Model):
                     "fwhm_exponent": p["fwhm_exponent"], "scatter_side": p["scatter_side"],
                     "scatter_multiple": p["scatter_multiple"], "absorber_g_cm2": p["absorber_g_cm2"],
                     "k_escape": p["k_escape"] >= 0.5, "escape_scale": p["escape_scale"]}
-            if "side_scatter_min_deg" in p:  # files written before the angle was fitted lack it
-                fill["side_scatter_min_deg"] = p["side_scatter_min_deg"]
+            for name in ("side_scatter_min_deg", "electron_range_factor"):  # older files lack them
+                if name in p:
+                    fill[name] = p[name]
             data = {**fill, **data}
         return data
 
@@ -217,7 +220,8 @@ class DetectorSpec(_Model):
         eff = response.ResponseEffects(fwhm_exponent=self.fwhm_exponent, k_escape=self.k_escape,
                                        absorber_g_cm2=self.absorber_g_cm2, scatter_side=self.scatter_side,
                                        scatter_multiple=self.scatter_multiple, escape_scale=self.escape_scale,
-                                       side_scatter_min_deg=self.side_scatter_min_deg)
+                                       side_scatter_min_deg=self.side_scatter_min_deg,
+                                       electron_range_factor=self.electron_range_factor)
         return response.Crystal(self.crystal_diameter_mm, self.crystal_length_mm,
                                 None if eff == response.ResponseEffects() else eff)
 

@@ -438,6 +438,50 @@ def identifiable(effect: str, problem: Problem | Joint) -> bool:
     return any(problem.fit_min_keV <= e <= 150.0 and y >= 0.01 for n in problem.nuclides for e, y in source_lines(n))
 
 
+def _poisson_amplitudes(n: np.ndarray, bg: np.ndarray, shapes: list[np.ndarray], iterations: int = 3000
+                        ) -> tuple[np.ndarray, float]:
+    """Maximum-likelihood amplitudes (>= 0) of mu = sum_i a_i s_i + bg for Poisson counts n (EM: every step raises
+    the likelihood), and the deviance at them."""
+    net = max(float(n.sum() - bg.sum()), 1.0)
+    a = np.array([net / max(float(s.sum()), 1e-300) / len(shapes) for s in shapes])
+    sums = np.array([max(float(s.sum()), 1e-300) for s in shapes])
+    for _ in range(iterations):
+        mu = sum(ai * s for ai, s in zip(a, shapes, strict=True)) + bg
+        r = n / np.maximum(mu, 1e-300)
+        a = a * np.array([(r * s).sum() for s in shapes]) / sums
+    mu = np.maximum(sum(ai * s for ai, s in zip(a, shapes, strict=True)) + bg, 1e-300)
+    dev = float(2 * (mu - n + np.where(n > 0, n * np.log(np.maximum(n, 1e-300) / mu), 0.0)).sum())
+    return a, dev
+
+
+def fit_with_component(problem: Problem, params: dict[str, float], source: str,
+                       source_params: dict[str, float] | None = None) -> dict[str, float]:
+    """A held response and one more source component (``source``, a ``spectra.model`` source name such as
+    ``brems:U-nat`` or ``backscatter:Ra-226``, evaluated at ``source_params``), each with its own amplitude (the
+    rest held): TV32 with it, the component's share of the counts, its photons per photon of the problem's lines
+    (with the Poisson error from the Fisher information) and the deviance it removes."""
+    lines_shape = problem.shape(params)
+    extra = Problem(problem.spectrum, (source,), problem.background, problem.fit_min_keV).shape(
+        source_params if source_params is not None else params)
+    m = problem.mask
+    n, bg, s1, s2 = problem.n[m], problem.bg[m], lines_shape[m], extra[m]
+    (a0,), dev0 = _poisson_amplitudes(n, bg, [s1])
+    a, dev = _poisson_amplitudes(n, bg, [s1, s2])
+    mu = np.maximum(a[0] * s1 + a[1] * s2 + bg, 1e-300)
+    fisher = np.array([[(s1 * s1 / mu).sum(), (s1 * s2 / mu).sum()], [(s1 * s2 / mu).sum(), (s2 * s2 / mu).sum()]])
+    cov = np.linalg.inv(fisher)
+    photons = sum(y for nuc in problem.nuclides for _, y in M.source_lines(nuc))  # the component is 1 photon
+    ratio = a[1] / max(a[0], 1e-300)
+    # delta method for a1 / a0
+    grad = np.array([-ratio / max(a[0], 1e-300), 1 / max(a[0], 1e-300)])
+    ratio_err = math.sqrt(max(float(grad @ cov @ grad), 0.0))
+    return {"total_variation_32": shape_distances(problem, a[0] * lines_shape + a[1] * extra)["total_variation_32"],
+            "total_variation_32_without": shape_distances(problem, lines_shape)["total_variation_32"],
+            "share": float(a[1] * s2.sum() / (a[0] * s1.sum() + a[1] * s2.sum())),
+            "per_photon": float(ratio / photons), "per_photon_error": ratio_err / photons,
+            "deviance_drop": dev0 - dev}
+
+
 def evaluate(problem: Problem | Joint, params: dict[str, float]) -> FitResult:
     """A saved response on another spectrum: only the amplitude is fitted."""
     return fit(problem, params, (), hesse=False)

@@ -36,11 +36,14 @@ from radseek.photon_lines import source_lines as _chain_lines
 
 def source_lines(name: str) -> tuple[tuple[float, float], ...]:
     """Photon lines of a source: ``radseek.photon_lines.source_lines``, or for ``brems:NAME`` the bremsstrahlung
-    of NAME's betas (``spectra.bremsstrahlung``)."""
-    from spectra import bremsstrahlung
+    of NAME's betas (``spectra.bremsstrahlung``), for ``backscatter:NAME`` NAME's lines backscattered once by
+    material around the source (``spectra.surroundings``)."""
+    from spectra import bremsstrahlung, surroundings
 
     if name.startswith(bremsstrahlung.PREFIX):
         return bremsstrahlung.lines(name[len(bremsstrahlung.PREFIX):])
+    if name.startswith(surroundings.PREFIX):
+        return surroundings.lines(name[len(surroundings.PREFIX):])
     return _chain_lines(name)
 
 
@@ -133,7 +136,7 @@ DECLARED: dict[str, Effect] = {
               "mm", start=30.0)),
     "electron_escape": Effect(
         "electrons leaving the crystal near a face: escape probability f R_CSDA(T) / mean chord, R from NIST ESTAR "
-        "for CsI (spectra.electron_escape; Knoll sec. 10.I)",
+        "for CsI (detector_fw_sim.electron_escape; Knoll sec. 10.I)",
         Param("electron_range_factor", 0.0, 0.0, 1.0, "f: mean projected range / CSDA range of the crystal's "
               "electrons (0: no escape)", start=0.4)),
     "k_xray_escape": Effect(
@@ -161,7 +164,8 @@ def effects_of(params: dict[str, float]) -> response.ResponseEffects:
         fwhm_exponent=params["fwhm_exponent"], k_escape=params["k_escape"] >= 0.5,
         absorber_g_cm2=params["absorber_g_cm2"], scatter_side=params["scatter_side"],
         scatter_multiple=params["scatter_multiple"], escape_scale=params["escape_scale"],
-        side_scatter_min_deg=params["side_scatter_min_deg"])
+        side_scatter_min_deg=params["side_scatter_min_deg"],
+        electron_range_factor=params.get("electron_range_factor", 0.0))
 
 
 def crystal_of(params: dict[str, float]) -> response.Crystal:
@@ -235,7 +239,7 @@ def deposited(params: dict[str, float], nuclides: tuple[str, ...]) -> tuple[np.n
     pk_kept = pk_w * a[pk_line]
     f = params.get("electron_range_factor", 0.0)
     if f > 0:
-        from spectra import electron_escape
+        from detector_fw_sim import electron_escape
 
         chord = electron_escape.mean_chord_cm(params["crystal_mm"], params["crystal_mm"])
         pk_kept, cont = electron_escape.apply(pk_e, pk_kept, cont, grid, f, chord)

@@ -7,7 +7,9 @@ degrees of freedom. Bounds are at 4.5 sigma (two-sided p ~ 7e-6 per check), seed
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -219,3 +221,61 @@ def test_bad_frames_are_refused_with_a_clear_message():
         em.expected_counts(np.zeros((3, 4)), np.zeros(2), np.ones(3))
     # on top of the source the 1/d^2 law is capped (d >= 5 cm), not infinite
     assert np.isfinite(em.expected_counts(np.array([[0.0, 0.0, 1.0, 0.0]]), 0.0, 0.1)).all()
+
+
+ESCAPE_DET = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc102-001272.joint-escape.detector.json"
+
+
+def _calibrated_shares(params: dict, nuclide: str, edges: np.ndarray) -> np.ndarray:
+    """Channel shares of the calibrated response (``spectra.model``, exact Gaussian per deposit point: not the
+    emulator's code) with the device's electronics left out, as the emulator leaves them: unit gain, no offset,
+    no pile-up, no threshold. The last channel is open above its lower edge, as the board's."""
+    from spectra import model as M
+
+    q = dict(M.baseline_params(), **{k: v for k, v in params.items() if k in M.PARAMS})
+    q.update(gain=1.0, offset_keV=0.0, quadratic_per_MeV=0.0, light_yield_curvature=0.0, pileup=0.0,
+             threshold_keV=0.0)
+    s = M.native_shape(q, (nuclide,), np.r_[edges[:-1], response.GRID_MAX_KEV])
+    return s / s.sum()
+
+
+def test_emulated_spectra_follow_the_detector_files_electron_escape(tmp_path):
+    """A detector file carrying the electron-escape factor f (``radseek calibrate``'s electron_escape) makes the
+    emulator's Co-60 spectrum the calibrated response with the escape: seeded draws (1e6 counts) fit it by
+    chi-square, and their departure from the response without the escape, projected on what the effect predicts
+    (d = p_with - p_without), is 1 within its statistical error. The same file without f gives 0 on that axis."""
+    from radseek_io.detector_file import read_detector_file
+
+    raw = json.loads(ESCAPE_DET.read_text())
+    f = raw["parameters"]["electron_range_factor"]
+    assert 0.2 < f < 0.6
+    older = dict(raw, parameters={k: v for k, v in raw["parameters"].items() if k != "electron_range_factor"})
+    (tmp_path / "no-escape.json").write_text(json.dumps(older))
+    params = read_detector_file(ESCAPE_DET).parameters
+    edges = np.asarray(make_scene().channel_edges_keV)
+    p1 = _calibrated_shares(params, "Co-60", edges)
+    p0 = _calibrated_shares(dict(params, electron_range_factor=0.0), "Co-60", edges)
+    d = p1 - p0
+    assert 0.5 * np.abs(d).sum() > 0.02  # the effect is large enough to be seen at this sample size
+
+    n_frames, cps = 100, 1.0e5
+    for path, want in ((ESCAPE_DET, 1.0), (tmp_path / "no-escape.json", 0.0)):
+        data = make_scene(cps=cps).model_dump()
+        data["sources"][0]["nuclide"] = "Co-60"
+        data["detector"] = str(path)
+        scene = validate_scene(data, "escape scene")
+        assert scene.detector.electron_range_factor == (f if want else 0.0)
+        em = DetectorEmulator(scene, seed=43)
+        p = np.tile(pose(1.0), (n_frames, 1))
+        counts = em.draw_many(p, np.zeros(n_frames), np.full(n_frames, 0.1)).sum(0).astype(float)
+        n = counts.sum()
+        expect = p1 if want else p0
+        keep = n * expect > 20
+        chi2 = float((((counts - n * expect) ** 2) / (n * expect))[keep].sum())
+        dof = int(keep.sum()) - 1
+        assert chi2 < stats.chi2.ppf(stats.norm.cdf(Z), dof), f"{path.name}: chi2 {chi2:.1f} / {dof}"
+        # the multinomial estimate of the amplitude along d: a = sum((x/n - p0) d / p1) / sum(d^2 / p1)
+        w = d / np.maximum(p1, 1e-12)
+        a = float(((counts / n - p0) * w).sum() / (d * w).sum())
+        sigma = 1.0 / math.sqrt(n * float((d * w).sum()))
+        assert abs(a - want) < Z * sigma + 0.01, f"{path.name}: amplitude {a:.4f} +- {sigma:.4f}, want {want}"

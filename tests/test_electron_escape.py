@@ -1,4 +1,4 @@
-"""Electrons leaving the crystal (spectra.electron_escape): ESTAR ranges, the escape probability's limits, the
+"""Electrons leaving the crystal (detector_fw_sim.electron_escape): ESTAR ranges, the escape probability's limits, the
 first-order geometry against a Monte Carlo of the cylinder, and the deposit kernel's bookkeeping."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from spectra import electron_escape as X
+from detector_fw_sim import electron_escape as X
 
 CHORD_10MM = X.mean_chord_cm(10.0, 10.0)
 
