@@ -266,8 +266,8 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
     t0, c0 = time.perf_counter(), time.process_time()
     d = score_diagnosis(diagnose(ds, quiet=True, n_starts=n_starts), ds.truth)
     secs, cpu = time.perf_counter() - t0, time.process_time() - c0
-    gap = truth_model_gap(ds, d.final.fit) if ds.truth and "start_fraction" in ds.truth.effects.get(
-        "moving_source", {}) else None
+    gap = truth_model_gap(ds, d.final.fit) if ds.truth and ("start_fraction" in ds.truth.effects.get(
+        "moving_source", {}) or "background_drift" in ds.truth.effects) else None
     first = d.selection.first
     chosen = [st.candidates[0] for st in d.selection.steps if st.chosen]
     after = d.after
@@ -311,30 +311,44 @@ TOLD_APART_AIC = 10.0
 
 
 def truth_model_gap(ds: Any, named: Any) -> dict[str, Any]:
-    """How much better the off-list truth fits the counts than the model diagnose named: a source carried off
-    from ``start_fraction`` of the flight, fitted as ``source_motion`` (t0 the truth's, from the true start and
-    from the named fit's source) with the same pose-offset profile. An AIC gap below :data:`TOLD_APART_AIC` (or
-    negative) means the counts cannot tell the moved source from the named effects: no verdict could call it
-    unexplained from them."""
+    """How much better the off-list truth fits the counts than the model diagnose named, both with the same
+    pose-offset profile: a source carried off from ``start_fraction`` of the flight (``source_motion``, t0 the
+    truth's) or a background drifting in time (``background_drift``, the truth's period and phase, its amplitude
+    or ramp free), fitted from the truth and from the named fit's values. An AIC gap below
+    :data:`TOLD_APART_AIC` (or negative) means the counts cannot tell the truth from the named effects: no verdict
+    could call it unexplained from them."""
     from estimator.diagnose.backend import split_transit_legs
     from estimator.mle import fit
     from estimator.model import MeasurementModel
 
     frames = split_transit_legs(ds.frames)
-    mv = ds.truth.effects["moving_source"]
-    t_start = float(mv.get("start_s", mv["start_fraction"] * float(ds.frames.t[-1])))
-    model = MeasurementModel(ds.scenario, ("source_motion",)).with_params(
-        **{"source_motion.t0": {"value": t_start, "fixed": True}})
+    fx = ds.truth.effects
     src = ds.truth.sources[0]
-    truth = {"x": src.x, "y": src.y, "cps_at_1m": src.cps_at_1m, "background_cps": ds.truth.background_cps,
-             "source_motion.vx": mv["vx"], "source_motion.vy": mv["vy"], "source_motion.t0": t_start}
-    from_named = {**{k: v for k, v in named.values.items() if k in model.param_names}, "source_motion.t0": t_start}
-    res = fit(model, frames, n_starts=2, init=truth, more_inits=[from_named])
+    truth = {"x": src.x, "y": src.y, "cps_at_1m": src.cps_at_1m, "background_cps": ds.truth.background_cps}
+    if "moving_source" in fx:
+        mv = fx["moving_source"]
+        fixed = {"source_motion.t0": float(mv.get("start_s", mv["start_fraction"] * float(ds.frames.t[-1])))}
+        truth.update({"source_motion.vx": mv["vx"], "source_motion.vy": mv["vy"]})
+        effect, shown = "source_motion", ("source_motion.vx", "source_motion.vy")
+    else:
+        bd = fx["background_drift"]
+        fixed = {"background_drift.period_s": float(bd.get("period_s", 60.0)),
+                 "background_drift.phase": float(bd.get("phase", 0.0))}
+        free = "background_drift.amplitude" if bd.get("amplitude") else "background_drift.percent_per_min"
+        other = ({"background_drift.amplitude", "background_drift.percent_per_min"} - {free}).pop()
+        fixed[other] = 0.0
+        truth[free] = float(bd.get(free.split(".")[1], 0.0))
+        effect, shown = "background_drift", (free,)
+    model = MeasurementModel(ds.scenario, (effect,)).with_params(
+        **{k: {"value": v, "fixed": True} for k, v in fixed.items()})
+    from_named = {**{k: v for k, v in named.values.items() if k in model.param_names}, **fixed}
+    res = fit(model, frames, n_starts=2, init={**truth, **fixed}, more_inits=[from_named])
     k_truth, k_named = len(res.free_names), len(named.free_names)
     aic_gap = 2 * (named.nll - res.nll) + 2 * (k_named - k_truth)
-    return {"nll_gap": round(named.nll - res.nll, 2), "k_truth": k_truth, "k_named": k_named,
+    return {"effect": effect, "nll_gap": round(named.nll - res.nll, 2), "k_truth": k_truth, "k_named": k_named,
             "aic_gap": round(aic_gap, 2), "told_apart": bool(aic_gap >= TOLD_APART_AIC),
-            "velocity": [round(res.values["source_motion.vx"], 4), round(res.values["source_motion.vy"], 4)]}
+            "fitted": {k: round(res.values[k], 4) for k in shown},
+            "fitted_err": {k: round(float(res.errors.get(k, math.nan)), 4) for k in shown}}
 
 
 def named_nuclide(j: dict[str, Any]) -> str | None:

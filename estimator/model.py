@@ -693,18 +693,49 @@ class SourceMotion(Effect):
         return pos - np.stack([sx, sy, np.zeros_like(sx)], axis=-1)
 
 
+class BackgroundDrift(Effect):
+    """A background varying in time: B (1 + amplitude sin(2 pi t / period_s + phase) + percent_per_min t / 6000).
+    Off the dataset spec's list, never a candidate: the diagnose evaluation fits it with the truth's period and
+    phase to measure whether the counts tell a drifting background from the effects diagnose named
+    (``benchmarks.diagnose_evaluate.truth_model_gap``)."""
+
+    name = "background_drift"
+
+    def params(self, scenario: Scenario) -> list[Param]:
+        return [
+            Param("background_drift.amplitude", 0.0, -1.0, 1.0, step=0.02),
+            Param("background_drift.percent_per_min", 0.0, -200.0, 200.0, step=1.0),
+            Param("background_drift.period_s", 60.0, 1.0, 1e5, fixed=True, unit="s"),
+            Param("background_drift.phase", 0.0, -10.0, 10.0, fixed=True),
+        ]
+
+    @staticmethod
+    def _factor(th, t):
+        return (1.0 + th["background_drift.percent_per_min"] * t / 6000.0
+                + th["background_drift.amplitude"] * np.sin(2 * np.pi * t / th["background_drift.period_s"]
+                                                           + th["background_drift.phase"]))
+
+    def background(self, th, b, ctx):
+        return np.maximum(b * self._factor(th, ctx.t), 1e-3)
+
+    def background_grad(self, th, b, db, ctx):
+        f = np.ravel(self._factor(th, ctx.t))
+        raw = b * f
+        return np.maximum(raw, 1e-3), np.where((raw > 1e-3)[:, None], np.asarray(db) * f[:, None], 0.0)
+
+
 EFFECT_PARTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (DeadTime, WallAttenuation, UnmappedWall, UnmappedWall2, Anisotropy, AirAttenuation, SecondSource,
-                BackgroundGradient, PoseDrift, SourceMotion)
+                BackgroundGradient, PoseDrift, SourceMotion, BackgroundDrift)
 }
 #: effects beyond the dataset spec's base table (EFFECTS, which the emulator's scenes mirror): a wall the map
 #: lacks (the spec's ``unmapped_wall``; ``unmapped_wall_2`` is a second one, reported under the same name)
 OPEN_WORLD_EFFECTS = ("unmapped_wall", "unmapped_wall_2")
 #: every count-model effect, in the order models and fits are keyed by
 COUNT_EFFECTS: tuple[str, ...] = tuple(EFFECT_PARTS)
-#: count-model parts the selection never offers (off the spec's list: see SourceMotion)
-UNOFFERED_EFFECTS = ("source_motion",)
+#: count-model parts the selection never offers (off the spec's list: see SourceMotion, BackgroundDrift)
+UNOFFERED_EFFECTS = ("source_motion", "background_drift")
 assert set(EFFECT_PARTS) | set(SPECTRAL_ONLY) == set(EFFECTS) | set(OPEN_WORLD_EFFECTS) | set(UNOFFERED_EFFECTS)
 
 

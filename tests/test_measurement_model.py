@@ -100,6 +100,15 @@ def test_a_source_carried_off_from_t0_is_the_still_source_before_and_the_moved_o
     assert MeasurementModel(sc, ["source_motion"]).param("source_motion.t0").fixed
 
 
+def test_a_drifting_background_follows_its_sine_and_ramp_in_time():
+    t = np.array([5.0, 10.0, 15.0, 20.0])
+    f = frames([[50, 50, 1]] * 4, t=t)  # far from the source: background alone (to 1e-3)
+    th = {**SRC, "cps_at_1m": 0.0, "background_drift.amplitude": 0.4, "background_drift.period_s": 20.0,
+          "background_drift.phase": 0.5, "background_drift.percent_per_min": 30.0}
+    mu = MeasurementModel(scenario(), ["background_drift"]).expected_counts(th, f)
+    assert np.allclose(mu, 0.1 * 30 * (1 + 0.4 * np.sin(2 * np.pi * t / 20 + 0.5) + 30 / 100 * t / 60))
+
+
 def test_vectorised_hypotheses_match_one_at_a_time():
     wall = Wall((0.0, 3.0), (10.0, 3.0), 0.2, 3.0)
     rng = np.random.default_rng(1)
@@ -230,7 +239,7 @@ def _central_jacobian(m, th, f, h=1e-6):
 
 @pytest.mark.parametrize("effects", [("wall_attenuation",), ("unmapped_wall",), (
     "wall_attenuation", "unmapped_wall", "unmapped_wall_2", "dead_time", "air_attenuation", "anisotropy",
-    "background_gradient", "pose_drift", "second_source", "source_motion")])
+    "background_gradient", "pose_drift", "second_source", "source_motion", "background_drift")])
 def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(effects):
     """A detector crossing a slab's shadow at 1.5 m (source at the floor behind a wall at y = 3, east end at
     x = 6): its counts and their derivative in the position, from one evaluation, are the model's counts and
@@ -245,7 +254,8 @@ def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(
           "unmapped_wall.length": 2.0, "unmapped_wall.mu_per_m": 4.0, "unmapped_wall_2.r": 1.5,
           "unmapped_wall_2.phi_deg": 30.0, "dead_time.tau_s": 1e-4, "background_gradient.gx": 1.0,
           "pose_drift.vx": 0.01, "second_source.x": 8.0, "second_source.y": 2.0, "second_source.cps_at_1m": 300.0,
-          "anisotropy.fraction": 0.4, "source_motion.vx": 0.02, "source_motion.vy": -0.01, "source_motion.t0": 10.0}
+          "anisotropy.fraction": 0.4, "source_motion.vx": 0.02, "source_motion.vy": -0.01, "source_motion.t0": 10.0,
+          "background_drift.amplitude": 0.3, "background_drift.period_s": 20.0, "background_drift.percent_per_min": 5.0}
     th = {k: v for k, v in th.items() if k in m.param_names}
     mu, jac = m.expected_counts_and_jacobian(th, f)
     np.testing.assert_allclose(mu, m.expected_counts(th, f), rtol=1e-12)

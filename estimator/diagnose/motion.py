@@ -29,8 +29,8 @@ from radseek.dataset import Frames
 BREAKS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
 #: AIC difference read as strong support (Burnham and Anderson), before the look-elsewhere allowance
 STRONG_AIC = 10.0
-#: starting speeds (m/s) of the velocity search, in eight directions each
-START_SPEEDS = (0.05, 0.2)
+#: starting speeds (m/s) of the velocity search, in eight directions each: a slow drift to a walk
+START_SPEEDS = (0.05, 0.2, 0.8)
 NAME = "source_motion"
 
 
