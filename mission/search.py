@@ -9,7 +9,8 @@ estimate is stable and its model fits the counts (goodness of fit p >= ``estimat
 or the same holds of an ellipse that has stopped shrinking at the floor odometry drift allows (drift-limited:
 a larger scene flies more metres, and its drift bound may lie above ``stop_sigma_m``), or the dwell budget is
 spent. Strategy ``info`` is the same search with the information planner (``planner.information``) in place of
-eq. 6: the next dwell point and its length by the expected D-optimal information per second under drift; it is
+eq. 6 (and exploration ended after ``info_min_readings`` readings): the next dwell point and its length by the
+expected D-optimal information per second under drift; it is
 drift-limited when no next leg is expected to lower the bound the flown frames allow (landmark-aware: mapped walls
 pin the drift) by more than ``bound_fall_m_s`` per second of flight.
 Strategies ``lattice`` (paper 003's 9-point lattice) and
@@ -93,17 +94,31 @@ class SearchConfig:
     vehicle_radius_m: float = 0.3
     dwell: DwellConfig = field(default_factory=DwellConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    #: readings above background that end the ``info`` search's exploration (the others: the frontier's
+    #: ``min_readings``, paper 003's three): its score plans from the first in-flight fit, and each exploration
+    #: dwell flown first adds drift to the informative counts that follow (docs/planner.md, issue 36)
+    info_min_readings: int = 2
     next_best: NextBestConfig = field(default_factory=NextBestConfig)
 
     def __post_init__(self) -> None:
         if self.altitude_m <= 0 or self.stop_sigma_m <= 0:
             raise ValueError("altitude_m and stop_sigma_m must be > 0")
+        if self.info_min_readings < 1:
+            raise ValueError("info_min_readings must be >= 1")
         if not self.bound_fall_m_s >= 0:
             raise ValueError("bound_fall_m_s must be >= 0")
         if not (0 <= self.min_search_dwells <= self.max_search_dwells <= self.max_dwells):
             raise ValueError("need 0 <= min_search_dwells <= max_search_dwells <= max_dwells")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+
+    @property
+    def exploration(self) -> FrontierConfig:
+        """The exploration settings: ``frontier``, ended after ``info_min_readings`` readings when the strategy is
+        ``info``."""
+        if self.strategy == "info":
+            return dataclasses.replace(self.frontier, min_readings=self.info_min_readings)
+        return self.frontier
 
     @property
     def planner(self) -> NextBestConfig:
@@ -172,7 +187,8 @@ class SearchBrain:
             self.phase = Phase.PATTERN
             self.pattern = list(self._pattern_points())
             return self._next_pattern_point(current)
-        return self._explore(current, "start: explore until three readings stand above background")
+        return self._explore(current, f"start: explore until {self.config.exploration.min_readings} readings stand "
+                                      "above background")
 
     def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames, current: np.ndarray,
                   flown: np.ndarray | None = None) -> Decision:
@@ -195,12 +211,13 @@ class SearchBrain:
                                   Outcome.PATTERN_FLOWN)
             return self._next_pattern_point(current)
         if self.phase is Phase.EXPLORE:
-            if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
+            if exploration_done(self.history, self.scenario.background_cps, self.config.exploration):
                 self.phase = Phase.SEARCH
             elif n_dwells >= self.config.max_dwells:
                 return self._done("dwell budget spent during exploration", Outcome.BUDGET_SPENT)
             else:
-                return self._explore(current, f"explore: {self._above()} of 3 readings above background")
+                need = self.config.exploration.min_readings
+                return self._explore(current, f"explore: {self._above()} of {need} readings above background")
         belief, sigma = self._estimate(frames)
         misfit = self._misfit()
         # the information planner plans before the stop rule: its score says what the next leg would still buy
@@ -274,7 +291,7 @@ class SearchBrain:
 
     def _explore(self, current: np.ndarray, reason: str) -> Decision:
         plan = plan_exploration(self._at_altitude(current), self.history, self.occ, self.visited,
-                                self.config.frontier, rng=self.rng)
+                                self.config.exploration, rng=self.rng)
         if not plan.ok:
             return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)

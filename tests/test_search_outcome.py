@@ -187,3 +187,25 @@ def test_the_bound_fall_stop_needs_a_searched_stable_fitting_localised_estimate(
     assert brain.stop_rule(belief, 1.2, 0.0) is None
     brain.search_dwells = brain.config.min_search_dwells - 1
     assert brain.stop_rule(belief, 0.137, 0.5 * limit) is None
+
+
+@pytest.mark.parametrize(("strategy", "readings", "searching"), [
+    ("info", 1, False), ("info", 2, True), ("active", 2, False), ("active", 3, True)])
+def test_the_info_search_ends_exploration_after_two_readings_above_background(monkeypatch, strategy, readings,
+                                                                               searching):
+    # a dwell ends with ``readings`` dwell rates 3x background (far above the 3-sigma test): the info search
+    # searches after two (each exploration dwell adds drift to the counts its score plans for), paper 003's
+    # active search after three; exploring on, the reason counts towards the strategy's number
+    brain = _brain(monkeypatch, [None], strategy=strategy)
+    brain.phase = Phase.EXPLORE
+    monkeypatch.setattr(ms, "plan_exploration", lambda *a, **k: DwellPlan(
+        np.array([[3.0, 3.0, 1.5, 0.0]]), np.array([[1.0, 1.0, 1.5, 0.0], [3.0, 3.0, 1.5, 0.0]]), "frontier"))
+    bg = SCENARIO.background_cps
+    n = readings - 1
+    brain.history = DwellHistory(np.zeros((n, 3)), np.full(n, 3 * bg))
+    brain.end_dwell(np.array([2.0, 2.0, 1.5]), SimpleNamespace(mean_rate=3 * bg), FRAMES, HERE)
+    assert (brain.phase is Phase.SEARCH) == searching
+    if not searching:
+        assert brain.config.exploration.min_readings == readings + 1
+    with pytest.raises(ValueError, match="info_min_readings"):
+        SearchConfig(info_min_readings=0)
