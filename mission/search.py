@@ -254,14 +254,18 @@ class SearchBrain:
         searched = belief is not None and self.search_dwells >= self.config.min_search_dwells
         if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
+        spent = self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells
         if bound_fall_m_s is not None:
             limit = self.config.bound_fall_m_s
-            if (self.config.stop_at_drift_floor and searched and sigma < LOCALISED_M and bound_fall_m_s < limit
+            # with the budget spent no next leg is flown: the bound has fallen as far as this flight allows
+            fall = 0.0 if spent else bound_fall_m_s
+            if (self.config.stop_at_drift_floor and limit > 0 and searched and sigma < LOCALISED_M and fall < limit
                     and self._stable() and not misfit):
                 bound = self.bound_falls[-1][1] if self.bound_falls else math.nan
                 return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (the bound these frames allow, "
-                        f"{bound:.3f} m, would fall by {1e3 * bound_fall_m_s:.2f} mm per second of a next leg, "
-                        f"< {1e3 * limit:g})", Outcome.DRIFT_LIMITED)
+                        f"{bound:.3f} m: " + ("the dwell budget allows no next leg)" if spent else
+                           f"it would fall by {1e3 * fall:.2f} mm per second of a next leg, < {1e3 * limit:g})"),
+                        Outcome.DRIFT_LIMITED)
             floor = 0.0
         else:
             floor = self._drift_limited() if self.config.stop_at_drift_floor else 0.0
@@ -269,7 +273,7 @@ class SearchBrain:
             return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the odometry-drift "
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
                     "drift allows)", Outcome.DRIFT_LIMITED)
-        if self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells:
+        if spent:
             return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})", \
                 Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
         return None

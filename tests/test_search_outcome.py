@@ -209,3 +209,20 @@ def test_the_info_search_ends_exploration_after_two_readings_above_background(mo
         assert brain.config.exploration.min_readings == readings + 1
     with pytest.raises(ValueError, match="info_min_readings"):
         SearchConfig(info_min_readings=0)
+
+
+def test_an_info_search_whose_budget_is_spent_at_a_good_estimate_is_drift_limited(monkeypatch):
+    # no next leg can be flown, so the bound has fallen as far as this flight allows: a stable, fitting, localised
+    # estimate is found (drift-limited) however much a next leg would have bought; a misfit is still the budget's
+    limit = SearchConfig().bound_fall_m_s
+    n = SearchConfig().max_search_dwells
+    brain = _info_brain(monkeypatch, 10 * limit)
+    brain.search_dwells = n - 1  # the dwell that ends now is the budget's last
+    d = _stop(brain)
+    assert d.outcome is Outcome.DRIFT_LIMITED and "the dwell budget allows no next leg" in d.reason
+    brain = _info_brain(monkeypatch, 10 * limit)
+    brain.search_dwells = n - 1
+    brain.estimator.estimates = [_record(8, 0.137, p_value=0.0)]
+    monkeypatch.setattr(brain.estimator, "update", lambda frames, dwell: brain.estimator.estimates.append(
+        _record(9, 0.137, p_value=0.0)) or brain.estimator.estimates[-1])
+    assert _stop(brain).outcome is Outcome.MISFIT
