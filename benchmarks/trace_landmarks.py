@@ -36,8 +36,18 @@ def trace(scene_name: str, strategy: str, seed: int) -> list[str]:
     dwell = np.asarray(frames.dwell)
     drift = np.column_stack([frames.x, frames.y]) - r.true_path[:, :2]
     after = {e.dwell: e for e in r.brain.estimates}
+    cov = np.asarray(last.covariance, dtype=float)[:2, :2]
+    miss = np.array([last.x - src.x, last.y - src.y])
+    d2 = float(miss @ np.linalg.pinv(cov) @ miss) if np.isfinite(cov).all() else math.nan
+    w, v = np.linalg.eigh(cov) if np.isfinite(cov).all() else (np.full(2, math.nan), np.eye(2))
+    along = np.abs(v.T @ miss)  # the miss along the ellipse's minor and major axes
     out = [f"{scene_name} {strategy} seed {seed}: mission {r.mission_time_s:.0f} s, final error "
-           f"{math.hypot(last.x - src.x, last.y - src.y):.3f} m, effects {list(model.effects)}"]
+           f"{math.hypot(last.x - src.x, last.y - src.y):.3f} m, effects {list(model.effects)}, "
+           f"stop: {r.decisions[-1].reason}",
+           f"  final ellipse: 1-sigma axes {math.sqrt(max(w[1], 0)):.3f} / {math.sqrt(max(w[0], 0)):.3f} m, miss along "
+           f"them {along[1]:.3f} / {along[0]:.3f} m, Mahalanobis d2 {d2:.1f} (95 % holds it below 5.99), "
+           f"fit p {last.p_value:.2g}, misfit factor {last.extra.get('misfit_factor')}, "
+           f"other mode {last.extra.get('other_mode')}, params {dict(last.params)}"]
     for k in np.unique(dwell[dwell >= 0]):
         upto = frames.select(np.arange(len(frames.t)) <= np.flatnonzero(dwell == k).max())
         bounds = [bound_m(pose_aware_crlb(model, theta, upto, landmarks=lm)[np.ix_([ix, iy], [ix, iy])])

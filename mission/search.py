@@ -9,7 +9,10 @@ estimate is stable and its model fits the counts (goodness of fit p >= ``estimat
 or the same holds of an ellipse that has stopped shrinking at the floor odometry drift allows (drift-limited:
 a larger scene flies more metres, and its drift bound may lie above ``stop_sigma_m``), or the dwell budget is
 spent. Strategy ``info`` is the same search with the information planner (``planner.information``) in place of
-eq. 6: the next dwell point and its length by the expected D-optimal information per second under drift.
+eq. 6 (and exploration ended after ``info_min_readings`` readings): the next dwell point and its length by the
+expected D-optimal information per second under drift; it is
+drift-limited when no next leg is expected to lower the bound the flown frames allow (landmark-aware: mapped walls
+pin the drift) by more than ``bound_fall_m_s`` per second of flight.
 Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
@@ -77,6 +80,11 @@ class SearchConfig:
     #: stop "drift-limited" when the 1-sigma has stopped falling at the odometry-drift floor (False: fly on to the
     #: sigma target or the budget, as ``benchmarks/error_along_flight.py`` does to see what more dwells buy)
     stop_at_drift_floor: bool = True
+    #: m/s: strategy ``info`` stops drift-limited when no valid next leg is expected to lower the bound the
+    #: flown frames allow (the planner's drift-aware bound, landmark-aware on walled scenes: the one the fit
+    #: reaches) by more than this per second of flight (0: never by this rule): 10 s of flight would buy < 2 mm.
+    #: Tuned on seeds 1000-1039 only (``benchmarks/stop_rule_tuning.py``, docs/planner.md)
+    bound_fall_m_s: float = 2e-4
     max_search_dwells: int = 6  # dwell points after exploration (paper 003 needed 5)
     max_dwells: int = 16  # dwell points in all (battery budget)
     #: the in-flight estimate (``estimator.inflight``: pooling, warm start, wall test, sigma) fits this
@@ -86,15 +94,31 @@ class SearchConfig:
     vehicle_radius_m: float = 0.3
     dwell: DwellConfig = field(default_factory=DwellConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    #: readings above background that end the ``info`` search's exploration (the others: the frontier's
+    #: ``min_readings``, paper 003's three): its score plans from the first in-flight fit, and each exploration
+    #: dwell flown first adds drift to the informative counts that follow (docs/planner.md, issue 36)
+    info_min_readings: int = 2
     next_best: NextBestConfig = field(default_factory=NextBestConfig)
 
     def __post_init__(self) -> None:
         if self.altitude_m <= 0 or self.stop_sigma_m <= 0:
             raise ValueError("altitude_m and stop_sigma_m must be > 0")
+        if self.info_min_readings < 1:
+            raise ValueError("info_min_readings must be >= 1")
+        if not self.bound_fall_m_s >= 0:
+            raise ValueError("bound_fall_m_s must be >= 0")
         if not (0 <= self.min_search_dwells <= self.max_search_dwells <= self.max_dwells):
             raise ValueError("need 0 <= min_search_dwells <= max_search_dwells <= max_dwells")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+
+    @property
+    def exploration(self) -> FrontierConfig:
+        """The exploration settings: ``frontier``, ended after ``info_min_readings`` readings when the strategy is
+        ``info``."""
+        if self.strategy == "info":
+            return dataclasses.replace(self.frontier, min_readings=self.info_min_readings)
+        return self.frontier
 
     @property
     def planner(self) -> NextBestConfig:
@@ -134,6 +158,9 @@ class SearchBrain:
         self.visited = np.zeros((0, 3))
         self.pattern: list[np.ndarray] = []
         self.next_dwell_s: float | None = None  # s: the length the planner chose for the next dwell (None: the rule)
+        #: strategy ``info``, one per search decision: (dwells so far, the planner's bound of the flown frames (m),
+        #: its largest expected fall per second of the next leg (m/s)), what the drift-limited stop looked at
+        self.bound_falls: list[tuple[int, float, float]] = []
 
     # ---------------------------------------------------------------------------- dwell control
 
@@ -160,7 +187,8 @@ class SearchBrain:
             self.phase = Phase.PATTERN
             self.pattern = list(self._pattern_points())
             return self._next_pattern_point(current)
-        return self._explore(current, "start: explore until three readings stand above background")
+        return self._explore(current, f"start: explore until {self.config.exploration.min_readings} readings stand "
+                                      "above background")
 
     def end_dwell(self, position: np.ndarray, status: DwellStatus, frames: Frames, current: np.ndarray,
                   flown: np.ndarray | None = None) -> Decision:
@@ -183,24 +211,28 @@ class SearchBrain:
                                   Outcome.PATTERN_FLOWN)
             return self._next_pattern_point(current)
         if self.phase is Phase.EXPLORE:
-            if exploration_done(self.history, self.scenario.background_cps, self.config.frontier):
+            if exploration_done(self.history, self.scenario.background_cps, self.config.exploration):
                 self.phase = Phase.SEARCH
             elif n_dwells >= self.config.max_dwells:
                 return self._done("dwell budget spent during exploration", Outcome.BUDGET_SPENT)
             else:
-                return self._explore(current, f"explore: {self._above()} of 3 readings above background")
+                need = self.config.exploration.min_readings
+                return self._explore(current, f"explore: {self._above()} of {need} readings above background")
         belief, sigma = self._estimate(frames)
         misfit = self._misfit()
-        stop = self.stop_rule(belief, sigma)
+        # the information planner plans before the stop rule: its score says what the next leg would still buy
+        plan = self._plan_next(current, frames, belief) if belief is not None and self.config.strategy == "info" \
+            else None
+        fall = None
+        if plan is not None and "bound_fall_m_s" in plan.info:
+            fall = plan.info["bound_fall_m_s"]
+            self.bound_falls.append((n_dwells, plan.info["bound_m"], fall))
+        stop = self.stop_rule(belief, sigma, fall)
         if stop is not None:
             return self._done(*stop)
         if belief is None:
             return self._explore(current, "no estimate yet: keep exploring")
-        var_now = (np.array([frames.var_x[-1], frames.var_y[-1], frames.var_z[-1]], dtype=float) if len(frames.t)
-                   else np.zeros(3))
-        plan = plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ,
-                               self._planner(frames, belief), rng=self.rng, frames=frames,
-                               pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
+        plan = plan if plan is not None else self._plan_next(current, frames, belief)
         if not plan.ok:
             # every tree node inside the belief's ellipse or predicted too weak (a broad early belief covers
             # the whole tree): gather counts where none were taken yet rather than give up with budget left
@@ -209,21 +241,39 @@ class SearchBrain:
         dwell = f", dwell {self.next_dwell_s:g} s" if self.next_dwell_s is not None else ""
         return Decision(Phase.SEARCH, plan, f"next-best dwell point (1-sigma {sigma:.3f} m{misfit}{dwell})")
 
-    def stop_rule(self, belief: SourceBelief | None, sigma: float) -> tuple[str, Outcome] | None:
+    def stop_rule(self, belief: SourceBelief | None, sigma: float,
+                  bound_fall_m_s: float | None = None) -> tuple[str, Outcome] | None:
         """Whether the search stops after the estimate ``belief`` (1-sigma ``sigma`` m) of the dwells so far, and
         why (the reason for people, the outcome for programs), else None (paper 003 sec. IV-B-4: found when the
-        1-sigma is below ``stop_sigma_m``; here also when it has stopped falling at the drift floor, and never
-        on a misfitting or unstable estimate; the budget spent otherwise). One rule for one vehicle and a team."""
+        1-sigma is below ``stop_sigma_m``; here also when it is drift-limited, and never on a misfitting or
+        unstable estimate; the budget spent otherwise). Drift-limited: with ``bound_fall_m_s`` (the information
+        planner's largest expected fall of the flown frames' bound per second of a next leg, m/s) when that is
+        below ``bound_fall_m_s`` of the config, else (eq. 6, a team) when the 1-sigma has stopped falling at the
+        landmark-free drift floor. One rule for one vehicle and a team."""
         misfit = self._misfit()
         searched = belief is not None and self.search_dwells >= self.config.min_search_dwells
         if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
-        floor = self._drift_limited() if self.config.stop_at_drift_floor else 0.0
+        spent = self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells
+        if bound_fall_m_s is not None:
+            limit = self.config.bound_fall_m_s
+            # with the budget spent no next leg is flown: the bound has fallen as far as this flight allows
+            fall = 0.0 if spent else bound_fall_m_s
+            if (self.config.stop_at_drift_floor and limit > 0 and searched and sigma < LOCALISED_M and fall < limit
+                    and self._stable() and not misfit):
+                bound = self.bound_falls[-1][1] if self.bound_falls else math.nan
+                return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (the bound these frames allow, "
+                        f"{bound:.3f} m: " + ("the dwell budget allows no next leg)" if spent else
+                           f"it would fall by {1e3 * fall:.2f} mm per second of a next leg, < {1e3 * limit:g})"),
+                        Outcome.DRIFT_LIMITED)
+            floor = 0.0
+        else:
+            floor = self._drift_limited() if self.config.stop_at_drift_floor else 0.0
         if searched and floor and self._stable() and not misfit:
             return (f"source found: 1-sigma {sigma:.3f} m, drift-limited (stopped falling at the odometry-drift "
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
                     "drift allows)", Outcome.DRIFT_LIMITED)
-        if self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells:
+        if spent:
             return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})", \
                 Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
         return None
@@ -245,10 +295,18 @@ class SearchBrain:
 
     def _explore(self, current: np.ndarray, reason: str) -> Decision:
         plan = plan_exploration(self._at_altitude(current), self.history, self.occ, self.visited,
-                                self.config.frontier, rng=self.rng)
+                                self.config.exploration, rng=self.rng)
         if not plan.ok:
             return self._done("exploration found no frontier left", Outcome.NO_FRONTIER)
         return Decision(Phase.EXPLORE, plan, reason)
+
+    def _plan_next(self, current: np.ndarray, frames: Frames, belief: SourceBelief) -> DwellPlan:
+        """The next-best dwell point from ``current`` for ``belief`` after ``frames``."""
+        var_now = (np.array([frames.var_x[-1], frames.var_y[-1], frames.var_z[-1]], dtype=float) if len(frames.t)
+                   else np.zeros(3))
+        return plan_next_dwell(self._at_altitude(current), belief, self.history, self.occ,
+                               self._planner(frames, belief), rng=self.rng, frames=frames,
+                               pose_var_now=np.where(np.isfinite(var_now), var_now, 0.0))
 
     def _planner(self, frames: Frames | None = None, belief: SourceBelief | None = None) -> NextBestConfig:
         """The planner's settings for the next dwell: the information planner predicts the rate through the

@@ -298,6 +298,25 @@ def joint_gain(cov6: np.ndarray, grad: np.ndarray, drift_var: np.ndarray, c: np.
     return -np.log(np.clip(1.0 - ratio, 1e-300, 1.0))
 
 
+def joint_bound_after(cov6: np.ndarray, grad: np.ndarray, drift_var: np.ndarray, c: np.ndarray,
+                      offset_grad: np.ndarray | None = None) -> np.ndarray:
+    """The x-y bound (m, sqrt of the trace of the x-y covariance: ``estimator.inflight.bound_m``) after the
+    measurement of :func:`joint_gain` (same arguments), (N,) or (N, L) as c: the A-optimal side of the same
+    rank-one update, trace(C_xy) - c |u|^2 / (1 + c h^T P' h)."""
+    grad = np.asarray(grad, dtype=float).reshape(-1, 4)
+    a = np.asarray(drift_var, dtype=float).reshape(-1, 2)
+    gd = -grad[:, :2] if offset_grad is None else np.asarray(offset_grad, dtype=float).reshape(-1, 2)
+    h = np.concatenate((grad, gd), axis=1)
+    v = h @ cov6
+    v[:, 4:] += a * h[:, 4:]
+    q = (v * h).sum(-1)
+    uu = (v[:, :2] ** 2).sum(-1)
+    c = np.asarray(c, dtype=float)
+    shape = (-1,) + (1,) * (c.ndim - 1)
+    trace = float(np.trace(cov6[:2, :2])) - c * uu.reshape(shape) / (1.0 + c * q.reshape(shape))
+    return np.sqrt(np.clip(trace, 0.0, None))
+
+
 def xy_gain(cov: np.ndarray, grad: np.ndarray, c: np.ndarray) -> np.ndarray:
     """D-optimal gain (nats) on the x-y marginal of adding c g g^T to the information whose inverse is ``cov``
     (4, 4), for rows grad (N, 4) and weights c (N,) or (N, L) -> same shape as c."""
@@ -313,11 +332,16 @@ def xy_gain(cov: np.ndarray, grad: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class InfoScores:
-    """Per node: the best information rate (nats/s), its gain (nats) and dwell length (s)."""
+    """Per node: the best information rate (nats/s), its gain (nats) and dwell length (s); with the random-walk
+    drift also the x-y bound of the flown frames now (m, the bound the estimator reaches: landmark-aware with
+    ``InfoConfig.landmarks``) and, per node, the largest expected fall of that bound per second of the leg
+    (m/s, over the dwell lengths): what one more dwell there is worth to the stop rule (``mission.search``)."""
 
     rate: np.ndarray
     gain: np.ndarray
     dwell_s: np.ndarray
+    bound_m: float = float("nan")
+    fall_m_s: np.ndarray | None = None
 
 
 def score_information(positions: np.ndarray, path_length: np.ndarray, belief: SourceBelief, frames: Frames | None,
@@ -336,14 +360,21 @@ def score_information(positions: np.ndarray, path_length: np.ndarray, belief: So
                                                 config.landmarks)
         drift = np.maximum(now[:2] - last_var, 0.0)[None, :] + length[:, None] * belief.drift_density[None, :2]
         gd = offset_gradient(pos, belief, walls, wall_mu_per_m) if config.landmarks else None
-        gain = joint_gain(cov6, grad, drift, lengths[None, :] / np.maximum(rate, 1e-12)[:, None], gd)
+        c = lengths[None, :] / np.maximum(rate, 1e-12)[:, None]
+        gain = joint_gain(cov6, grad, drift, c, gd)
+        bound = float(np.sqrt(max(float(np.trace(cov6[:2, :2])), 0.0)))
+        after = joint_bound_after(cov6, grad, drift, c, gd)
     else:
         cov = np.linalg.inv(flown_information(frames, belief, walls, wall_mu_per_m, config.prior_sd_m))
         cov = 0.5 * (cov + cov.T)
         var = now[None, :] + length[:, None] * belief.drift_density
         c = np.column_stack([measurement_weight(rate, grad, t, var) for t in lengths])  # (N, L)
         gain = xy_gain(cov, grad, c)
-    per_s = gain / (length[:, None] / config.speed_m_s + config.overhead_s + lengths[None, :])
+    leg_s = length[:, None] / config.speed_m_s + config.overhead_s + lengths[None, :]
+    per_s = gain / leg_s
     best = np.argmax(per_s, axis=1)
     idx = np.arange(len(pos))
-    return InfoScores(rate=per_s[idx, best], gain=gain[idx, best], dwell_s=lengths[best])
+    if config.drift != "random_walk":
+        return InfoScores(rate=per_s[idx, best], gain=gain[idx, best], dwell_s=lengths[best])
+    return InfoScores(rate=per_s[idx, best], gain=gain[idx, best], dwell_s=lengths[best], bound_m=bound,
+                      fall_m_s=((bound - after) / leg_s).max(axis=1))

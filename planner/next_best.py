@@ -24,6 +24,7 @@ the yaw-rate limit allows) and the shortcut, collision-free path from the curren
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -76,6 +77,8 @@ class NodeScores:
     too_weak: np.ndarray  # predicted net rate below lambda_min
     valid: np.ndarray  # candidate: neither, and not the root
     dwell_s: np.ndarray | None = None  # (N,) s, the dwell length each node's score assumes ("info" only)
+    bound_m: float = float("nan")  # m, the x-y bound of the flown frames ("info" only: ``InfoScores.bound_m``)
+    fall_m_s: np.ndarray | None = None  # (N,) m/s, its largest expected fall per second of each leg ("info")
 
     @property
     def best(self) -> int:
@@ -98,12 +101,13 @@ def score_nodes(positions: np.ndarray, belief: SourceBelief, history: DwellHisto
     if path_length is None:
         path_length = (np.linalg.norm(pos - pos[root], axis=1) if root is not None and len(pos)
                        else np.zeros(len(pos)))
-    dwell_s = None
+    dwell_s = fall = None
+    bound = float("nan")
     if config.gain_kind == "info":
         info = score_information(pos, path_length, belief, frames,
                                  np.zeros(3) if pose_var_now is None else pose_var_now,
                                  config.info, occ.walls, config.wall_mu_per_m)
-        gain, dwell_s = info.rate, info.dwell_s
+        gain, dwell_s, bound, fall = info.rate, info.dwell_s, info.bound_m, info.fall_m_s
     elif config.gain_kind == "eq6_pose":
         gain = gain_eq6_pose(pos, belief.mean, history.positions, path_length, belief.covariance,
                              belief.cps_at_1m, belief.background_cps, belief.drift_density, config.gain,
@@ -117,7 +121,8 @@ def score_nodes(positions: np.ndarray, belief: SourceBelief, history: DwellHisto
     valid = ~too_close & ~too_weak
     if root is not None and len(valid):
         valid[root] = False
-    return NodeScores(gain=gain, too_close=too_close, too_weak=too_weak, valid=valid, dwell_s=dwell_s)
+    return NodeScores(gain=gain, too_close=too_close, too_weak=too_weak, valid=valid, dwell_s=dwell_s,
+                      bound_m=bound, fall_m_s=fall)
 
 
 def finish_path(tree_path: np.ndarray, start_yaw: float, belief_mean: np.ndarray, occ: OccupancyMap,
@@ -164,6 +169,11 @@ def plan_next_dwell(current: np.ndarray, belief: SourceBelief, history: DwellHis
         "nodes": len(tree), "tree_time_s": t_tree, "valid_nodes": int(scores.valid.sum()),
         "rejected_close": int(scores.too_close.sum()), "rejected_weak": int(scores.too_weak.sum()),
     }
+    if scores.fall_m_s is not None:
+        # the stop rule's inputs (``mission.search``): the bound now and the most a valid next leg can take off
+        # it per second (nan: no valid node)
+        info["bound_m"] = scores.bound_m
+        info["bound_fall_m_s"] = float(scores.fall_m_s[scores.valid].max()) if scores.valid.any() else math.nan
     best = scores.best
     if best < 0:
         info["plan_time_s"] = time.perf_counter() - t0

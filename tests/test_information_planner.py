@@ -18,6 +18,7 @@ from planner.information import (
     flown_information,
     flown_joint_covariance,
     hybrid_information,
+    joint_bound_after,
     measurement_weight,
     offset_gradient,
     pose_groups,
@@ -251,6 +252,35 @@ def test_without_flown_frames_the_random_walk_score_is_the_independent_one():
     np.testing.assert_array_equal(rw.dwell_s, ind.dwell_s)
     with pytest.raises(ValueError, match="drift must be one of"):
         InfoConfig(drift="brownian")
+
+
+def test_the_expected_bound_after_a_dwell_is_the_bound_once_that_dwell_is_flown():
+    # three dwells under a random walk, then a fourth of 10 s at a candidate 2.6 m further: the planner's
+    # rank-one prediction of the flown frames' x-y bound (sqrt trace, the estimator's bound_m) is the bound
+    # computed from the frames with that dwell appended (same walk, the jump's drift as its increment), and the
+    # score's fall per second is (bound now - bound after) / the leg's seconds
+    density = 0.0005
+    b = belief(drift_density=density)
+    pts = [(2.0, 0.5), (-1.0, 2.0), (0.5, -2.5)]
+    nxt = (-1.5, -1.0)
+    flown, both = walk_frames(pts, density, var0=0.0002), walk_frames(pts + [nxt], density, var0=0.0002)
+    cov6, last_var = flown_joint_covariance(flown, b)
+    after_cov, _ = flown_joint_covariance(both, b)
+    cand = np.array([[*nxt, ALT]])
+    length = math.dist(pts[-1], nxt)
+    now = np.array([flown.var_x[-1], flown.var_y[-1], 0.0])
+    rate, grad = rate_and_gradient(cand, b)
+    drift = np.maximum(now[:2] - last_var, 0.0)[None, :] + length * density
+    predicted = joint_bound_after(cov6, grad, drift, 10.0 / rate)
+    actual = math.sqrt(np.trace(after_cov[:2, :2]))
+    assert predicted[0] == pytest.approx(actual, rel=1e-6)
+    bound = math.sqrt(np.trace(cov6[:2, :2]))
+    assert actual < 0.95 * bound  # the dwell is worth something (0.077 -> 0.070 m), so the comparison can fail
+    cfg = InfoConfig(dwell_lengths_s=(10.0,))
+    scores = score_information(cand, np.array([length]), b, flown, now, cfg)
+    assert scores.bound_m == pytest.approx(bound, rel=1e-12)
+    leg_s = length / cfg.speed_m_s + cfg.overhead_s + 10.0
+    assert scores.fall_m_s[0] == pytest.approx((bound - actual) / leg_s, rel=1e-6)
 
 
 def _xy_logdet(frames: Frames, b: SourceBelief) -> float:

@@ -140,3 +140,89 @@ def test_parse_outcome_and_the_team_status_field():
     assert topics.TeamStatus.from_dict({k: v for k, v in st.to_dict().items() if k != "outcome"}).outcome == ""
     with pytest.raises(topics.PayloadError, match="outcome"):
         topics.TeamStatus.from_dict({**st.to_dict(), "outcome": "source found"})
+
+
+def _info_brain(monkeypatch, fall: float, bound: float = 0.05, **config) -> SearchBrain:
+    """An info search after two stable, fitting estimates of 1-sigma 0.137 m (above the 0.10 m target, at a
+    landmark-free drift floor of 0.137 m) whose planner expects its best next leg to take ``fall`` m/s off the
+    flown frames' bound ``bound``."""
+    brain = _brain(monkeypatch, [_record(8, 0.137, floor=0.137), _record(9, 0.137, floor=0.137)], strategy="info")
+    brain.config = SearchConfig(strategy="info", **config)
+    plan = DwellPlan(np.array([[3.0, 3.0, 1.5, 0.0]]), np.array([[1.0, 1.0, 1.5, 0.0], [3.0, 3.0, 1.5, 0.0]]),
+                     "next_best_info", info={"bound_m": bound, "bound_fall_m_s": fall, "dwell_s": 5.0})
+    monkeypatch.setattr(brain, "_plan_next", lambda current, frames, belief: plan)
+    return brain
+
+
+def test_the_info_search_stops_drift_limited_when_the_next_leg_would_hardly_lower_the_bound(monkeypatch):
+    limit = SearchConfig().bound_fall_m_s
+    d = _stop(_info_brain(monkeypatch, 0.5 * limit))
+    assert d.outcome is Outcome.DRIFT_LIMITED and "0.050 m" in d.reason and "per second" in d.reason
+    # the same estimates at the landmark-free floor, but a next leg still worth flying: no stop (the old rule
+    # would have stopped here), the planned leg is flown
+    brain = _info_brain(monkeypatch, 2.0 * limit)
+    d = brain.end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE)
+    assert d.phase is Phase.SEARCH and d.plan is not None and d.outcome is None
+    assert brain.bound_falls[-1] == (1, 0.05, 2.0 * limit)
+    # no valid next leg (nan) is no reason to stop; switched off, the rule never stops
+    for fall, config in ((math.nan, {}), (0.0, {"bound_fall_m_s": 0.0}), (0.0, {"stop_at_drift_floor": False})):
+        d = _info_brain(monkeypatch, fall, **config).end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE)
+        assert d.phase is Phase.SEARCH and d.outcome is None, (fall, config)
+    with pytest.raises(ValueError, match="bound_fall_m_s"):
+        SearchConfig(bound_fall_m_s=-1.0)
+
+
+def test_the_bound_fall_stop_needs_a_searched_stable_fitting_localised_estimate(monkeypatch):
+    limit = SearchConfig().bound_fall_m_s
+    brain = _info_brain(monkeypatch, 0.0)
+    brain.estimator.estimates = [_record(8, 0.137), _record(9, 0.137)]
+    belief = ms.belief_of(ms.SourceEstimate.from_json(_record(9, 0.137)))
+    assert brain.stop_rule(belief, 0.137, 0.0)[1] is Outcome.DRIFT_LIMITED
+    # misfit, unstable (the estimate jumped 3 m), not localised (1-sigma >= 1 m), too few search dwells
+    brain.estimator.estimates = [_record(8, 0.137, p_value=0.0), _record(9, 0.137, p_value=0.0)]
+    assert brain.stop_rule(belief, 0.137, 0.0) is None
+    brain.estimator.estimates = [_record(8, 0.137, x=1.3), _record(9, 0.137)]
+    assert brain.stop_rule(belief, 0.137, 0.0) is None
+    brain.estimator.estimates = [_record(8, 0.137), _record(9, 0.137)]
+    assert brain.stop_rule(belief, 1.2, 0.0) is None
+    brain.search_dwells = brain.config.min_search_dwells - 1
+    assert brain.stop_rule(belief, 0.137, 0.5 * limit) is None
+
+
+@pytest.mark.parametrize(("strategy", "readings", "searching"), [
+    ("info", 1, False), ("info", 2, True), ("active", 2, False), ("active", 3, True)])
+def test_the_info_search_ends_exploration_after_two_readings_above_background(monkeypatch, strategy, readings,
+                                                                               searching):
+    # a dwell ends with ``readings`` dwell rates 3x background (far above the 3-sigma test): the info search
+    # searches after two (each exploration dwell adds drift to the counts its score plans for), paper 003's
+    # active search after three; exploring on, the reason counts towards the strategy's number
+    brain = _brain(monkeypatch, [None], strategy=strategy)
+    brain.phase = Phase.EXPLORE
+    monkeypatch.setattr(ms, "plan_exploration", lambda *a, **k: DwellPlan(
+        np.array([[3.0, 3.0, 1.5, 0.0]]), np.array([[1.0, 1.0, 1.5, 0.0], [3.0, 3.0, 1.5, 0.0]]), "frontier"))
+    bg = SCENARIO.background_cps
+    n = readings - 1
+    brain.history = DwellHistory(np.zeros((n, 3)), np.full(n, 3 * bg))
+    brain.end_dwell(np.array([2.0, 2.0, 1.5]), SimpleNamespace(mean_rate=3 * bg), FRAMES, HERE)
+    assert (brain.phase is Phase.SEARCH) == searching
+    if not searching:
+        assert brain.config.exploration.min_readings == readings + 1
+    with pytest.raises(ValueError, match="info_min_readings"):
+        SearchConfig(info_min_readings=0)
+
+
+def test_an_info_search_whose_budget_is_spent_at_a_good_estimate_is_drift_limited(monkeypatch):
+    # no next leg can be flown, so the bound has fallen as far as this flight allows: a stable, fitting, localised
+    # estimate is found (drift-limited) however much a next leg would have bought; a misfit is still the budget's
+    limit = SearchConfig().bound_fall_m_s
+    n = SearchConfig().max_search_dwells
+    brain = _info_brain(monkeypatch, 10 * limit)
+    brain.search_dwells = n - 1  # the dwell that ends now is the budget's last
+    d = _stop(brain)
+    assert d.outcome is Outcome.DRIFT_LIMITED and "the dwell budget allows no next leg" in d.reason
+    brain = _info_brain(monkeypatch, 10 * limit)
+    brain.search_dwells = n - 1
+    brain.estimator.estimates = [_record(8, 0.137, p_value=0.0)]
+    monkeypatch.setattr(brain.estimator, "update", lambda frames, dwell: brain.estimator.estimates.append(
+        _record(9, 0.137, p_value=0.0)) or brain.estimator.estimates[-1])
+    assert _stop(brain).outcome is Outcome.MISFIT
