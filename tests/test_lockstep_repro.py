@@ -1,7 +1,9 @@
 """Lockstep makes a flight reproducible: `radseek run` twice with the same seed (the two flights at the
 same time, so they also compete for the CPU differently) gives the same summary and the same recorded
-frames. Only wall-clock fields may differ. A fast honest configuration: default scene, 50x, 4 dwells
-(tests/support/same_seed_runs.py: the two runs are flown once per test run; test_one_world reads the first)."""
+frames, even though the second is attacked while it flies (forged clock, lockstep and histograms from processes
+holding some of the run's passwords). Only wall-clock fields may differ. A fast honest configuration: default
+scene, 50x, 4 dwells (tests/support/same_seed_runs.py: the two runs are flown once per test run; test_one_world
+reads the first, test_run_mcap the second)."""
 
 import json
 
