@@ -60,6 +60,10 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, tmp_p
     assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
 
 
+# no port flags: the run takes the first free PX4 instance, the defaults (7447, 14540) when free, so never beside
+# test_run_ports, which holds those two while its runs fly (it took 14540 between this run's port check and its
+# mission's bind once: uav0 "lost", BIND_ERROR on udpin://0.0.0.0:14540)
+@pytest.mark.exclusive("default-ports-7447-14540")
 def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path):
     """``radseek run --vehicles 2`` (four processes taking their frames in turn over zenoh) and
     ``launch.offline_team.fly_team_offline`` (two executives in one process): each vehicle's frames.csv row for
