@@ -1,19 +1,20 @@
 """`radseek run` records OUT/flight.mcap: every zenoh topic of the flight and the vehicle's MAVLink telemetry,
 readable by the `mcap` reader, and `radseek replay OUT/flight.mcap` reproduces the estimates the mission
-flew with. One real flight (all processes, lockstep), checked from every side to save flights: a fast honest
-configuration as tests/test_lockstep_repro.py (default scene, 50x, seed 0), with 4 dwells so that the
-search makes two in-flight estimates and the replay also covers the warm start from one to the next.
+flew with. One real flight (all processes, lockstep), checked from every side to save flights: the second of
+tests/test_lockstep_repro.py's pair (tests/support/same_seed_runs.py: default scene, 50x, seed 0, flown once per
+test run), with 4 dwells so that the search makes two in-flight estimates and the replay also covers the warm
+start from one to the next.
 
-The same flight is attacked (issue 34, item 1): while it flies, a process without the run's credentials is
-refused, and processes holding the detector's and the observer's passwords put a forged sim clock, lockstep
-and histograms; the recorder, a subscriber of every key, must log none of them, and the flight is unchanged.
+That flight is attacked (issue 34, item 1): while it flies, a process without the run's credentials is refused,
+and processes holding the detector's and the observer's passwords put a forged sim clock, lockstep and
+histograms; the recorder, a subscriber of every key, must log none of them, and the flight is unchanged (the
+lockstep test finds it the same as the pair's unattacked first run).
 """
 
 import json
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -23,81 +24,25 @@ from launch.stack import Stack, recorder_ready, start_recorder, stop_recorder
 from radseek import topics
 from radseek.board_wire import decode_frame
 from radseek.zenoh_auth import read_credentials
-from radseek.zenoh_session import RouterRefused, open_session
+from radseek.zenoh_session import open_session
 from radseek_io.dataset import read_dataset
 from radseek_io.mcap_frames import read_flight
-from tests.conftest import free_port
+from tests.support.same_seed_runs import FORGED_SEQ, FORGED_T, RUN_TIMEOUT_S, same_seed_runs
 from vehicle_sim.harness import free_udp_port
 from vehicle_sim.telemetry import DEFAULT_RATES
 
-RUN_TIMEOUT_S = 900
-FORGED_T = 9e6  # s: a sim time no flight of this test reaches (valid by the schema: t <= 1e7)
-FORGED_SEQ = topics.SEQ_MAX  # a frame counter the emulator never reaches in a flight
-
-
-class Attack(threading.Thread):
-    """Forges the run's keys while it flies, as a local process holding some of its secrets would."""
-
-    def __init__(self, out, zenoh_port: int):
-        super().__init__(daemon=True)
-        self.out, self.endpoint = out, f"tcp/127.0.0.1:{zenoh_port}"
-        self.stop = threading.Event()
-        self.refused: str | None = None  # the unauthenticated session's refusal
-        self.puts = 0
-        self.clock_at_puts: list[float] = []  # the genuine sim time when forged puts went out
-
-    def run(self) -> None:
-        creds = self.out / "zenoh" / "credentials"
-        while not creds.exists() and not self.stop.wait(0.05):
-            pass
-        if self.stop.is_set():
-            return
-        users = {u.name: u for u in read_credentials(creds)}
-        try:
-            open_session(connect=self.endpoint, wait_for_router_s=120).close()
-        except RouterRefused as exc:
-            self.refused = str(exc)
-        now = [0.0]
-        with open_session(connect=self.endpoint, user=users["detector@uav0"], wait_for_router_s=120) as det, \
-                open_session(connect=self.endpoint, user=users["observer"], wait_for_router_s=120) as obs:
-            obs.declare_subscriber(topics.key(topics.SIM_CLOCK),
-                                   lambda s: now.__setitem__(0, topics.SimClock.from_bytes(s.payload.to_bytes()).t))
-            clock = topics.SimClock(t=FORGED_T, speedup=1.0).to_bytes()
-            lockstep = topics.MissionLockstep(t=FORGED_T, until=FORGED_T, busy=False).to_bytes()
-            hist = topics.Histogram(seq=FORGED_SEQ, board_time=1.0, t=1.0, duration=0.1,
-                                    counts=[topics.COUNT_MAX] * topics.N_CHANNELS).to_bytes()
-            while not self.stop.wait(0.01):
-                det.put(topics.key(topics.SIM_CLOCK), clock)  # the detector's password, the vehicle's key
-                det.put(topics.key(topics.MISSION_LOCKSTEP), lockstep)  # ... and the mission's
-                obs.put(topics.key(topics.HISTOGRAM), hist)  # a reader's password, the detector's key
-                self.puts += 3
-                self.clock_at_puts.append(now[0])
-
-
-def _run(out):
-    zenoh_port = free_port()
-    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
-           "--max-dwells", "4", "--seed", "0", "--zenoh-port", str(zenoh_port),
-           "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
-           "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]
-    attack = Attack(out, zenoh_port)
-    attack.start()
-    try:
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 120), attack
-    finally:
-        attack.stop.set()
-        attack.join(60)
-
 
 @pytest.mark.slow
+@pytest.mark.io  # the run's processes, its router and a replay process
 @pytest.mark.timeout(RUN_TIMEOUT_S + 400)
-def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_path):
+def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_path_factory):
     from mcap.reader import make_reader
 
-    out = tmp_path / "run"
-    run, attack = _run(out)
-    assert run.returncode in (0, 3), run.stderr[-3000:]  # 3: searched to the end of the 4-dwell budget
-    assert "recorder" not in run.stderr, run.stderr[-3000:]  # no recorder warning: the log is complete
+    runs = same_seed_runs(tmp_path_factory)  # the second of the pair is the attacked one
+    out, code, stdout, stderr, attack = runs["outs"][1], runs["codes"][1], runs["outs_text"][1], runs["errs"][1], \
+        runs["attack"]
+    assert code in (0, 3), stderr[-3000:]  # 3: searched to the end of the 4-dwell budget
+    assert "recorder" not in stderr, stderr[-3000:]  # no recorder warning: the log is complete
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
     summary = json.loads((out / "summary.json").read_text())
     assert summary["estimate_source"] == "in-flight" and len(mission["estimates"]) >= 2, mission
@@ -139,9 +84,9 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     # --- Foxglove: the well-known channels, every JSON message valid against its schema, times in sim time
     _check_foxglove(by_topic, clock, mission, json.loads((out / "scenario.json").read_text()))
     # --- the attack: refused without credentials; forged puts made in flight, none delivered to anyone
-    assert attack.refused is not None and "refused a session without credentials" in attack.refused
-    in_flight = [t for t in attack.clock_at_puts if 0 < t < mission["flight_time_s"]]
-    assert attack.puts > 0 and in_flight, (attack.puts, attack.clock_at_puts[-5:])
+    assert attack["refused"] is not None and "refused a session without credentials" in attack["refused"]
+    in_flight = [t for t in attack["clock_at_puts"] if 0 < t < mission["flight_time_s"]]
+    assert attack["puts"] > 0 and in_flight, (attack["puts"], attack["clock_at_puts"][-5:])
     assert max(clock) < FORGED_T
     lock = [topics.MissionLockstep.from_bytes(m.data).t for _, _, m in by_topic[topics.key(topics.MISSION_LOCKSTEP)]]
     assert max(lock) < FORGED_T
@@ -151,7 +96,7 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     creds = out / "zenoh" / "credentials"
     assert creds.stat().st_mode & 0o777 == 0o600
     passwords = [u.password for u in read_credentials(creds)]
-    said = run.stdout + run.stderr + "".join(p.read_text(errors="replace") for p in (out / "logs").glob("*.log"))
+    said = stdout + stderr + "".join(p.read_text(errors="replace") for p in (out / "logs").glob("*.log"))
     assert not [p for p in passwords if p in said]
     assert "admitting 5 users" in (out / "logs" / "router.log").read_text()
 
