@@ -297,6 +297,18 @@ class _SlabFrame:
     def lengths(self, pos: np.ndarray, src: np.ndarray) -> np.ndarray:
         """pos (..., N, 3), src (3,) or broadcasting (e.g. (P, 1, 3) hypotheses): (..., N) total length
         inside the slabs."""
+        _, _, entries, exits, enter, exit_, seg = self._slab_method(pos, src)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            if self.edge_m > 0:
+                span = self._soft_span(entries, exits, enter, exit_, seg)
+            else:
+                span = np.where(self.solid, np.clip(exit_ - enter, 0.0, None), 0.0)
+        return (span * seg).sum(-1)
+
+    def _slab_method(self, pos: np.ndarray, src: np.ndarray) -> tuple[Any, ...]:
+        """The slab method's pieces for segments pos (..., N, 3) -> src (..., 1, 3) or (3,): the local
+        direction d (..., N, 2W) and its height dz, each axis' entry and exit parameters t, the hard enter / exit
+        and the segments' lengths |src - pos| (..., N, W) (the rotation keeps lengths)."""
         w = self.n
         a = pos[..., :2] @ self.to_local - self.origin  # (..., N, 2W)
         d = (src[..., :2] @ self.to_local - self.origin) - a
@@ -316,12 +328,8 @@ class _SlabFrame:
                 exits.append(np.broadcast_to(np.maximum(t1, t2), shape))
             enter = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
             exit_ = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
-            seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)  # |src - pos| (the rotation keeps lengths)
-            if self.edge_m > 0:
-                span = self._soft_span(entries, exits, enter, exit_, seg)
-            else:
-                span = np.where(self.solid, np.clip(exit_ - enter, 0.0, None), 0.0)
-        return (span * seg).sum(-1)
+            seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)
+        return d, dz, entries, exits, enter, exit_, seg
 
     def lengths_grad(self, pos: np.ndarray, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """pos (N, 3), src (3,): the soft lengths (N,) of :meth:`lengths` (``edge_m`` > 0) and their analytic
@@ -334,23 +342,8 @@ class _SlabFrame:
         if self.edge_m <= 0:
             raise ValueError("lengths_grad needs soft edges (edge_m > 0)")
         w, n = self.n, len(pos)
-        a = pos[:, :2] @ self.to_local - self.origin  # (N, 2W)
-        d = (src[:2] @ self.to_local - self.origin) - a
-        az = pos[:, 2:3]
-        dz = src[2] - az  # (N, 1)
         shape = (n, w)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            axes = ((a[:, :w], d[:, :w], 0.0, self.length), (a[:, w:], d[:, w:], -self.half, self.half),
-                    (az, dz, 0.0, self.height))
-            entries, exits = [], []
-            for a_k, d_k, lo, hi in axes:
-                inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
-                t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
-                entries.append(np.broadcast_to(np.minimum(t1, t2), shape))
-                exits.append(np.broadcast_to(np.maximum(t1, t2), shape))
-            enter = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
-            exit_ = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
-            seg = np.sqrt(d[:, :w] ** 2 + d[:, w:] ** 2 + dz**2)  # (N, W)
+        d, dz, entries, exits, enter, exit_, seg = self._slab_method(pos, src)
         eps = self.edge_m / np.maximum(seg, 1e-9)
         near = ((exit_ - enter) > -self._FAR * eps) & self.solid
         if not near.any():
