@@ -513,27 +513,25 @@ class UnmappedWall(Effect):
             raise ValueError(f"{p}: the wall's placement must be scalar (one hypothesis at a time)")
         wall = self.wall_of(th, p)
         s = np.asarray(src, dtype=float)
-        key = wall.tobytes() + s.tobytes() + np.ascontiguousarray(ctx.pos).tobytes()
-        lengths = self._memo.get(key)
-        if lengths is None:
-            lengths = self._slab(wall).lengths(ctx.pos, s)
+        lengths = self._memoised(b"", wall, s, ctx.pos, lambda: self._slab(wall).lengths(ctx.pos, s))
+        return np.exp(-th[f"{p}.mu_per_m"] * lengths)
+
+    def _memoised(self, kind: bytes, wall: np.ndarray, s: np.ndarray, pos: np.ndarray, compute: Any) -> Any:
+        """``compute()`` for this wall, source and poses, kept in the bounded memo (oldest out first)."""
+        key = kind + wall.tobytes() + s.tobytes() + np.ascontiguousarray(pos).tobytes()
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = compute()
             if len(self._memo) >= self.MEMO_SIZE:
                 del self._memo[next(iter(self._memo))]
-            self._memo[key] = lengths
-        return np.exp(-th[f"{p}.mu_per_m"] * lengths)
+            self._memo[key] = hit
+        return hit
 
     def source_factor_grad(self, th, src, ctx, dist):
         p = self.name
         wall = self.wall_of(th, p)
         s = np.asarray(src, dtype=float).reshape(3)
-        key = b"grad" + wall.tobytes() + s.tobytes() + np.ascontiguousarray(ctx.pos).tobytes()
-        hit = self._memo.get(key)
-        if hit is None:
-            hit = self._slab(wall).lengths_grad(ctx.pos, s)
-            if len(self._memo) >= self.MEMO_SIZE:
-                del self._memo[next(iter(self._memo))]
-            self._memo[key] = hit
-        lengths, grad = hit
+        lengths, grad = self._memoised(b"grad", wall, s, ctx.pos, lambda: self._slab(wall).lengths_grad(ctx.pos, s))
         mu = th[f"{p}.mu_per_m"]
         f = np.exp(-mu * lengths)
         return f, (-mu * f)[:, None] * grad
