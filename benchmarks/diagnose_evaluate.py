@@ -299,6 +299,7 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
         "truth_params": ds.truth.effects if ds.truth else {},
         "truth_model": gap,
         "source_motion": j.get("source_motion"),
+        "background_time": j.get("background_time"),
         "seconds": round(secs, 1),
         "cpu_seconds": round(cpu, 1),
     }

@@ -143,8 +143,8 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
                       f"{f' (runner-up {nu.runner_up}, log-likelihood gap {nu.gap:.1f})' if nu.runner_up else ''}",
                   f"  {nu.note}"]
     if d.unexplained:
-        moved = d.motion is not None and d.motion.significant
-        why = d.motion.text() if moved else misfit_text(d.final_report or d.final, d.dataset.frames)
+        hit = d.off_list
+        why = hit.text() if hit is not None else misfit_text(d.final_report or d.final, d.dataset.frames)
         lines += ["", f"Verdict: the model still misses something none of the candidates explains ({why})."]
         if d.partial:
             lines.append(f"  Effects that help but do not make the fit adequate (not the missing physics): "
@@ -196,6 +196,7 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     out["unexplained"] = bool(d.unexplained)
     out["residual_hotspots"] = list(d.hotspots)
     out["source_motion"] = d.motion.to_json() if d.motion is not None else None
+    out["background_time"] = d.background_time.to_json() if d.background_time is not None else None
     out["unmapped_walls"] = unmapped_walls(d.final.fit, d.dataset.frames)
     out["dropped"] = list(d.dropped)
     out["physics"] = {e: physics(e) for e in (*d.missing, *d.partial)}

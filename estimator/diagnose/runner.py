@@ -24,6 +24,7 @@ from estimator.diagnose.backend import (
     progress,
     split_effects,
 )
+from estimator.diagnose.background_time import BackgroundTimeCheck, background_time_check
 from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
@@ -201,6 +202,15 @@ class Diagnosis:
     #: whether one source that moved mid-flight explains the counts better than several named effects
     #: (``estimator.diagnose.motion``; checked when two or more count effects were named)
     motion: MotionCheck | None = None
+    #: whether a background changing in time explains the counts better than the named effects
+    #: (``estimator.diagnose.background_time``; checked when a count effect was named)
+    background_time: BackgroundTimeCheck | None = None
+
+    @property
+    def off_list(self) -> MotionCheck | BackgroundTimeCheck | None:
+        """The off-list explanation that beat the named effects (the stronger, if both did), or None."""
+        hits = [c for c in (self.motion, self.background_time) if c is not None and c.significant]
+        return max(hits, key=lambda c: c.aic_gap - c.threshold) if hits else None
 
     @property
     def final(self) -> ModelReport:
@@ -278,24 +288,30 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
         # the spectral verdict with the second source's own spectrum in (its share per frame from the count model)
         final = analyse(ds, final.effects, final.fit, second_source_spectral(ds, final))
     ok = adequate(final, ds.frames)
-    if ok and len([e for e in named if e not in NON_COUNT_EFFECTS]) >= 2 and final.fit.model.channels is None:
-        # an adequate fit that needed several effects: do they stand in for one source that moved?
-        progress(f"checking whether one moved source explains the counts better ({len(MOTION_BREAKS)} break times)",
-                 quiet)
-        d.motion = motion_check(fitter.model(count), fitter.fit_frames, final.fit, seed=fitter.seed)
-        ok = not d.motion.significant
+    n_count = len([e for e in named if e not in NON_COUNT_EFFECTS])
+    if ok and n_count >= 1 and final.fit.model.channels is None:
+        # an adequate fit that needed count effects: do they stand in for off-list physics?
+        start = fitter.model(count)
+        progress("checking whether a background changing in time explains the counts better", quiet)
+        d.background_time = background_time_check(start, fitter.fit_frames, final.fit, seed=fitter.seed)
+        if n_count >= 2:
+            progress(f"checking whether one moved source explains the counts better ({len(MOTION_BREAKS)} break "
+                     "times)", quiet)
+            d.motion = motion_check(start, fitter.fit_frames, final.fit, seed=fitter.seed)
+        ok = d.off_list is None
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
     d.hotspots = hotspots(final, ds.scenario.channel_edges_keV)
-    if d.motion is not None and d.motion.significant:
-        d.hotspots.insert(0, {"kind": "motion", "z": round(math.sqrt(max(d.motion.aic_gap, 0.0)), 1),
-                              "where": d.motion.text(), **d.motion.to_json()})
+    hit = d.off_list
+    if hit is not None:
+        d.hotspots.insert(0, {"kind": "motion" if hit is d.motion else "background_time",
+                              "z": round(math.sqrt(max(hit.aic_gap, 0.0)), 1), "where": hit.text(), **hit.to_json()})
     d.final_report = final
     if "second_source" in final.effects:
         d.nuclide = second_nuclide(ds, final)
         progress(f"second source: {d.nuclide.note}", quiet)
     if d.unexplained:
-        why = d.motion.text() if d.motion is not None and d.motion.significant else misfit_text(final, ds.frames)
+        why = d.off_list.text() if d.off_list is not None else misfit_text(final, ds.frames)
         progress(f"the final model misses something none of the candidates explains ({why})", quiet)
     return d
 
