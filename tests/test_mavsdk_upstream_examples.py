@@ -11,6 +11,7 @@ import contextlib
 import io
 import math
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -142,3 +143,22 @@ def test_offboard_attitude_flies_the_commanded_tilts():
     assert east[top] > 3.0, "rolling right never took it east"
     assert min(east[top:]) < east[top] - 3.0, "rolling left never brought it back west"
     assert max(north) < 0.5  # a roll about the north-pointing body x axis: no motion north or south
+
+
+def test_calibration_gyro_done_then_accelerometer_fails_as_on_px4_sitl():
+    # gyro, then accelerometer, magnetometer, level horizon, each to its end. A vehicle on the ground cannot be held
+    # on its six sides: PX4 SITL's accelerometer calibration measures the down side, finds it again five times and
+    # fails "timeout: no motion" (calibration_routines.cpp), and MAVSDK raises; the example stops there
+    def failed(out, w):
+        return "CalibrationError" in out
+
+    out, w, code = ex.run_example("calibration.py", ["--speedup", "5"], until=failed,
+                                  expect=["-- Starting gyroscope calibration", "-- Gyroscope calibration finished",
+                                          "-- Starting accelerometer calibration"])
+    assert "FAILED: 'Failed'; origin: calibrate_accelerometer()" in out
+    gyro = out[out.index("-- Starting gyroscope"):out.index("-- Gyroscope calibration finished")]
+    progress = [float(p) for p in re.findall(r"has_progress: True, progress: ([0-9.]+)", gyro)]
+    assert progress and progress == sorted(progress) and progress[-1] == 1.0  # MAVSDK read every [cal] progress
+    assert "status_text: down side done, rotate to a different side" in out  # the side it stands on was measured
+    assert w.texts[-1] in ("[cal] calibration failed: accel", "[cal] calibration failed: timeout: no motion")
+    assert sum(t == "[cal] down side already completed" for t in w.texts) == 5
