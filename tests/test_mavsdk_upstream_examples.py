@@ -162,3 +162,62 @@ def test_calibration_gyro_done_then_accelerometer_fails_as_on_px4_sitl():
     assert "status_text: down side done, rotate to a different side" in out  # the side it stands on was measured
     assert w.texts[-1] in ("[cal] calibration failed: accel", "[cal] calibration failed: timeout: no motion")
     assert sum(t == "[cal] down side already completed" for t in w.texts) == 5
+
+
+def test_offboard_from_csv_flies_the_trajectory_and_lands_home():
+    # 127 s of position + velocity setpoints at 10 Hz from active.csv (read from the example's folder): climb to
+    # 15 m, out to ~18 m north and ~20 m east, back home, land; on a 5x clock whose sleeps wait on the vehicle's clock
+    out, w = ex.completes("offboard_from_csv/offboard_from_csv.py", ["--speedup", "5"],
+                          ["-- Starting offboard", "-- Performing trajectory", "Maneuvering (trajectory)",
+                           "-- Shape completed", "-- Disarming"],
+                          runner=ex.sped_up(5), cwd=UPSTREAM / "offboard_from_csv", sim_clock=True)
+    assert "failed" not in out and 6 << 16 in w.modes  # PX4 OFFBOARD
+    home = w.positions[0]
+    far = max(ex._dist_m(p[1], p[2], home[1], home[2]) for p in w.positions)
+    print(f"up to {w.max_alt():.1f} m, out to {far:.1f} m; last {w.positions[-1]}")
+    assert 14.0 < w.max_alt() < 16.0 and far > 15.0
+    last = w.positions[-1]
+    assert last[3] < 0.2 and ex._dist_m(last[1], last[2], home[1], home[2]) < 1.0  # landed home
+
+
+def test_mavlink_direct_receive_reads_attitude_as_json():
+    # MAVSDK's MavlinkDirect plugin decodes any message by its XML definition: ATTITUDE from system 1, component 1
+    def three(out, w):
+        return out.count("ATTITUDE from 1/1:") >= 3
+
+    out, w, code = ex.run_example("mavlink_direct_receive.py", [], expect=["-- Connected to drone!"], until=three)
+    assert three(out, w) and "Traceback" not in out
+    stamps = [int(s) for s in re.findall(r'"time_boot_ms": (\d+)', out)]
+    assert len(stamps) >= 3 and stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+
+
+@pytest.mark.parametrize("script, expect", [
+    ("mavlink_direct_send.py", ["-- Connected to drone!", "Sending airspeed 19..."]),  # a custom-XML message
+    ("tune.py", ["-- Connected to drone!", "Tune played"]),  # PLAY_TUNE_V2: nothing to play it, as a SITL
+    ("send_status_message.py", ["-- Connected to drone!"]),  # a STATUSTEXT from MAVSDK's server utility
+    ("rtcm.py", []),  # GPS_RTCM_DATA: no receiver to correct (GPS-denied), taken and ignored
+])
+def test_examples_that_send_and_end(script, expect):
+    out, w = ex.completes(script, [], expect)
+
+
+def test_transponder_waits_for_traffic():
+    # ADSB_VEHICLE: no traffic is simulated (nor in PX4 SITL unless its fake-traffic generator runs); the example
+    # prints its waiting line every second and nothing breaks
+    def waited(out, w):
+        return out.count("Waiting for transponder messages") >= 3
+
+    out, w, code = ex.run_example("transponder.py", [], expect=[], until=waited)
+    assert waited(out, w) and "Traceback" not in out and "Transponder" not in out.replace("transponder messages", "")
+
+
+def test_px4_ev_automation_runs_its_schedule():
+    # 5 s then 10 s between its three parameter sets (printed, not sent: the example only reads the landed state),
+    # then the flight mode; on a 5x clock
+    def hold(out, w):
+        return "Setting EV params..." in out and "Flight Mode: HOLD" in out.split("Setting EV params...")[1]
+
+    out, w, code = ex.run_example("px4_ev_automation.py", ["--speedup", "5"], runner=ex.sped_up(5), until=hold,
+                                  expect=["Setting preflight params...", "Setting GPS params...",
+                                          "Landed state: ON_GROUND"])
+    assert hold(out, w) and "Traceback" not in out
