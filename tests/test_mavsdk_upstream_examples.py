@@ -221,3 +221,12 @@ def test_px4_ev_automation_runs_its_schedule():
                                   expect=["Setting preflight params...", "Setting GPS params...",
                                           "Landed state: ON_GROUND"])
     assert hold(out, w) and "Traceback" not in out
+
+
+def test_ftp_download_file_of_a_file_sitl_has_not_fails_fast():
+    # it asks for /etc/extras/px4_io-v2_default.bin, the IO coprocessor's firmware, which only boards with a PX4IO
+    # carry (PX4 SITL has none either): the vehicle's FTP server says FileNotFound at once, MAVSDK raises
+    ports = ex.example_ports()
+    with mavsdk_server(ports):
+        out, w, code = ex.run_example("ftp_download_file.py", [], expect=["-- Connected to drone!"], ports=ports)
+    assert code == 1 and "FILE_DOES_NOT_EXIST" in out and "/etc/extras/px4_io-v2_default.bin" in out
