@@ -1,8 +1,8 @@
 """PX4-SITL parity beyond the example scripts, each proven with the real MAVSDK client (``mavsdk_grpc``, the gRPC
 MAVSDK-Python, in radseek's venv; its own mavsdk_server on a free gRPC port, the vehicle on free UDP ports):
 unknown parameters fail fast (PARAM_ERROR), FollowMe, MANUAL_CONTROL in POSCTL, failure injection, log list,
-high-rate IMU, attitude offboard and sensor calibration. Assertions are on what the vehicle reported (its telemetry through
-MAVSDK), never on wall-clock durations."""
+high-rate IMU, attitude offboard and sensor calibration. Assertions are on what the vehicle reported (its telemetry
+through MAVSDK), never on wall-clock durations."""
 
 from __future__ import annotations
 
