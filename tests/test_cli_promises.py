@@ -58,6 +58,7 @@ def test_zenoh_cli_recipe_prints_decoded_json(router):
     assert not any("/detector/raw" in ln for ln in lines)  # the raw frames went by, left out
 
 
+@pytest.mark.io
 def test_topics_and_echo_say_when_no_router_answers():
     nobody = f"tcp/127.0.0.1:{free_port()}"
     for cmd in (["topics"], ["echo", "sim/clock"]):
