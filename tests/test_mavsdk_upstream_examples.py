@@ -46,15 +46,16 @@ def test_failure_injection_gps_off():
 
 
 @contextlib.contextmanager
-def mavsdk_server(ports: dict[str, str]):
+def mavsdk_server(ports: dict[str, str], cwd: Path | None = None):
     """MAVSDK's own mavsdk_server (the example venv's binary) on the example's ports (``ex.example_ports``), for an
-    example written to attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``)."""
+    example written to attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``). ``cwd``:
+    where it writes what the example downloads to "."."""
     py = ex.grpc_python()
     where = subprocess.run([str(py), "-c", "import mavsdk, os; print(os.path.dirname(mavsdk.__file__))"],
                            capture_output=True, text=True, check=True).stdout.strip()
     proc = subprocess.Popen([str(Path(where) / "bin" / "mavsdk_server"), "-p", ports[ex.GRPC_ENV],
                              f"udpin://0.0.0.0:{ports[ex.MAVLINK_ENV]}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd)
     try:
         yield proc
     finally:
@@ -223,10 +224,10 @@ def test_px4_ev_automation_runs_its_schedule():
     assert hold(out, w) and "Traceback" not in out
 
 
-def test_ftp_download_file_of_a_file_sitl_has_not_fails_fast():
+def test_ftp_download_file_of_a_file_sitl_has_not_fails_fast(tmp_path):
     # it asks for /etc/extras/px4_io-v2_default.bin, the IO coprocessor's firmware, which only boards with a PX4IO
     # carry (PX4 SITL has none either): the vehicle's FTP server says FileNotFound at once, MAVSDK raises
     ports = ex.example_ports()
-    with mavsdk_server(ports):
+    with mavsdk_server(ports, cwd=tmp_path):  # mavsdk_server opens the local file before asking
         out, w, code = ex.run_example("ftp_download_file.py", [], expect=["-- Connected to drone!"], ports=ports)
     assert code == 1 and "FILE_DOES_NOT_EXIST" in out and "/etc/extras/px4_io-v2_default.bin" in out
