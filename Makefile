@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml
 
 $(GRPC_STAMP):
 	$(PY) -m venv $(GRPC_VENV)
-	$(GRPC_VENV)/bin/pip install --quiet 'mavsdk>=3.15,<4'
+	$(GRPC_VENV)/bin/pip install --quiet 'mavsdk>=3.15,<4' anyio tqdm  # as tests/test_mavsdk_examples.py's GRPC_VENV_PACKAGES
 	touch $(GRPC_STAMP)
 
 run: $(STAMP)

@@ -104,21 +104,27 @@ def _field_comments(cls: type) -> dict[str, tuple[str, str]]:
     return out
 
 
+#: one ``-k`` per JSON topic, every vehicle's: zenoh-cli's json decoder prints a traceback for each binary raw frame
+#: that ``radseek/**`` would bring (one per 100 ms), and a key expression cannot leave ``detector/raw`` out
+ZENOH_CLI_JSON_KEYS = " ".join(f"-k '{topics.all_keys().removesuffix('**')}{t}'" for t in topics.PAYLOADS)
 ZENOH_CLI_COMMAND = ("zenoh --mode peer --connect tcp/127.0.0.1:7447 --cfg 'scouting/multicast/enabled:false' "
-                     "--cfg 'listen/endpoints:[]' subscribe -k 'radseek/**' --decoder json --line '{key} {value}'")
-ZENOH_CLI_RUN_COMMAND = ("zenoh --config OUT/zenoh/observer.json5 subscribe -k 'radseek/**' --decoder json "
+                     f"--cfg 'listen/endpoints:[]' subscribe {ZENOH_CLI_JSON_KEYS} --decoder json "
+                     "--line '{key} {value}'")
+ZENOH_CLI_RUN_COMMAND = (f"zenoh --config OUT/zenoh/observer.json5 subscribe {ZENOH_CLI_JSON_KEYS} --decoder json "
                          "--line '{key} {value}'")
 ZENOH_CLI_RECIPE = f"""The third-party `zenoh` command (PyPI `zenoh-cli`, installed with radseek's dev extras) shows the
 same keys. It needs the router's endpoint (without `--connect` it finds nothing: multicast scouting is off
-on radseek's loopback network) and `--decoder json` (without it payloads print as base64):
+on radseek's loopback network), `--decoder json` (without it payloads print as base64) and one `-k` per JSON
+topic: `-k 'radseek/**'` would also bring the binary `detector/raw`, and zenoh-cli's json decoder prints a
+traceback for each of its frames (10 a second):
 
 ```sh
 {ZENOH_CLI_COMMAND}
 ```
 
-prints one line per message, e.g. `radseek/uav0/sim/clock {{"t": 12.3, "speedup": 1.0}}`. Narrow the key
-(`-k 'radseek/uav0/detector/histogram'`) to follow one topic; `detector/raw` is binary, leave it out of
-a JSON subscription or use `radseek echo detector/raw`. `tests/test_cli_promises.py` runs this command.
+prints one line per message, e.g. `radseek/uav0/sim/clock {{"t": 12.3, "speedup": 1.0}}`. Keep one key
+(`-k 'radseek/uav0/detector/histogram'`) to follow one topic; for the raw frames use `radseek echo detector/raw`
+(decoded) or `--decoder base64`. `tests/test_cli_promises.py` runs this command beside a detector's raw frames.
 
 The router of `radseek run` admits only the run's users (see "Authentication" below): watch it with the
 observer's client configuration the run writes, which holds the endpoint and the credentials

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from radseek import topics
 from radseek.zenoh_session import open_session
 from radseek_cli.inspect_cli import ZENOH_CLI_COMMAND
 from tests.conftest import free_port
@@ -22,6 +23,8 @@ WAIT_S = 60.0  # bounds waiting only
 
 
 def test_zenoh_cli_recipe_prints_decoded_json(router):
+    # beside a real detector emulator (its own clock): JSON histograms and status, and binary raw frames, which the
+    # recipe must leave out rather than print a traceback for each (issue 33: radseek/** did, 10 a second)
     port = router.rsplit(":", 1)[1]
     cmd = shlex.split(ZENOH_CLI_COMMAND.replace("7447", port))  # the documented command, on this router
     cmd[0] = str(Path(sys.executable).parent / "zenoh")
@@ -29,23 +32,30 @@ def test_zenoh_cli_recipe_prints_decoded_json(router):
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(sub.stdout), daemon=True)
     reader.start()
+    detector = subprocess.Popen([*RADSEEK, "detector", "--clock", "own", "--pose", "0,0,1,0", "--connect", router],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    raw: list[bytes] = []
     session = open_session(None, router)
+    session.declare_subscriber(topics.key(topics.RAW_FRAME), lambda sample: raw.append(sample.payload.to_bytes()))
     try:
         deadline = time.monotonic() + WAIT_S
-        k = 0
-        while not any(ln.startswith("radseek/uav0/sim/clock ") for ln in lines):  # no history: publish until seen
+        while sum(ln.startswith("radseek/uav0/detector/histogram ") for ln in lines) < 20 or len(raw) < 20:
             assert sub.poll() is None, "".join(lines)
-            assert time.monotonic() < deadline, f"zenoh-cli printed nothing:\n{''.join(lines)}"
-            session.put("radseek/uav0/sim/clock", json.dumps({"t": 0.5 * k, "speedup": 1.0}))
-            k += 1
-            time.sleep(0.2)
+            assert detector.poll() is None, detector.stdout.read()
+            assert time.monotonic() < deadline, f"zenoh-cli printed no 20 histograms:\n{''.join(lines)}"
+            time.sleep(0.1)
     finally:
         session.close()
-        sub.terminate()
-        sub.wait(10)
+        for proc in (detector, sub):
+            proc.terminate()
+            proc.wait(10)
         reader.join(5)
-    line = next(ln for ln in lines if ln.startswith("radseek/uav0/sim/clock "))
-    assert json.loads(line.split(" ", 1)[1])["speedup"] == 1.0  # JSON, not base64
+    out = "".join(lines)
+    assert "Traceback" not in out and "ERROR" not in out, out[-2000:]
+    line = next(ln for ln in lines if ln.startswith("radseek/uav0/detector/histogram "))
+    assert len(json.loads(line.split(" ", 1)[1])["counts"]) == topics.N_CHANNELS  # JSON, not base64
+    assert any(ln.startswith("radseek/uav0/sim/clock ") for ln in lines)
+    assert not any("/detector/raw" in ln for ln in lines)  # the raw frames went by, left out
 
 
 @pytest.mark.io

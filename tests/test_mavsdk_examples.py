@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as M
 
 from tests.conftest import free_port
 from tests.support.example_ports import GRPC_ENV, MAVLINK_ENV
@@ -44,16 +45,20 @@ VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc
 WAIT_S = 240.0  # bounds waiting only
 HOME = (47.397742, 8.545594, 488.0)
 SIM_CLOCK_ENV = "RADSEEK_SIM_CLOCK_FILE"  # tests/support/run_sped_up.py reads the vehicle's clock there
+#: the example venv's packages, as the Makefile installs them: the gRPC MAVSDK-Python, and what upload_params.py and
+#: offboard_from_csv.py import besides (anyio, tqdm)
+GRPC_VENV_PACKAGES = ("mavsdk>=3.15,<4", "anyio", "tqdm")
 
 
 def grpc_python() -> Path:
     """The example venv's python with the gRPC MAVSDK-Python (3.x) installed; created if missing."""
     py = VENV / "bin" / "python"
-    probe = [str(py), "-c", "import mavsdk, sys; from mavsdk import System; sys.exit(mavsdk.__file__ is None)"]
+    probe = [str(py), "-c", "import anyio, tqdm, mavsdk, sys; from mavsdk import System; "
+                            "sys.exit(mavsdk.__file__ is None)"]
     if py.exists() and subprocess.run(probe, capture_output=True).returncode == 0:
         return py
     subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
-    subprocess.run([str(py), "-m", "pip", "install", "--quiet", "mavsdk>=3.15,<4"], check=True)
+    subprocess.run([str(py), "-m", "pip", "install", "--quiet", *GRPC_VENV_PACKAGES], check=True)
     return py
 
 
@@ -104,12 +109,15 @@ def _listen(gcs: Gcs, watch: Watch, stop: threading.Event) -> None:
 
 def run_example(script: str, vehicle_args: list[str], *, expect: list[str], until=None,
                 timeout: float = WAIT_S, runner: list[str] | None = None, cwd: Path | None = None,
-                ports: dict[str, str] | None = None, sim_clock: bool = False) -> tuple[str, Watch, int | None]:
+                ports: dict[str, str] | None = None, sim_clock: bool = False, script_args: tuple[str, ...] = (),
+                during=None) -> tuple[str, Watch, int | None]:
     """Run ``script`` unchanged (cwd = the examples folder, or ``cwd`` for one that writes files) against a fresh
     vehicle. Returns its output, the vehicle's watch and the exit code (None when stopped by us after
     ``until(output, watch)``). ``runner`` replaces the example venv's python (e.g. the mavsdk_grpc shim in
     radseek's own venv). ``ports``: the example's (``example_ports``), else free ones. ``sim_clock``: the runner
-    (``sped_up``) is told the vehicle's clock, and the script's sleeps span simulated time whatever the load."""
+    (``sped_up``) is told the vehicle's clock, and the script's sleeps span simulated time whatever the load.
+    ``script_args``: the example's own command line. ``during(gcs)``: called once, when every ``expect`` line is out,
+    to act on the vehicle from its GCS port beside the example (send only: the listener reads that socket)."""
     runner = runner or sped_up(1)
     gcs_port = free_udp_port()
     ports = ports or example_ports()
@@ -123,8 +131,8 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **ports}
         if watch.clock is not None:
             env[SIM_CLOCK_ENV] = str(watch.clock)
-        proc = subprocess.Popen([*runner, str(EXAMPLES / script)], cwd=cwd or EXAMPLES, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True, env=env)
+        proc = subprocess.Popen([*runner, str(EXAMPLES / script), *script_args], cwd=cwd or EXAMPLES,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
         reader.start()
@@ -133,6 +141,9 @@ def run_example(script: str, vehicle_args: list[str], *, expect: list[str], unti
         try:
             while True:
                 out = "".join(lines)
+                if during is not None and all(e in out for e in expect):
+                    during(gcs)
+                    during = None
                 if until is not None and all(e in out for e in expect) and until(out, watch):
                     break
                 code = proc.poll()
@@ -304,3 +315,64 @@ def test_manual_control_moves_the_vehicle_in_position_mode():
                                until=moved, runner=sped_up(5))
     assert 3 << 16 in w.modes  # PX4 POSCTL
     assert moved(out, w), "the sticks never moved the vehicle"
+
+
+def test_all_params_lists_the_px4_parameters():
+    out, w = completes("all_params.py", [], ["MIS_TAKEOFF_ALT: 2.5", "SYS_FAILURE_EN: 0"])
+    assert "FLW_TGT_ALT_M: 0" in out  # an INT32 printed as one (PX4's type)
+
+
+def test_firmware_version_is_px4s():
+    out, w = completes("firmware_version.py", [], ["Version: [flight_sw_major: 1, flight_sw_minor: 14"])
+
+
+def test_upload_params_from_a_qgc_params_file(tmp_path):
+    # QGC's parameter file format (tab-separated: vehicle, component, name, value, MAV_PARAM_TYPE); MAVSDK's
+    # set_param reads back what the vehicle answers, so a value the vehicle did not take fails the example
+    params = tmp_path / "radseek.params"
+    params.write_text("# Onboard parameters for Vehicle 1\n#\n# Vehicle-Id\tComponent-Id\tName\tValue\tType\n"
+                      "1\t1\tMIS_TAKEOFF_ALT\t4.5\t9\n1\t1\tFLW_TGT_ALT_M\t1\t6\n1\t1\tNO_SUCH_PARAM\t1\t9\n")
+    out, w, code = run_example("upload_params.py", [], expect=["Connected to the Vehicle", "Params uploaded!"],
+                               script_args=("udpin://0.0.0.0:14540", str(params)))
+    assert code == 0 and "Traceback" not in out  # the unknown name is skipped by the example, as on PX4
+
+
+@pytest.mark.parametrize("script, line", [("telemetry_flight_mode.py", "FlightMode: HOLD"),
+                                          ("telemetry_is_armed_is_in_air.py", "Is_armed: False")])
+def test_telemetry_streams_print(script, line):
+    out, w, code = run_example(script, [], expect=[], until=lambda out, w: out.count(line) >= 3)
+    assert out.count(line) >= 3 and "Traceback" not in out
+
+
+def test_telemetry_status_text_prints_the_vehicles_texts():
+    # it prints each STATUSTEXT; nothing is said on the ground until something happens: a calibration is asked
+    # for beside it (MAVLink from the GCS port), and its [cal] texts must come out of the example
+    def asked(out, w):
+        return "StatusText" in out and "calibration started: 2 gyro" in out
+
+    out, w, code = run_example("telemetry_status_text.py", [], expect=["-- Connected to drone!"], until=asked,
+                               during=lambda gcs: gcs.send(M.MAVLink_command_long_message(
+                                   1, 1, M.MAV_CMD_PREFLIGHT_CALIBRATION, 0, 1, 0, 0, 0, 0, 0, 0)))
+    assert asked(out, w)
+
+
+def test_telemetry_takeoff_and_land():
+    out, w = completes("telemetry_takeoff_and_land.py", ["--speedup", "5"], ["-- Taking off", "Flight mode: TAKEOFF",
+                                                                            "-- Landing", "Flight mode: LAND"],
+                       runner=sped_up(5), sim_clock=True)
+    assert 9.5 < w.max_alt() < 10.5 and w.positions[-1][3] < 0.2  # takeoff altitude set to 10 m, landed
+
+
+def test_offboard_position_velocity_ned():
+    out, w = completes("offboard_position_velocity_ned.py", ["--speedup", "5"], ["-- Starting offboard",
+                                                                                "-- Stopping offboard"],
+                       runner=sped_up(5), sim_clock=True)
+    assert "failed" not in out and 6 << 16 in w.modes
+    assert 9.5 < w.max_alt() < 10.5  # 10 m up
+
+
+def test_offboard_velocity_body():
+    out, w = completes("offboard_velocity_body.py", ["--speedup", "5"], ["-- Turn clock-wise and climb",
+                                                                        "-- Stopping offboard"],
+                       runner=sped_up(5), sim_clock=True)
+    assert "failed" not in out and 6 << 16 in w.modes and w.max_alt() > 2.0

@@ -1,8 +1,8 @@
 """PX4-SITL parity beyond the example scripts, each proven with the real MAVSDK client (``mavsdk_grpc``, the gRPC
 MAVSDK-Python, in radseek's venv; its own mavsdk_server on a free gRPC port, the vehicle on free UDP ports):
 unknown parameters fail fast (PARAM_ERROR), FollowMe, MANUAL_CONTROL in POSCTL, failure injection, log list,
-high-rate IMU and attitude offboard. Assertions are on what the vehicle reported (its telemetry through
-MAVSDK), never on wall-clock durations."""
+high-rate IMU, attitude offboard and sensor calibration. Assertions are on what the vehicle reported (its telemetry
+through MAVSDK), never on wall-clock durations."""
 
 from __future__ import annotations
 
@@ -174,3 +174,23 @@ def test_failure_injection_battery_off_and_back():
     assert unsupported._result.result == FailureResult.Result.UNSUPPORTED
     assert 90 < back[0] <= 100 and back[1] > 10
     assert denied._result.result == FailureResult.Result.DENIED
+
+
+def test_level_horizon_calibration_completes_and_a_running_one_cancels():
+    from mavsdk_grpc.calibration import CalibrationError, CalibrationResult
+
+    async def session(api):
+        async with drone_on(api) as drone:
+            progress = [p.progress async for p in drone.calibration.calibrate_level_horizon() if p.has_progress]
+            cancel = drone.calibration.calibrate_magnetometer()  # started, then cancelled by MAVSDK's cancel
+            first = await anext(aiter(cancel))
+            await drone.calibration.cancel()
+            with pytest.raises(CalibrationError) as cancelled:
+                async for _ in cancel:
+                    pass
+            return progress, first, cancelled.value
+
+    progress, first, cancelled = run(session)
+    assert progress == sorted(progress) and progress[-1] == pytest.approx(1.0) and len(progress) >= 10
+    assert first.has_status_text or first.has_progress  # the magnetometer's calibration had begun
+    assert cancelled._result.result == CalibrationResult.Result.CANCELLED

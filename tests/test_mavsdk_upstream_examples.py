@@ -11,6 +11,7 @@ import contextlib
 import io
 import math
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -45,15 +46,16 @@ def test_failure_injection_gps_off():
 
 
 @contextlib.contextmanager
-def mavsdk_server(ports: dict[str, str]):
+def mavsdk_server(ports: dict[str, str], cwd: Path | None = None):
     """MAVSDK's own mavsdk_server (the example venv's binary) on the example's ports (``ex.example_ports``), for an
-    example written to attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``)."""
+    example written to attach to a running one (``System(mavsdk_server_address="localhost", port=50051)``). ``cwd``:
+    where it writes what the example downloads to "."."""
     py = ex.grpc_python()
     where = subprocess.run([str(py), "-c", "import mavsdk, os; print(os.path.dirname(mavsdk.__file__))"],
                            capture_output=True, text=True, check=True).stdout.strip()
     proc = subprocess.Popen([str(Path(where) / "bin" / "mavsdk_server"), "-p", ports[ex.GRPC_ENV],
                              f"udpin://0.0.0.0:{ports[ex.MAVLINK_ENV]}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd)
     try:
         yield proc
     finally:
@@ -142,3 +144,90 @@ def test_offboard_attitude_flies_the_commanded_tilts():
     assert east[top] > 3.0, "rolling right never took it east"
     assert min(east[top:]) < east[top] - 3.0, "rolling left never brought it back west"
     assert max(north) < 0.5  # a roll about the north-pointing body x axis: no motion north or south
+
+
+def test_calibration_gyro_done_then_accelerometer_fails_as_on_px4_sitl():
+    # gyro, then accelerometer, magnetometer, level horizon, each to its end. A vehicle on the ground cannot be held
+    # on its six sides: PX4 SITL's accelerometer calibration measures the down side, finds it again five times and
+    # fails "timeout: no motion" (calibration_routines.cpp), and MAVSDK raises; the example stops there
+    def failed(out, w):
+        return "CalibrationError" in out
+
+    out, w, code = ex.run_example("calibration.py", ["--speedup", "5"], until=failed,
+                                  expect=["-- Starting gyroscope calibration", "-- Gyroscope calibration finished",
+                                          "-- Starting accelerometer calibration"])
+    assert "FAILED: 'Failed'; origin: calibrate_accelerometer()" in out
+    gyro = out[out.index("-- Starting gyroscope"):out.index("-- Gyroscope calibration finished")]
+    progress = [float(p) for p in re.findall(r"has_progress: True, progress: ([0-9.]+)", gyro)]
+    assert progress and progress == sorted(progress) and progress[-1] == 1.0  # MAVSDK read every [cal] progress
+    assert "status_text: down side done, rotate to a different side" in out  # the side it stands on was measured
+    assert w.texts[-1] in ("[cal] calibration failed: accel", "[cal] calibration failed: timeout: no motion")
+    assert sum(t == "[cal] down side already completed" for t in w.texts) == 5
+
+
+def test_offboard_from_csv_flies_the_trajectory_and_lands_home():
+    # 127 s of position + velocity setpoints at 10 Hz from active.csv (read from the example's folder): climb to
+    # 15 m, out to ~18 m north and ~20 m east, back home, land; on a 5x clock whose sleeps wait on the vehicle's clock
+    out, w = ex.completes("offboard_from_csv/offboard_from_csv.py", ["--speedup", "5"],
+                          ["-- Starting offboard", "-- Performing trajectory", "Maneuvering (trajectory)",
+                           "-- Shape completed", "-- Disarming"],
+                          runner=ex.sped_up(5), cwd=UPSTREAM / "offboard_from_csv", sim_clock=True)
+    assert "failed" not in out and 6 << 16 in w.modes  # PX4 OFFBOARD
+    home = w.positions[0]
+    far = max(ex._dist_m(p[1], p[2], home[1], home[2]) for p in w.positions)
+    print(f"up to {w.max_alt():.1f} m, out to {far:.1f} m; last {w.positions[-1]}")
+    assert 14.0 < w.max_alt() < 16.0 and far > 15.0
+    last = w.positions[-1]
+    assert last[3] < 0.2 and ex._dist_m(last[1], last[2], home[1], home[2]) < 1.0  # landed home
+
+
+def test_mavlink_direct_receive_reads_attitude_as_json():
+    # MAVSDK's MavlinkDirect plugin decodes any message by its XML definition: ATTITUDE from system 1, component 1
+    def three(out, w):
+        return out.count("ATTITUDE from 1/1:") >= 3
+
+    out, w, code = ex.run_example("mavlink_direct_receive.py", [], expect=["-- Connected to drone!"], until=three)
+    assert three(out, w) and "Traceback" not in out
+    stamps = [int(s) for s in re.findall(r'"time_boot_ms": (\d+)', out)]
+    assert len(stamps) >= 3 and stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+
+
+@pytest.mark.parametrize("script, expect", [
+    ("mavlink_direct_send.py", ["-- Connected to drone!", "Sending airspeed 19..."]),  # a custom-XML message
+    ("tune.py", ["-- Connected to drone!", "Tune played"]),  # PLAY_TUNE_V2: nothing to play it, as a SITL
+    ("send_status_message.py", ["-- Connected to drone!"]),  # a STATUSTEXT from MAVSDK's server utility
+    ("rtcm.py", []),  # GPS_RTCM_DATA: no receiver to correct (GPS-denied), taken and ignored
+])
+def test_examples_that_send_and_end(script, expect):
+    out, w = ex.completes(script, [], expect)
+
+
+def test_transponder_waits_for_traffic():
+    # ADSB_VEHICLE: no traffic is simulated (nor in PX4 SITL unless its fake-traffic generator runs); the example
+    # prints its waiting line every second and nothing breaks
+    def waited(out, w):
+        return out.count("Waiting for transponder messages") >= 3
+
+    out, w, code = ex.run_example("transponder.py", [], expect=[], until=waited)
+    assert waited(out, w) and "Traceback" not in out and "Transponder" not in out.replace("transponder messages", "")
+
+
+def test_px4_ev_automation_runs_its_schedule():
+    # 5 s then 10 s between its three parameter sets (printed, not sent: the example only reads the landed state),
+    # then the flight mode; on a 5x clock
+    def hold(out, w):
+        return "Setting EV params..." in out and "Flight Mode: HOLD" in out.split("Setting EV params...")[1]
+
+    out, w, code = ex.run_example("px4_ev_automation.py", ["--speedup", "5"], runner=ex.sped_up(5), until=hold,
+                                  expect=["Setting preflight params...", "Setting GPS params...",
+                                          "Landed state: ON_GROUND"])
+    assert hold(out, w) and "Traceback" not in out
+
+
+def test_ftp_download_file_of_a_file_sitl_has_not_fails_fast(tmp_path):
+    # it asks for /etc/extras/px4_io-v2_default.bin, the IO coprocessor's firmware, which only boards with a PX4IO
+    # carry (PX4 SITL has none either): the vehicle's FTP server says FileNotFound at once, MAVSDK raises
+    ports = ex.example_ports()
+    with mavsdk_server(ports, cwd=tmp_path):  # mavsdk_server opens the local file before asking
+        out, w, code = ex.run_example("ftp_download_file.py", [], expect=["-- Connected to drone!"], ports=ports)
+    assert code == 1 and "FILE_DOES_NOT_EXIST" in out and "/etc/extras/px4_io-v2_default.bin" in out

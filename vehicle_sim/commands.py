@@ -5,7 +5,8 @@ PX4-flavoured, since that is the autopilot type announced: arm 400, takeoff 22, 
 hold 17 or DO_SET_MODE AUTO.LOITER, set mode 176 (PX4 main/sub modes), mission start 300 or
 DO_SET_MODE AUTO.MISSION, set current item 224, reposition/go-to 192, change speed 178, orbit 34
 (DO_ORBIT), OFFBOARD through DO_SET_MODE (only with a live setpoint stream), plus the
-message services MAVSDK uses (SET_MESSAGE_INTERVAL 511, REQUEST_MESSAGE 512, capabilities 520).
+message services MAVSDK uses (SET_MESSAGE_INTERVAL 511, REQUEST_MESSAGE 512, capabilities 520), and sensor
+calibration 241 (PREFLIGHT_CALIBRATION: ``calibration``).
 Every command is answered (``answer``): unknown commands get MAV_RESULT_UNSUPPORTED; bad parameters
 MAV_RESULT_DENIED, and a parameter that must be a number but is NaN or infinite is named: its index
 (1-7) goes in the ACK's ``result_param2`` and the reason in a STATUSTEXT. NaN keeps its MAVLink meaning
@@ -131,6 +132,9 @@ class Services(Protocol):
     def takeoff_note(self, text: str) -> None:  # tell the operator (STATUSTEXT)
         ...
 
+    def calibrate(self, params: tuple[float, ...]) -> int:  # MAV_RESULT (calibration)
+        ...
+
 
 def _alt_to_enu_z(cmd: Command, home: Home) -> float:
     rel = cmd.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
@@ -209,6 +213,8 @@ def execute(cmd: Command, svc: Services) -> tuple[int, list]:
         return (ok, [msg]) if msg is not None else (M.MAV_RESULT_UNSUPPORTED, [])
     if c == M.MAV_CMD_INJECT_FAILURE:
         return svc.inject_failure(int(_required(cmd, 1)), int(_required(cmd, 2)), int(_required(cmd, 3))), []
+    if c == M.MAV_CMD_PREFLIGHT_CALIBRATION:
+        return svc.calibrate(tuple(cmd.param(i) for i in range(1, 8))), []
     if c == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
         return ok, [svc.message_by_id(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)]
     log.info("command %d unsupported", c)

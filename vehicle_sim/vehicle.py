@@ -24,6 +24,7 @@ from radseek.coordinates import Home, geodetic_to_enu, yaw_enu_to_ned
 from vehicle_sim import battery as battery_model
 from vehicle_sim import commands, offboard, telemetry
 from vehicle_sim import imu as imu_model
+from vehicle_sim.calibration import Calibrations
 from vehicle_sim.failsafe import FailsafeParams
 from vehicle_sim.failure_injection import Failures
 from vehicle_sim.flight_log import FlightLog
@@ -179,6 +180,7 @@ class Vehicle(SimVehicle):
         self.follow = self.nav.follow = FollowTarget(cfg.home, lambda p: self.fence.contains(p))
         self.manual = self.nav.manual = ManualControl()
         self.failures = Failures()
+        self.calibrations = Calibrations()
         self._refused_sp: np.ndarray | None = None
         self._proto_ep: Endpoint | None = None
         self.link = Link(
@@ -369,6 +371,9 @@ class Vehicle(SimVehicle):
         self.statustext(text, M.MAV_SEVERITY_WARNING if result == M.MAV_RESULT_ACCEPTED else M.MAV_SEVERITY_INFO)
         return result
 
+    def calibrate(self, params: tuple[float, ...]) -> int:
+        return self.calibrations.command(params, self.nav.armed, self.t)
+
     def takeoff_note(self, text: str) -> None:
         self.statustext(text, M.MAV_SEVERITY_CRITICAL)  # PX4 logs it as critical
 
@@ -543,6 +548,8 @@ class Vehicle(SimVehicle):
         for m in self.imu.step(self.t, dt, nav.accel, nav.yaw, self._yaw_rate, self.home.alt_m + float(nav.pos[2]),
                                float(nav.vel[2]), None if nav.attitude is None else nav.attitude[:2]):
             self.link.send(m)
+        for text, severity in self.calibrations.due(self.t):
+            self.statustext(text, severity)
         due = self.ulog.due(self.t)
         if due:
             self.ulog.record(self.snapshot(), self._imu_now() if "sensor_combined" in due else None, due)
