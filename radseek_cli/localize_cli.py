@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 # one goodness-of-fit threshold for localize, run and replay; as in flight, fewer than MIN_FRAMES are not fitted
+from estimator.diagnose.verdict import source_reading
 from estimator.inflight import GOOD_FIT_P, MIN_FRAMES
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
@@ -295,6 +296,8 @@ def main(argv: list[str] | None = None) -> int:
         if pinned[i]:
             where = ", ".join(f"{k} at bounds {side}" for k, side in pinned[i].items())
             print(f"            PINNED AT A BOUND ({where}): not a measurement; widen scenario.json 'bounds'")
+        if (plain := source_reading(s["cps_at_1m"], sd[3])) is not None:
+            print(f"            {plain}")
         if result["crlb_std"]:
             cr = result["crlb_std"][i]
             print(f"            CRLB 1-sigma: x {cr[0]:.3f} m, y {cr[1]:.3f} m, cps_at_1m {cr[3]:.0f}")

@@ -11,7 +11,7 @@ from estimator.diagnose.features import unit_of
 from estimator.diagnose.residuals import describe_trend
 from estimator.diagnose.runner import Diagnosis, ModelReport
 from estimator.diagnose.selection import Selection
-from estimator.diagnose.verdict import misfit_text, unmapped_walls
+from estimator.diagnose.verdict import misfit_text, source_reading, unmapped_walls
 
 
 def model_name(effects: tuple[str, ...] | list[str]) -> str:
@@ -33,6 +33,8 @@ def _sources_text(rep: ModelReport) -> list[str]:
         out.append(
             f"  source {i + 1}: x {_fmt(s['x'], errs.get(pre + 'x'))} m, y {_fmt(s['y'], errs.get(pre + 'y'))} m, "
             f"z {s['z']:.2f} m, cps_at_1m {_fmt(s['cps_at_1m'], errs.get(pre + 'cps_at_1m'))}")
+        if (plain := source_reading(s["cps_at_1m"], errs.get(pre + "cps_at_1m"))) is not None:
+            out.append(f"    {plain}")
     bg = rep.fit.values.get("background_cps")
     if bg is not None:
         out.append(f"  background {_fmt(bg, errs.get('background_cps'))} cps")

