@@ -21,6 +21,10 @@ heartbeats coming, just behind) is waited for and the recorded flight does not c
 detector (killed, hung: no histogram and no status for ``FRAME_TIMEOUT_WALL_S`` wall seconds) is judged
 on wall time: its frames are declared lost once the vehicle's pose has passed them, and the mission
 follows the pose until the detector speaks again. That flight differs from run to run, as it must.
+Nothing waits forever: a frame that neither comes nor is accounted for while the vehicle stands still (lockstep
+holds it at the frame's end; its histogram, or its end pose, or the statuses that would name it, dropped on the
+way, say by a router whose queue to this process a flood keeps full) is declared lost after
+``HELD_FRAME_WALL_S`` and the flight goes on.
 """
 
 from __future__ import annotations
@@ -56,6 +60,9 @@ log = logging.getLogger("radseek.mission")
 FRAME_TIMEOUT_WALL_S = 10.0  # wall s of detector silence (no histogram, no status) before frames are lost
 POSE_WAIT_WALL_S = 2.0  # wall s a histogram waits for the pose at its end time before it is recorded anyway
 STALL_WALL_S = 120.0  # wall s with neither a frame nor a pose: the stack is gone
+#: wall s with neither a frame taken nor a pose step (lockstep holds the vehicle at the awaited frame's end) before
+#: that frame is declared lost whatever detector/status says: its histogram or the statuses naming it were lost
+HELD_FRAME_WALL_S = 30.0
 TEAM_SILENT_WALL_S = 10.0  # wall s without a teammate's team/status (nor its vehicle's clock) before it is failed
 #: sim s a teammate's vehicle may fly past its mission's last team/status before the mission is taken as failed:
 #: under lockstep a live mission's vehicle never runs more than a frame past its ack, and the mission says it is
@@ -216,6 +223,14 @@ class _Stream(_PosedHistograms):
                             QUEUE_CAP, self.queue_dropped)
         self.queue.put_nowait(hist)
         self.queue_high = max(self.queue_high, self.queue.qsize())
+
+    def release_overdue(self) -> None:
+        """Record the histograms that have waited ``POSE_WAIT_WALL_S`` for their pose. (A histogram is released on
+        the next pose or histogram otherwise; under lockstep none comes while the mission waits for it, so a
+        dropped pose at its end would hold it, and the flight, for ever.)"""
+        now = time.monotonic()
+        with self.lock:
+            self._release(lambda _h, w: now - w > POSE_WAIT_WALL_S)
 
     def flush(self) -> None:
         """Record whatever still waits for its pose (the subscriptions are closed)."""
@@ -401,9 +416,14 @@ class ZenohFrames:
     """The executive's ``FrameSource`` over zenoh: the histograms of ``stream`` taken one at a time under lockstep
     (``mission.lockstep``), with the lost-frame rule (``tick``)."""
 
-    def __init__(self, stream: _Stream, lockstep: LockstepAck, vehicle: str, event):
+    def __init__(self, stream: _Stream, lockstep: LockstepAck, vehicle: str, event, *,
+                 held_frame_wall_s: float = HELD_FRAME_WALL_S):
         self.stream, self.lockstep, self.vehicle = stream, lockstep, vehicle
         self._event = event  # MissionExecutive.event
+        self.held_frame_wall_s = held_frame_wall_s
+        self._pose_t = -1.0  # the latest pose time seen
+        #: wall s waited in earlier ticks, since the last frame or pose step, for frames then declared lost as held
+        self._held_before = 0.0
         self.t = 0.0  # sim time of the frame being handled: the mission's "now"
         self.frame_s = FRAME_S
         self.frames_lost = 0  # frames declared lost (the pose passed their time)
@@ -437,14 +457,17 @@ class ZenohFrames:
         declared lost only if it never comes within FRAME_TIMEOUT_WALL_S). Lost, decided on wall time (the flight then
         differs from run to run): the detector has been silent for FRAME_TIMEOUT_WALL_S (killed, hung)
         and the vehicle's pose has passed the frame's end; while it stays silent the mission follows
-        the pose frame by frame. A detector that is alive but slow is always waited for.
+        the pose frame by frame. A detector that is alive but slow is always waited for, as long as the world
+        moves or the frame is accounted for: with neither a frame nor a pose step for ``held_frame_wall_s`` (the
+        vehicle held at the frame's end by lockstep, the frame's histogram or the statuses naming it lost on the
+        way) the frame is lost and the flight goes on. With neither for ``STALL_WALL_S`` (across frames) the
+        stack is gone: FlightStopped.
         ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
         stream = self.stream
         self.lockstep.ack(self.t, self.frame_s)
         t_next = self.t + self.frame_s
         loop = asyncio.get_running_loop()
-        start = last_pose_at = loop.time()
-        last_pose_t = -1.0
+        start = moved = loop.time()  # moved: the last pose step seen while waiting
         in_flight_since: float | None = None
         while True:
             try:
@@ -457,7 +480,9 @@ class ZenohFrames:
                 if hist.t > self.t + 1e-6:
                     self.t, self.frame_s, self._following_pose, self._losing = hist.t, hist.duration, False, False
                 self.lockstep.take(self.t)
+                self._held_before = 0.0
                 return hist  # (a frame older than self.t arrived after it was declared lost: handled late)
+            stream.release_overdue()  # a histogram whose end pose was lost: recorded and queued without it
             now = loop.time()
             if first_timeout_wall_s is not None:
                 if now - start > first_timeout_wall_s:
@@ -465,9 +490,10 @@ class ZenohFrames:
                                        f"{topics.key(topics.HISTOGRAM, self.vehicle)}")
                 continue
             p = stream.pose()
-            if p is not None and p.t > last_pose_t:
-                last_pose_t, last_pose_at = p.t, now
-            if now - last_pose_at > STALL_WALL_S:
+            if p is not None and p.t > self._pose_t:
+                self._pose_t, moved, self._held_before = p.t, now, 0.0
+            held = now - moved  # (the time the flight spends between ticks is not waiting: a fit may take long)
+            if self._held_before + held > STALL_WALL_S:
                 raise FlightStopped(f"no frame and no pose for {STALL_WALL_S:g} s wall at t={self.t:.2f} s")
             fate, spoke_wall = stream.frame_fate(t_next)
             lost, why = fate == "not_sent", "not sent (detector/status)"
@@ -481,6 +507,12 @@ class ZenohFrames:
                 lost = passed and (silent > FRAME_TIMEOUT_WALL_S or (self._following_pose and silent > 1.0))
                 why = f"detector silent for {silent:.1f} s wall"
                 self._following_pose = self._following_pose or lost
+            if not lost and held > self.held_frame_wall_s:
+                lost, why = True, (f"neither it nor a pose step for {held:.1f} s wall while lockstep holds the "
+                                   f"vehicle (detector/status: {fate})")
+                self._held_before += held
+            elif lost:
+                self._held_before = 0.0
             if lost:
                 if not self._losing:  # one event per run of lost frames
                     self._event("frames_lost", after=self.t, why=why)
