@@ -49,6 +49,8 @@ from typing import Any
 
 import numpy as np
 
+from estimator.diagnose.verdict import STRONG_AIC
+
 SECTIONS = ("shared", "power", "null", "pairs", "walls", "nuclides", "conull", "offlist")
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
 SHARED_DIR = Path(__file__).resolve().parents[2] / "shared" / "datasets"
@@ -309,7 +311,7 @@ def run_one(job: dict[str, Any], n_starts: int = 4) -> dict[str, Any]:
 
 
 #: the true model is told apart from the named one when its AIC is lower by at least this (strong support)
-TOLD_APART_AIC = 10.0
+TOLD_APART_AIC = STRONG_AIC
 
 
 def truth_model_gap(ds: Any, named: Any) -> dict[str, Any]:

@@ -22,12 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from estimator.diagnose.verdict import STRONG_AIC
 from estimator.mle import fit
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames
 
-#: AIC difference read as strong support (Burnham and Anderson), before the look-elsewhere allowance
-STRONG_AIC = 10.0
 #: the shortest period looked at (s): faster changes show frame to frame, as overdispersion
 #: (``estimator.diagnose.dispersion``), not as a trend
 MIN_PERIOD_S = 15.0

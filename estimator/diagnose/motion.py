@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.diagnose.verdict import STRONG_AIC
 from estimator.mle import fit
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames
@@ -30,8 +31,6 @@ from radseek.dataset import Frames
 #: fitted, then the two beside the best; the test pays for all of them (the maximum over a subset of the looks is
 #: at most the maximum over all)
 BREAKS = tuple(round(0.2 + 0.05 * k, 2) for k in range(13))
-#: AIC difference read as strong support (Burnham and Anderson), before the look-elsewhere allowance
-STRONG_AIC = 10.0
 #: starting speeds (m/s) of the velocity search, in eight directions each: a slow drift to a walk
 START_SPEEDS = (0.05, 0.2, 0.8)
 NAME = "source_motion"

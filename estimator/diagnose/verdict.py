@@ -37,6 +37,10 @@ from radseek.dataset import Frames
 if TYPE_CHECKING:
     from estimator.diagnose.runner import ModelReport
 
+#: an AIC difference read as strong support for one model over another (Burnham and Anderson): the off-list
+#: checks (``motion``, ``background_time``) add their look-elsewhere allowance to it
+STRONG_AIC = 10.0
+
 #: a fitted source whose strength is below this many of its standard errors is not called a source: its position is
 #: wherever the counts' noise peaked (the fit maximises over position, so 2 sigma is what noise alone often gives)
 SOURCE_SIGMA = 3.0
