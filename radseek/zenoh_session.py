@@ -24,7 +24,7 @@ from pathlib import Path
 
 import zenoh
 
-from radseek import zenoh_auth
+from radseek import zenoh_auth, zenoh_qos
 from radseek.zenoh_auth import CredentialsError, User
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -39,11 +39,13 @@ OPEN_ERRORS = (TimeoutError, FileNotFoundError, CredentialsError, RouterRefused)
 
 
 def router_config(endpoint: str = DEFAULT_ENDPOINT, credentials: str | Path | None = None) -> zenoh.Config:
-    """The router's config; with a ``credentials`` file, it admits only its users and applies their ACL."""
+    """The router's config: the stack's QoS policy (``radseek.zenoh_qos``); with a ``credentials`` file, it
+    admits only its users and applies their ACL."""
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("router"))
     conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("qos/network", json.dumps(zenoh_qos.network_qos()))
     if credentials is not None:
         users = zenoh_auth.read_credentials(credentials)
         conf.insert_json5("transport/auth/usrpwd", json.dumps({"dictionary_file": str(Path(credentials).resolve())}))

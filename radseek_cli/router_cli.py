@@ -46,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     except CredentialsError as exc:
         print(f"radseek router: {exc}", file=sys.stderr)
         return 2
+    zenoh.init_log_from_env_or("error")  # zenoh's own errors (a transport it closes) in the router's log
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
