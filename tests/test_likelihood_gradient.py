@@ -5,6 +5,7 @@ offsets are profiled at every call)."""
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -181,7 +182,10 @@ def test_at_a_bound_the_difference_is_one_sided(walled_flight, monkeypatch):
 @pytest.mark.parametrize("seed, n_walls, second", [(11, 0, False), (12, 1, False), (13, 2, True)])
 def test_fits_with_and_without_the_gradient_reach_the_same_minimum(seed, n_walls, second, monkeypatch):
     """The whole fit (screen, profiled search, polish, HESSE) from the same starts, MIGRAD given the gradient or
-    left to its own finite differences: the same minimum, -log L within 0.01 and the source within 1 cm."""
+    left to its own finite differences: the same minimum (-log L within 0.01, the source within 1 cm) or, where the
+    surface is flat (two walls and a second source), a lower one with the gradient: seed 13 stops 0.91 lower, the
+    source 1.6 cm away with a standard error of 8-10 cm. On a quadratic surface two points delta apart in -log L lie
+    at most sqrt(2 delta) standard errors apart along the flattest direction: that bounds the source's move."""
     ds = _flight(seed, n_walls, second)
     effects = (*WALLS[:n_walls], *(("second_source",) if second else ()))
     model = MeasurementModel(ds.scenario, effects)
@@ -192,5 +196,10 @@ def test_fits_with_and_without_the_gradient_reach_the_same_minimum(seed, n_walls
         fits[use] = mle.fit(model, ds.frames, n_starts=3, seed=seed, init=init)
     a, b = fits[False], fits[True]
     assert a.converged and b.converged
-    assert abs(a.nll - b.nll) < 0.01
-    assert np.hypot(a.values["x"] - b.values["x"], a.values["y"] - b.values["y"]) < 0.01
+    assert b.nll <= a.nll + 0.01  # the gradient never stops higher
+    moved = np.hypot(a.values["x"] - b.values["x"], a.values["y"] - b.values["y"])
+    delta = a.nll - b.nll
+    if delta < 0.01:
+        assert moved < 0.01
+    else:
+        assert moved <= math.sqrt(2 * delta) * max(b.errors["x"], b.errors["y"])
