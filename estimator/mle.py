@@ -71,9 +71,11 @@ SCREEN_NCALL = 600
 #: (by 0.001-0.47 in -log L; 8 of them by under 0.01, one basin screened as two), and each was ahead of the best
 #: basin after 200 calls; losers crawled on to 471 calls (outdoor seed 2, dwell 4: 0.87 s of a 1.5 s refit)
 RUNNER_UP_NCALL = 200
-#: the likelihood's gradient (:class:`_Likelihood`) goes to MIGRAD; False: MIGRAD's own finite differences (the
-#: benchmark's "before")
-USE_GRADIENT = True
+#: the likelihood's gradient (:class:`_Likelihood`) goes to MIGRAD when True; False: MIGRAD's own finite
+#: differences. Off: measured with benchmarks.likelihood_gradient, the gradient cut a one-wall diagnose call from
+#: 22 s to 9-14 s of CPU but took a two-wall + second-source call from 100 s to 294-331 s (more likelihood calls,
+#: not fewer) and ended it in another model (source error 0.28-0.51 m against 0.09 m), so it is not yet the default
+USE_GRADIENT = False
 #: steps of the gradient's central differences, in units of each parameter's scale (``Param.scale``)
 GRAD_STEP = 1e-4
 #: the profile keeps every pose offset within this many prior standard deviations
