@@ -182,6 +182,26 @@ beyond loopback, listen and connect on zenoh's `tls/` endpoints as well. A detec
 (`--clock own`) publishes `sim/clock`, which a `detector` user may not put: run it alone on an open router."""
 
 
+#: the router's congestion policy (``radseek.zenoh_qos``), as docs/topics.md says it
+CONGESTION_SECTION = """\
+**Congestion: a flood drops samples, it closes no connection.** Every router `radseek router` builds (under
+`radseek run`, by hand, in `docker/compose.yaml`; not one given `--zenoh-config FILE`) rewrites, on ingress,
+every put and delete on `radseek/**` to congestion control DROP at priority `data`, and those on
+`radseek/*/pose` and `radseek/*/sim/**` to DROP at `data_high`, whatever the publisher asked (zenoh's
+`qos.network` overwrite, declared once in `radseek/zenoh_qos.py`). Without it, a user that puts its own key
+with congestion control BLOCK toward a subscriber that cannot keep up fills the router's queue toward that
+subscriber, and after zenoh's 5 s `block.wait_before_close` the router closes the *subscriber's* connection
+("Unable to push non droppable network message ... Closing transport!", now in the router's log), losing all
+it would have received meanwhile. Measured (`tests/test_zenoh_qos.py`: `detector@uav0` floods
+`detector/histogram` with BLOCK for 7 s while the observer spends 50 ms per flood sample and `vehicle@uav0`
+puts `pose` at 20 Hz): without the overwrite the observer's connection was closed and 139 of the 140 poses
+sent during the flood (and 1 of the 30 after) never reached it; with it no connection was closed, the flood
+was thinned by the router (about 4,300 of 3.2 million puts delivered) and 200 of 200 poses arrived, at
+`data_high`, in their own transmit queue. Dropping is the price: a subscriber too slow for what it is sent
+loses samples of the flooded priority (a gap in a histogram's `seq` shows where); the vehicle's
+keys, which only `vehicle` users may put, keep their own queue ahead of detector and mission keys."""
+
+
 def topics_markdown() -> str:
     """The topic table of docs/topics.md, generated from ``radseek/topics.py``."""
     lines = [
@@ -215,7 +235,7 @@ def topics_markdown() -> str:
         lines.append(f"| `{role}@VEHICLE` | " + ", ".join(f"`{topics.PREFIX}/VEHICLE/{k}`" for k in keys)
                      + (f", {shared}" if shared else "") + " |")
     lines.append("| any other name (`recorder`, `observer`, `groundstation`) | nothing: it only subscribes |")
-    lines += ["", AUTH_HARDWARE]
+    lines += ["", AUTH_HARDWARE, "", CONGESTION_SECTION]
     flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
     lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]
     src = inspect.getsource(topics)
