@@ -164,11 +164,12 @@ def _check_foxglove(by_topic, clock, mission, scenario):
     log_s = [m.log_time / 1e9 for msgs in by_topic.values() for _, _, m in msgs]
     stamped = [m.log_time / 1e9 for topic in (topics.key(topics.SIM_CLOCK), topics.key(topics.POSE),
                                               topics.key(topics.HISTOGRAM)) for _, _, m in by_topic[topic]]
-    # the file spans the sim time its stamped samples carry (to within one clock step: MAVLink is stamped between
-    # them), so at least the mission's flight time, whatever the speed-up. Against the clock's own samples alone
-    # it need not: on a loaded machine zenoh may drop the clock's last samples for congestion (one CI run under a
-    # CPU hog recorded messages up to 107.55 s of sim time and clock samples up to 106.75 s)
-    assert min(log_s) <= min(clock) and max(log_s) == pytest.approx(max(stamped), abs=0.1)
+    # the file spans the sim time its stamped samples carry, so at least the mission's flight time, whatever the
+    # speed-up. At its end the MAVLink (straight over UDP) may run ahead of the zenoh samples (through the router):
+    # the recorder stops both at one wall instant, and the router's hop lags by milliseconds, which at 50x are
+    # tenths of a simulated second (an idle CI run: MAVLink to 170.0 s, zenoh to 169.75 s; one under a CPU hog:
+    # 107.55 s and, for the clock alone, 106.75 s). Allowed: 20 ms of wall at the run's 50x.
+    assert min(log_s) <= min(clock) and max(stamped) <= max(log_s) <= max(stamped) + 0.020 * 50
     assert max(log_s) - min(log_s) >= mission["flight_time_s"]
     # the map has the walls of the flown scene; the vehicle's scene the plan and the estimate with its ellipses
     scene = json.loads(by_topic["foxglove/uav0/scene"][-1][2].data)
