@@ -41,6 +41,10 @@ class AuthRouter:
                                      env={**os.environ, **stack_env(self.credentials)}, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)
         self.line = self.proc.stdout.readline()
+        # drained for the router's life: an undrained pipe fills with its log (every refused session is logged)
+        # and blocks the router in a write, so it never sees SIGTERM (a 60 s teardown in CI)
+        self.log: list[str] = []
+        threading.Thread(target=lambda: self.log.extend(self.proc.stdout), daemon=True).start()
 
     def session(self, name: str) -> zenoh.Session:
         user = next(u for u in self.users if u.name == name)
