@@ -93,7 +93,6 @@ def test_running_mission_drops_impossible_histograms_and_nested_json(router, tmp
                    "--url", f"udpin://127.0.0.1:{free_udp_port()}", "--connect-timeout", "3600")
     try:
         with open_session(connect=router) as s:
-            # BLOCK: zenoh's default congestion control may drop a put, and each bad payload is sent once
             block = zenoh.CongestionControl.BLOCK
             pose_pub = s.declare_publisher(topics.key(topics.POSE), congestion_control=block)
             hist_pub = s.declare_publisher(topics.key(topics.HISTOGRAM), congestion_control=block)
@@ -119,25 +118,40 @@ def test_running_mission_drops_impossible_histograms_and_nested_json(router, tmp
                     time.sleep(0.05)
                 raise AssertionError(f"the mission recorded < {n} frames; its output: {mission.seen}")
 
+            def put_until_logged(text: str, put) -> int:
+                """The router rewrites every radseek put to DROP (radseek.zenoh_qos): one put may be lost under
+                load, so a bad payload is sent again until the mission logs it; returns the puts made."""
+                for attempt in range(1, 11):
+                    put()
+                    try:
+                        mission.wait_line(text, timeout=10.0)
+                        return attempt
+                    except AssertionError:
+                        if mission.p.poll() is not None:
+                            raise
+                raise AssertionError(f"the mission never logged {text!r}; its output: {mission.seen}")
+
             wait_rows(3)  # subscribed and recording
-            bad_seq = seq
-            send(json.dumps(_hist(bad_seq, [10**20] + [0] * 31)).encode())
-            hist_pub.put(NESTED)
-            pose_pub.put(NESTED)
+            bad_seqs: list[int] = []
+
+            def bad_histogram() -> None:
+                bad_seqs.append(seq)
+                send(json.dumps(_hist(seq, [10**20] + [0] * 31)).encode())
+
+            puts = put_until_logged("counts[0] must be an integer in [0, 65535]", bad_histogram)
+            puts += put_until_logged("histogram: payload is nested too deeply", lambda: hist_pub.put(NESTED))
+            puts += put_until_logged("pose: payload is nested too deeply", lambda: pose_pub.put(NESTED))
             rows = wait_rows(len(_rows(out / "frames.csv")) + 5)
-            for text in ("counts[0] must be an integer in [0, 65535]", "pose: payload is nested too deeply",
-                         "histogram: payload is nested too deeply"):
-                if not any(text in line for line in mission.seen):
-                    mission.wait_line(text, timeout=WAIT_S)
     finally:
         mission.stop()
     while not mission.lines.empty():
         mission.seen.append(mission.lines.get())
     recorded = {int(r["seq"]) for r in rows} | {int(r["seq"]) for r in _rows(out / "frames_flagged.csv")}
-    assert bad_seq not in recorded and bad_seq + 1 in recorded
+    assert not recorded & set(bad_seqs)
+    assert len({s for s in recorded if s > max(bad_seqs)}) >= 3  # the stream goes on after the bad payloads
     assert all(int(r[f"c{k:02d}"]) <= 65535 for r in rows for k in range(32))
     text = "\n".join(mission.seen)
-    assert text.count("dropped invalid sample") == 3
+    assert 3 <= text.count("dropped invalid sample") <= puts
     assert "Traceback" not in text and "RecursionError" not in text
     ds = read_dataset(out)  # the flight stays readable
     assert len(ds.frames) == len(rows) and ds.frames.counts.max() <= 65535

@@ -62,7 +62,8 @@ class Board:
     """The compromised board: one session as ``detector@uav0``, flooding and copying until ``stop``."""
 
     def __init__(self, session: zenoh.Session):
-        block = zenoh.CongestionControl.BLOCK  # nothing of ours is dropped on the way: the mission hears it all
+        # BLOCK asked, but the router rewrites every radseek put to DROP (radseek.zenoh_qos): counts below are bounds
+        block = zenoh.CongestionControl.BLOCK
         self.stop = threading.Event()
         self.first = threading.Event()
         #: each real histogram's source_info, with the wall time it was heard
