@@ -243,7 +243,7 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path, ca
     start-up of the command costs ~3 s of CPU, a Ray of one worker ~6 s more and each further worker ~1.5 s
     (flights of this size ~0.3 s each once a worker runs): one worker and the in-process steps took this test from
     58.5 to 40.1 s of CPU, Ray's own processes included. Two workers: test_kill_9_..., a two-CPU cluster:
-    test_campaign_on_an_existing_loopback_ray_cluster.
+    test_campaign_on_an_existing_loopback_token_cluster.
     """
     from radseek_cli.campaign_cli import main
 
@@ -365,34 +365,6 @@ def _stop(pids: set[int]) -> None:
             time.sleep(0.3)
 
 
-@pytest.mark.slow
-@pytest.mark.io
-@RAY_GROUP
-def test_campaign_on_an_existing_loopback_ray_cluster(tmp_path):
-    temp_dir = f"/tmp/rsk-test-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
-    port = _free_port()
-    env = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
-    start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
-                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "2",
-                            "--temp-dir", temp_dir, "--disable-usage-stats"],
-                           capture_output=True, text=True, timeout=180, env={**os.environ, **env, **FAIR})
-    try:
-        assert start.returncode == 0, start.stdout + start.stderr
-        assert _listening(port) and set(_listening(port)) <= LOOPBACK_HEX, _listening(port)
-        out = tmp_path / "c"
-        r = _campaign("--address", f"127.0.0.1:{port}", "--scenes", "default", "outdoor", "--seeds", "1", *FAST,
-                      "--out", str(out), env=env)
-        assert r.returncode == 0, r.stderr
-        rows = _rows(out)
-        assert len(rows) == 2 and all(x["status"] == "ok" for x in rows), rows
-        assert "2 flights flown" in r.stdout and "on 2 CPUs" in r.stdout
-    finally:
-        pids = _pids_of(temp_dir)
-        _stop(pids)
-        subprocess.run(["rm", "-rf", temp_dir], check=False)
-    assert pids and not _alive(pids)
-
-
 def _stat(pid: int) -> tuple[str, int, int] | None:
     """(state, parent, start time) of a process, None if gone."""
     try:
@@ -498,19 +470,23 @@ def _client_env(home: Path, **auth: str) -> dict[str, str]:
 @pytest.mark.slow
 @pytest.mark.io
 @RAY_GROUP
-def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
+def test_campaign_on_an_existing_loopback_token_cluster(tmp_path):
+    """One `ray start --head` as Ray 2.60 starts it (token auth on), bound to loopback: a client without its token,
+    or with another, is told in one line what to set; with it, the campaign flies on the cluster's CPUs; stopping
+    the head leaves no Ray process. (One cluster for both: each `ray start` costs a worker 10-15 s.)"""
     temp_dir = f"/tmp/rsk-tok-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
     port, token = _free_port(), secrets.token_hex(32)
     head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token, **FAIR)
     start = subprocess.run([str(BIN / "ray"), "start", "--head", "--node-ip-address", "127.0.0.1",
-                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "1",
+                            "--port", str(port), "--include-dashboard=false", "--num-cpus", "2",
                             "--temp-dir", temp_dir, "--disable-usage-stats"],
                            capture_output=True, text=True, timeout=180, env=head)
     try:
         assert start.returncode == 0, start.stdout + start.stderr
-        args = ["--address", f"127.0.0.1:{port}", "--scenes", "default", "--seeds", "1", *FAST]
+        assert _listening(port) and set(_listening(port)) <= LOOPBACK_HEX, _listening(port)
 
-        def campaign(out: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+        def campaign(out: str, env: dict[str, str], *scenes: str) -> subprocess.CompletedProcess:
+            args = ["--address", f"127.0.0.1:{port}", "--scenes", *(scenes or ("default",)), "--seeds", "1", *FAST]
             return subprocess.run([str(BIN / "radseek"), "campaign", *args, "--out", str(tmp_path / out)],
                                   capture_output=True, text=True, timeout=500, env=env)
 
@@ -522,9 +498,12 @@ def test_a_token_cluster_tells_a_client_without_its_token_what_to_set(tmp_path):
                                           **ONE_ATTEMPT))
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert "refused this client's token" in r.stderr, r.stderr
-        r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token))  # what it said
+        r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token),  # what it said
+                     "default", "outdoor")
         assert r.returncode == 0, r.stderr
-        assert [x["status"] for x in _rows(tmp_path / "right")] == ["ok"]
+        rows = _rows(tmp_path / "right")
+        assert len(rows) == 2 and all(x["status"] == "ok" for x in rows), rows
+        assert "2 flights flown" in r.stdout and "on 2 CPUs" in r.stdout
     finally:
         pids = _pids_of(temp_dir)
         _stop(pids)
