@@ -15,7 +15,7 @@ import pytest
 from hypothesis import settings
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
-    # `make test`/`make check` run one pytest-xdist worker per core: a worker's BLAS (OpenBLAS) taking a thread
+    # `make test`/`make check` run a pytest-xdist worker per core or more: a worker's BLAS (OpenBLAS) taking a thread
     # per core as well puts two threads on each core, which spin while they wait for each other
     # (test_gain_drift_shapes: 23.4 s of CPU with two threads, 17.6 s with one). Set before numpy is first
     # imported (neither pytest nor hypothesis imports it) and inherited by the processes the tests start.
