@@ -381,6 +381,14 @@ def _resolves(tree: Path, module: str) -> bool:
     return p.with_suffix(".py").is_file() or p.is_dir()
 
 
+def test_the_image_carries_no_virtual_environment_of_the_checkout(image_tree):
+    """`make test` makes .venv and .venv-mavsdk-grpc (MAVSDK-Python's examples, ~1,000 modules and mavsdk_server)
+    in the checkout the image is built from: neither belongs in the build context (the image makes its own venv)."""
+    venvs = sorted(str(p.parent.relative_to(image_tree)) for p in image_tree.rglob("pyvenv.cfg"))
+    assert (REPO / ".venv-mavsdk-grpc").is_dir() or (REPO / ".venv").is_dir(), "a checkout that ran make test"
+    assert venvs == [], f"virtual environments in the image: {venvs}"
+
+
 def test_every_first_party_import_in_the_image_resolves_in_the_image(image_tree):
     """Static, so the lazy imports inside each command's main (the run path --help never reaches) count too."""
     _, tops = _first_party()
