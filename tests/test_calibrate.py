@@ -69,6 +69,7 @@ def test_synthetic_side_scatter_angle_recovered_within_errors():
     assert without.deviance - res.deviance > 10.8
 
 
+@pytest.mark.slow
 def test_forward_selection_finds_the_effects_the_baseline_lacks():
     prob, _ = synthetic(seed=5)
     res = F.forward_select(prob, candidates=EFFECTS + ("absorber",))

@@ -106,6 +106,7 @@ def test_summing_grows_as_the_source_nears_the_crystal():
     assert high[0] < high[1] < high[2]
 
 
+@pytest.mark.slow
 def test_real_co60_holds_no_summing_the_fit_moves_the_source_away():
     """RC-102-001272's Co-60 with the saved joint response: 1 count in 2420-2600 keV; freeing the distance, the
     likelihood pushes the source beyond 60 mm (summing within 5 % of the no-summing deviance at 60 mm: +0.7)."""

@@ -13,6 +13,9 @@ from estimator.diagnose.runner import diagnose
 from estimator.diagnose.verdict import SPECTRAL_Z, spectral_channel_z
 from tests.support.once_per_run import once_per_run
 
+#: a whole diagnose call (~25 s of CPU) behind both tests: not the unit tier's (make check)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def co60_second(tmp_path_factory):

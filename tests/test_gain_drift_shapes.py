@@ -123,6 +123,7 @@ def test_a_drift_of_0_9_percent_per_min_is_found_for_every_crystal_shape(src):
     assert abs(fit.percent_per_min - 0.9) < 3 * fit.error, (fit.percent_per_min, fit.error)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", ["wide", "backscatter"])
 def test_a_drift_of_0_6_percent_per_min_is_found_in_a_two_and_a_half_minute_flight(shape):
     fit = SpectralModel(EDGES).fit(flight(analytic(shape), 0.6, seed=7, duration=150.0))
@@ -130,6 +131,7 @@ def test_a_drift_of_0_6_percent_per_min_is_found_in_a_two_and_a_half_minute_flig
     assert abs(fit.percent_per_min - 0.6) < 3 * fit.error, (fit.percent_per_min, fit.error)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Cs137_b.xml", "Co60_a.xml"])
 def test_a_drift_of_0_6_percent_per_min_is_found_in_the_measured_spectra(name):
     fit = SpectralModel(EDGES).fit(flight(measured(name), 0.6, seed=4, duration=240.0))
@@ -137,6 +139,7 @@ def test_a_drift_of_0_6_percent_per_min_is_found_in_the_measured_spectra(name):
     assert abs(fit.percent_per_min - 0.6) < 3 * fit.error, (fit.percent_per_min, fit.error)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", OTHER_UNITS)
 def test_a_drift_of_0_6_percent_per_min_is_found_in_other_units_spectra(name):
     """A RadiaCode-103's radium and thorium and another RadiaCode-102's radium paint: crystals, calibrations and

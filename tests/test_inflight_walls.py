@@ -57,6 +57,7 @@ def test_a_walled_model_starts_in_the_shadows_mode(lattice_wall):
     assert best["wall_attenuation.mu_per_m"] in GRID_WALL_MU
 
 
+@pytest.mark.slow
 def test_a_walled_refit_escalates_a_new_misfit_once_and_a_persistent_one_not_at_all(lattice_wall, counted_fits):
     """The injected fault: every fit after the first misfits (p = 1e-6, a physical effect the model lacks).
     After a walled record that fit, the warm refit (its own basin alone when still the best) misfits and

@@ -39,6 +39,7 @@ def test_search_finds_the_default_source(seed, tmp_path_factory):
         assert np.allclose(f.positions[m].mean(0), pos, atol=0.05)
 
 
+@pytest.mark.slow
 def test_the_same_seed_flies_the_same_search_after_other_flights():
     # campaigns fly many seeds in one worker process: seed 2 flown after seed 1 must be seed 2 flown first
     # (the trees are node-bounded and OMPL's seed sequence restarts per flight), so any row is reproducible

@@ -19,6 +19,7 @@ def _noisy_strong(seed):
     return m, with_counts(f, rng.poisson(mu))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["wall-free", "walled"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_screened_search_finds_the_full_searchs_minimum(case, seed, monkeypatch):

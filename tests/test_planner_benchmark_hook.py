@@ -36,6 +36,7 @@ def test_run_episode_uses_only_the_injected_callables_and_stops_at_the_target():
         assert np.isnan(ep.errors[:2]).all() and ep.errors[-1] == pytest.approx(0.25)
 
 
+@pytest.mark.slow
 def test_a_flight_with_the_stop_rule_off_is_the_stopped_flight_flown_on():
     """benchmarks/error_along_flight reads "the last estimate by t" as what a stop rule stopping by t reports:
     the planner never looks at the stop rule, so the stopped flight must be the open one cut at its stop."""

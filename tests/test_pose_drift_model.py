@@ -90,6 +90,7 @@ def _mahalanobis(r):
     return float(d @ np.linalg.solve(np.asarray(r.covariance)[np.ix_(i, i)], d))
 
 
+@pytest.mark.slow
 def test_reported_covariance_holds_the_drift():
     """Under drift, the squared Mahalanobis distance of the error has mean 2 (chi2 with 2 dof) if the
     covariance is honest. Over 24 flights its mean has sd sqrt(4/24) = 0.41: the random-walk model must stay

@@ -59,6 +59,7 @@ def test_team_ellipse_coverage_is_honest():
     assert sum(covered) >= 6, covered
 
 
+@pytest.mark.slow
 def test_the_same_seed_flies_the_same_team_flight():
     """The vehicles step on one sim clock and claims are stamped with sim time: nothing depends on wall time."""
     a, b = (fly_team_offline(SCENE, 2, seed=4) for _ in range(2))
