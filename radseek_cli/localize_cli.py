@@ -34,7 +34,7 @@ from estimator.inflight import GOOD_FIT_P, MIN_FRAMES
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
 from radseek.dataset import DatasetError
-from radseek_io.dataset import DatasetWarning, check_walls_disjoint, read_scenario, stderr_progress
+from radseek_io.dataset import DatasetWarning, check_walls_disjoint, read_scenario, run_dataset, stderr_progress
 from radseek_io.truth import read_dataset_with_truth
 from reporting.truth_errors import match_errors
 
@@ -106,14 +106,15 @@ def read_with_warnings(prog: str) -> Iterator[None]:
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
-def read_for_cli(prog: str, path: str, quiet: bool = False, min_frames: int = MIN_FRAMES,
+def read_for_cli(prog: str, path: str | Path, quiet: bool = False, min_frames: int = MIN_FRAMES,
                  needed_for: str = "to fit a source's position and strength and the background"):
     """The dataset at ``path`` for command ``prog`` (progress and reader warnings on stderr), or None after
     printing one line on stderr: the reader's error (which names file, row and column, or key), walls that
     overlap (``check_walls_disjoint``: every model here attenuates through each wall, so an overlap would count
     twice), or fewer than ``min_frames`` usable frames (the reader keeps only rows with a finite pose and
     duration > 0; a truncated last row is skipped), with what they are ``needed_for``."""
-    scenario_file = Path(path) / "scenario.json"
+    path = run_dataset(path)  # a run's output folder names its dataset/
+    scenario_file = path / "scenario.json"
     try:
         with read_with_warnings(prog):
             if scenario_file.is_file():  # walls first: a long flight's frames take minutes to read
