@@ -412,11 +412,14 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
             f = data[n].frames
             row.update(vehicle_track(f))
             ended = _dwells_ended(out / "dataset" / n / "mission_log.jsonl")
+            begun = len(set(f.dwell[f.dwell >= 0].tolist()))
             if ended is not None:  # a dwell counts once it ended (a killed mission's last may not have)
                 row["dwell_points"] = ended
+                row["dwells_not_ended"] = max(begun - ended, 0)  # in frames.csv and drawn hollow, not counted
             state = " (failed)" if row["failed"] else ""
-            ax.plot(f.x, f.y, "-", color=colour, lw=0.9, alpha=0.8, label=f"{n}{state}: {row['dwell_points']} dwells, "
-                                                                             f"{row['distance_m']:.1f} m")
+            more = f" (+{row['dwells_not_ended']} begun, not ended: hollow)" if row.get("dwells_not_ended") else ""
+            ax.plot(f.x, f.y, "-", color=colour, lw=0.9, alpha=0.8,
+                    label=f"{n}{state}: {row['dwell_points']} dwells{more}, {row['distance_m']:.1f} m")
             for j, k in enumerate(sorted(set(f.dwell[f.dwell >= 0].tolist()))):
                 m = f.dwell == k
                 # the dwells counted in the legend filled; one begun but not ended hollow

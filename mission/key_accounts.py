@@ -53,6 +53,7 @@ WARN_EVERY_WALL_S = 5.0  # a flooded key and publisher is named at most this oft
 UNKNOWN_PUBLISHER = "unknown publisher"
 OWNER_SILENT_WALL_S = 3.0  # wall s of silence after which a key's publisher is replaced by the next one heard
 DROP_KINDS = ("flood", "foreign", "sequence", "invalid")
+SPEEDUP_WINDOW_WALL_S = 1.0  # wall s over which a clock-following account measures the vehicle's speed-up
 
 
 def sequence_of(sample: Any) -> int | None:
@@ -109,16 +110,42 @@ class _Key:
 class KeyAccounts:
     """The accounting of every key one mission subscribes to (thread-safe: zenoh calls from its own threads)."""
 
-    def __init__(self, logger: logging.Logger, speedup: float = 1.0, *, clock: Callable[[], float] = time.monotonic,
-                 invalid_first: int = 10):
-        if not speedup > 0:
+    def __init__(self, logger: logging.Logger, speedup: float | None = 1.0, *,
+                 clock: Callable[[], float] = time.monotonic, invalid_first: int = 10):
+        if speedup is not None and not speedup > 0:
             raise ValueError(f"speedup must be > 0, got {speedup!r}")
         self._log = logger
-        self.speedup = speedup
+        #: None given: follow the vehicle's clock (``observe_sim_time``), from 1 up to the fastest rate measured
+        self.follows_clock = speedup is None
+        self.speedup = 1.0 if speedup is None else float(speedup)
+        self._sim_ref: tuple[float, float] | None = None  # (wall, sim) where the current measuring window began
         self._clock = clock
         self._first = invalid_first
         self._lock = threading.Lock()
         self._keys: dict[str, _Key] = {}
+
+    def observe_sim_time(self, t_sim: float) -> None:
+        """A sim time the vehicle's clock gave (an accepted pose's ``t``). Following the clock, the speed-up is
+        the fastest sim-per-wall rate measured over ``SPEEDUP_WINDOW_WALL_S`` windows: a mission started by hand
+        without ``--speedup`` beside a vehicle at ``--speedup 10`` dropped half its histograms as a flood. Only the
+        key's owner's poses get here, so a flooder cannot raise it; a lockstep hold (rate 0) never lowers it."""
+        if not self.follows_clock:
+            return
+        now = self._clock()
+        with self._lock:
+            if self._sim_ref is None or t_sim < self._sim_ref[1]:
+                self._sim_ref = (now, t_sim)
+                return
+            wall = now - self._sim_ref[0]
+            if wall < SPEEDUP_WINDOW_WALL_S:
+                return
+            rate = (t_sim - self._sim_ref[1]) / wall
+            self._sim_ref = (now, t_sim)
+            if rate <= self.speedup * 1.1:  # within the measuring noise of the rate already followed
+                return
+            self.speedup = min(rate, topics.SPEEDUP_MAX)
+        self._log.info("following the vehicle's clock: x%.3g speed-up measured, the keys' expected rates with it",
+                       self.speedup)
 
     def expected_wall_hz(self, topic: str) -> float:
         """Samples per wall second the contract of ``topic`` expects at this speed-up."""

@@ -85,8 +85,9 @@ class MissionSettings:
     leg_speed_m_s: float = 1.0  # expected cruise speed: a leg may take 3 x distance / speed + 30 s (sim)
     #: the team's vehicle names, this one included (``radseek run --vehicles N``); empty: a single vehicle
     team: tuple[str, ...] = ()
-    #: sim seconds per wall second of the run (at most): the keys' expected rates in wall time (flood accounting)
-    speedup: float = 1.0
+    #: sim seconds per wall second of the run (at most): the keys' expected rates in wall time (flood accounting);
+    #: None: follow the vehicle's clock as measured from its poses (a stack started by hand)
+    speedup: float | None = 1.0
 
 
 class _PosedHistograms:
@@ -107,6 +108,7 @@ class _PosedHistograms:
         pose = self.drops.decode(topics.Pose, sample)  # fails its schema or the board's limits: dropped
         if pose is None:
             return
+        self.drops.observe_sim_time(pose.t)  # without --speedup the accounts follow the vehicle's clock
         with self.lock:
             if self._pose(pose):
                 self._release(lambda h, _w: h.t <= pose.t + 1e-6)

@@ -193,5 +193,10 @@ class TeamLinkBase:
         step = np.linalg.norm(np.diff(own.positions, axis=0), axis=1) if len(own) > 1 else np.zeros(0)
         moving = own.dwell[1:] < 0 if len(own) > 1 else np.zeros(0, dtype=bool)
         return {"vehicle": self.me, "team": list(self.names), "decided": self.decided,
-                "distance_m": float(step[moving].sum()), "own_dwell_points": len(self.dwells),
+                "distance_m": float(step[moving].sum()),
+                # one dwell count everywhere: this vehicle's ended dwells, as the team's summary.json and report
+                # count them; the joint count it knew of when it stopped is team_dwell_points (a teammate's last
+                # dwell may end after this vehicle stopped: it said 4 where the team's summary said 5)
+                "dwell_points": len(self.dwells), "own_dwell_points": len(self.dwells),
+                "team_dwell_points": len(brain.history),
                 "teammates_lost": self.lost()}

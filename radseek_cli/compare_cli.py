@@ -164,6 +164,15 @@ def _series(hist: list[dict[str, Any]], key: str) -> tuple[np.ndarray, np.ndarra
     return np.array([h["t"] for h in hist]), np.array([h[key] for h in hist])
 
 
+def plot_path(out: str | Path) -> Path:
+    """The file ``--out`` names: a folder gets ``compare.png`` inside, a name without a suffix gets ``.png`` (as
+    matplotlib would add it; the summary then names the file that exists, not ``--out`` as typed)."""
+    out = Path(out)
+    if out.is_dir():
+        return out / "compare.png"
+    return out if out.suffix else out.with_suffix(".png")
+
+
 def _build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="radseek compare", description=__doc__.split("\n")[0])
     p.add_argument("a", help="first dataset (e.g. the real flight)")
@@ -270,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         head += "\nshaded: a cloud collapsed below the Cramér-Rao floor of its counts (not certainty)"
     fig.suptitle(head, fontsize=10)
     fig.tight_layout()
-    out = Path(args.out)
+    out = plot_path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)

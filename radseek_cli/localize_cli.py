@@ -34,7 +34,7 @@ from estimator.inflight import GOOD_FIT_P, MIN_FRAMES
 from estimator.localizers import LOCALIZERS, make_localizer
 from estimator.localizers.base import localizer_class
 from radseek.dataset import DatasetError
-from radseek_io.dataset import DatasetWarning, check_walls_disjoint, read_scenario, stderr_progress
+from radseek_io.dataset import DatasetWarning, check_walls_disjoint, read_scenario, run_dataset, stderr_progress
 from radseek_io.truth import read_dataset_with_truth
 from reporting.truth_errors import match_errors
 
@@ -106,14 +106,15 @@ def read_with_warnings(prog: str) -> Iterator[None]:
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
-def read_for_cli(prog: str, path: str, quiet: bool = False, min_frames: int = MIN_FRAMES,
+def read_for_cli(prog: str, path: str | Path, quiet: bool = False, min_frames: int = MIN_FRAMES,
                  needed_for: str = "to fit a source's position and strength and the background"):
     """The dataset at ``path`` for command ``prog`` (progress and reader warnings on stderr), or None after
     printing one line on stderr: the reader's error (which names file, row and column, or key), walls that
     overlap (``check_walls_disjoint``: every model here attenuates through each wall, so an overlap would count
     twice), or fewer than ``min_frames`` usable frames (the reader keeps only rows with a finite pose and
     duration > 0; a truncated last row is skipped), with what they are ``needed_for``."""
-    scenario_file = Path(path) / "scenario.json"
+    path = run_dataset(path)  # a run's output folder names its dataset/
+    scenario_file = path / "scenario.json"
     try:
         with read_with_warnings(prog):
             if scenario_file.is_file():  # walls first: a long flight's frames take minutes to read
@@ -181,7 +182,10 @@ def hold_to_the_bound(loc: Any, scenario: Any, frames: Any, result: dict[str, An
     """Every method's one-source estimate checked as the MLE checks its own (``estimator.mle.check_estimate``):
     a reported 1-sigma below the Cramér-Rao bound at the flown poses is raised to the bound (the method's own kept
     as ``std_method``), and a method that reports no goodness of fit gets one at its estimate under the common
-    count model. Returns the warnings to print."""
+    count model. Where the frames declare pose errors (odometry drift) the bound is the pose-aware one
+    (``pose_aware_crlb``, the MLE's own floor): with drift no estimate can place the source better than the poses
+    allow. Returns the warnings to print."""
+    from estimator.localizers.mle import pose_aware_crlb
     from estimator.mle import check_estimate
     from estimator.model import MeasurementModel
 
@@ -192,22 +196,36 @@ def hold_to_the_bound(loc: Any, scenario: Any, frames: Any, result: dict[str, An
         s = loc.sources_[0]
         theta = {"x": s["x"], "y": s["y"], "z": s["z"], "cps_at_1m": s["cps_at_1m"],
                  "background_cps": float(loc.background_)}
-        chk = check_estimate(model, {k: float(v) for k, v in theta.items() if k in model.param_names}, frames)
+        theta = {k: float(v) for k, v in theta.items() if k in model.param_names}
+        chk = check_estimate(model, theta, frames)
+        drifting = bool(np.any(np.asarray(frames.pose_variances) > 0))
+        hybrid = pose_aware_crlb(model, theta, frames) if drifting else None
     except (ValueError, KeyError, TypeError, np.linalg.LinAlgError):
         return []  # a model the common count model cannot express (say a multi-source cloud): nothing to hold to
     bound = {nm: float(np.sqrt(max(chk.crlb[i, i], 0.0))) for i, nm in enumerate(chk.names)}
+    floor = dict(bound)
+    if hybrid is not None:  # same parameter order (the model's free names); never below the exact-pose bound
+        floor = {nm: max(b, float(np.sqrt(max(hybrid[i, i], 0.0)))) for i, (nm, b) in enumerate(bound.items())}
+        if getattr(loc, "crlb_pose_", None) is None:  # the line "bound with pose errors and drift" is this one
+            result["bound_m"] = [float(np.hypot(floor.get("x", math.nan), floor.get("y", math.nan)))]
     sd = list(result["std"][0])
     raised = []
     for j, nm in ((0, "x"), (1, "y"), (3, "cps_at_1m")):
-        b = bound.get(nm, math.nan)
+        b = floor.get(nm, math.nan)
         if math.isfinite(b) and math.isfinite(sd[j]) and sd[j] < b:
             raised.append(f"{nm} ±{sd[j]:.3g} -> ±{b:.3g}")
             sd[j] = b
+    bstd = getattr(loc, "background_std_", None)
+    b = floor.get("background_cps", math.nan)
+    if bstd is not None and math.isfinite(b) and bstd < b:
+        raised.append(f"background_cps ±{bstd:.3g} -> ±{b:.3g}")
+        result["background_std"] = b
     out = []
     if raised:
         result["std_method"] = [list(result["std"][0])]
         result["std"] = [sd]
-        out.append(f"{method}'s own spread is below the Cramér-Rao bound at the flown poses ({', '.join(raised)}): "
+        where = "the flown poses with their declared drift" if hybrid is not None else "the flown poses"
+        out.append(f"{method}'s own spread is below the Cramér-Rao bound at {where} ({', '.join(raised)}): "
                    "the ± printed is the bound, the least any unbiased estimate from these counts can have")
     if result.get("crlb_std") is None:
         result["crlb_std"] = [[bound.get("x", math.nan), bound.get("y", math.nan), bound.get("z", math.nan),
@@ -303,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"            CRLB 1-sigma: x {cr[0]:.3f} m, y {cr[1]:.3f} m, cps_at_1m {cr[3]:.0f}")
         if result["bound_m"]:
             print(f"            bound with pose errors and drift (rms horizontal): {result['bound_m'][i]:.3f} m")
-    bstd = getattr(loc, "background_std_", None)
+    bstd = result.get("background_std", getattr(loc, "background_std_", None))
     print(f"  background: {loc.background_:.1f} cps" + (f" ± {bstd:.1f}" if bstd else ""))
     info = result.get("info", {})
     if "deviance_per_dof" in info:

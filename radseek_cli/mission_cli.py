@@ -56,9 +56,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="use a non-empty --out: remove its previous mission outputs first (other files are kept)")
     p.add_argument("--url", default=DEFAULT_URL, help="MAVSDK connection URL (default PX4 SITL's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner's random tree")
-    p.add_argument("--speedup", type=float, default=1.0,
-                   help="the run's sim seconds per wall second (default 1): sets each key's expected rate, over "
-                        "which a publisher's samples are dropped as a flood")
+    p.add_argument("--speedup", type=float, default=None,
+                   help="the run's sim seconds per wall second: sets each key's expected rate, over which a "
+                        "publisher's samples are dropped as a flood (default: follow the vehicle's clock, as "
+                        "measured from its poses)")
     p.add_argument("--connect-timeout", type=float, default=60.0, metavar="S",
                    help="wall seconds to wait for the zenoh router and for the autopilot's heartbeat and health "
                         "(default 60; a booting SITL may need more)")
@@ -110,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     config = SearchConfig(altitude_m=args.altitude, stop_sigma_m=args.stop_sigma,
                           max_dwells=args.max_dwells, max_search_dwells=min(6, args.max_dwells),
                           localizer=args.localizer, strategy=args.strategy)
-    if not 0 < args.speedup <= topics.SPEEDUP_MAX:
+    if args.speedup is not None and not 0 < args.speedup <= topics.SPEEDUP_MAX:
         p.error(f"--speedup must be in (0, {topics.SPEEDUP_MAX:g}], got {args.speedup}")
     if not args.connect_timeout > 0:
         p.error(f"--connect-timeout must be > 0 s, got {args.connect_timeout}")

@@ -71,8 +71,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", type=Path, help="write a PNG of the map, tree and plan")
     p.add_argument("--json", action="store_true", help="print the radseek.topics.Plan payload as JSON")
-    p.add_argument("--fig4", type=Path, metavar="PNG", nargs="?", const=Path("fig4-replica.png"),
-                   help="only write the paper 003 Fig. 4 replica (default fig4-replica.png) and exit")
+    p.add_argument("--fig4", type=Path, metavar="PNG", nargs="?", const=Path("runs/fig4-replica.png"),
+                   help="only write the paper 003 Fig. 4 replica (default runs/fig4-replica.png) and exit")
     p.add_argument("--export-plan", type=Path, metavar="FILE", help="write the plan as a QGroundControl .plan")
     p.add_argument("--export-dwell", type=float, default=60.0, help="hold per dwell point in the .plan, s (60)")
     p.add_argument("--home", default="47.397742,8.545594,488.0",
@@ -194,6 +194,7 @@ def _plot(path: Path, occ: OccupancyMap, plan: DwellPlan, history: DwellHistory,
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.fig4 is not None:
+        args.fig4.parent.mkdir(parents=True, exist_ok=True)
         plot_fig4(args.fig4)
         print(f"wrote {args.fig4}")
         return 0

@@ -218,6 +218,10 @@ def main(argv: list[str] | None = None) -> int:
     from radseek_io.truth import read_dataset_with_truth
 
     from_mcap = args.dataset.endswith(".mcap")
+    if not from_mcap:  # a run's output folder names its dataset/ (a team's: one folder per vehicle, joint)
+        from radseek_io.dataset import run_dataset
+
+        args.dataset = str(run_dataset(args.dataset))
     if args.scenario and not from_mcap:
         p.error("--scenario is for an MCAP log (a path ending in .mcap); a dataset holds its own scenario.json")
     try:

@@ -619,6 +619,16 @@ def stderr_progress(label: str, min_interval_s: float = 1.0, after_s: float = 1.
     return report
 
 
+def run_dataset(path: str | Path) -> Path:
+    """The dataset folder ``path`` names: a ``radseek run`` output folder (no ``frames.csv``, a ``dataset/``
+    inside) names its ``dataset/``; any other path names itself. So ``radseek localize runs/X`` reads the flight
+    that run recorded instead of failing on the run's own ``scenario.json`` beside a missing ``frames.csv``."""
+    path = Path(path)
+    if path.is_dir() and not (path / "frames.csv").exists() and (path / "dataset").is_dir():
+        return path / "dataset"
+    return path
+
+
 def read_dataset(path: str | Path, progress: Callable[[int, int], None] | None = None,
                  truncated_last_row: str = "skip") -> Dataset:
     """Read and validate a dataset directory's frames and scenario (never its truth.json: see
@@ -626,14 +636,15 @@ def read_dataset(path: str | Path, progress: Callable[[int, int], None] | None =
 
     ``progress`` and ``truncated_last_row`` are passed to :func:`read_frames`.
     """
-    path = Path(path)
+    path = run_dataset(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: not a dataset directory (expected frames.csv and scenario.json inside)")
     if not (path / "frames.csv").exists() and not (path / "scenario.json").exists():
         inner = sorted(p.name for p in path.iterdir() if p.is_dir() and (p / "frames.csv").exists())
         if inner:
             raise DatasetError(f"{path}: holds one dataset per folder ({', '.join(inner)}), as a team run's "
-                               f"dataset/ does: give one of them, e.g. {path / inner[0]}")
+                               f"dataset/ does: give one of them, e.g. {path / inner[0]} (radseek replay takes "
+                               "the folder whole, as the team's joint flight)")
     scenario = read_scenario(path / "scenario.json")
     frames = read_frames(path / "frames.csv", progress=progress, truncated_last_row=truncated_last_row)
     return Dataset(frames=frames, scenario=scenario, path=path)

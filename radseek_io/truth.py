@@ -65,4 +65,4 @@ def read_dataset_with_truth(path: str | Path, progress: Callable[[int, int], Non
                             truncated_last_row: str = "skip") -> Dataset:
     """:func:`radseek_io.dataset.read_dataset` plus the directory's ``truth.json`` (``truth`` None when absent)."""
     ds = read_dataset(path, progress=progress, truncated_last_row=truncated_last_row)
-    return dataclasses.replace(ds, truth=read_truth(Path(path) / "truth.json"))
+    return dataclasses.replace(ds, truth=read_truth(ds.path / "truth.json"))

@@ -51,7 +51,8 @@ def test_estimate_pinned_at_a_bound_says_so_in_json(shared_datasets, tmp_path, c
 def test_estimate_inside_the_bounds_is_not_flagged(shared_datasets, capsys):
     assert localize_cli.main([str(shared_datasets / BASE), "--method", "sphere", "--json", "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["pinned_at_bound"] == [{}] and res["warnings"] == []
+    # (lattice-clean declares pose drift: sphere's ± is held to the pose-aware bound, a warning that is not this one)
+    assert res["pinned_at_bound"] == [{}] and not any("pinned" in w for w in res["warnings"])
 
 
 def test_wall_attenuation_without_walls_is_an_error_not_nan(shared_datasets, capsys):

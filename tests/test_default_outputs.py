@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from radseek_cli.compare_cli import _build_parser as compare_parser
+from radseek_cli.compare_cli import plot_path
+from radseek_cli.plan_cli import _parser as plan_parser
 from radseek_cli.simulate_cli import build_parser as simulate_parser
 
 REPO = Path(__file__).resolve().parents[1]
@@ -28,6 +30,15 @@ def test_every_default_output_is_under_runs():
     assert default_out(Path("/x/run1/dataset")) == a
     assert 'Path("runs/flight.mcap")' in (REPO / "radseek_cli" / "record_cli.py").read_text()
     assert "runs/" in (REPO / ".gitignore").read_text().split()
+    fig4 = next(a for a in plan_parser()._actions if "--fig4" in a.option_strings)
+    assert str(fig4.const).startswith("runs/")  # `radseek plan --fig4` wrote fig4-replica.png into the cwd
+
+
+def test_compare_names_the_file_it_writes(tmp_path):
+    """`compare --out /tmp/cmp` wrote /tmp/cmp.png (matplotlib adds the suffix) but said "wrote /tmp/cmp"."""
+    assert plot_path(tmp_path / "cmp") == tmp_path / "cmp.png"
+    assert plot_path(tmp_path / "cmp.pdf") == tmp_path / "cmp.pdf"
+    assert plot_path(tmp_path) == tmp_path / "compare.png"  # a folder: the default name inside it
 
 
 @pytest.mark.io

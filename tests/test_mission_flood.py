@@ -66,6 +66,45 @@ def test_a_publisher_over_its_rate_is_dropped_as_a_flood_and_named_once_per_peri
     assert len(floods) == 2, floods
 
 
+def test_without_a_speedup_the_accounts_follow_the_vehicles_clock():
+    """A mission started by hand without --speedup beside a vehicle at --speedup 10 took the detector's 100
+    histograms per wall second for a flood (limit 5 x 10/s) and dropped half of them. Following the clock measured
+    from the poses, an honest board at x10 loses nothing after the first window; a hold (lockstep) never lowers
+    the rate followed, and a fixed --speedup is kept whatever the clock does."""
+    clock = _Clock()
+    window = key_accounts.SPEEDUP_WINDOW_WALL_S
+
+    def board_at_x10(acc: KeyAccounts) -> tuple[int, int]:
+        """10 windows of wall time, a histogram every 0.01 s: (taken, dropped) after the first two windows."""
+        taken = dropped = 0
+        for step in range(int(10 * window / 0.01)):
+            clock.now = step * 0.01
+            if step % 5 == 0:  # a pose every 0.05 wall s: 20 Hz of sim time at x10
+                acc.observe_sim_time(10.0 * clock.now)
+            ok = acc.admit(_sample(KEY, b"", "board"))
+            if clock.now >= 2 * window:
+                taken, dropped = taken + ok, dropped + (not ok)
+        return taken, dropped
+
+    taken, dropped = board_at_x10(KeyAccounts(logging.getLogger("t.x1"), speedup=1.0, clock=clock))
+    assert dropped > 0.4 * (taken + dropped)  # the fault as it was: half the honest board's frames lost
+    acc = KeyAccounts(logging.getLogger("t.follow"), speedup=None, clock=clock)
+    assert acc.speedup == 1.0 and acc.follows_clock
+    taken, dropped = board_at_x10(acc)
+    assert acc.speedup == pytest.approx(10.0, rel=0.05)
+    assert dropped == 0 and taken > 0
+    for _ in range(5):  # lockstep holds sim time for 5 wall s
+        clock.now += window
+        acc.observe_sim_time(10.0 * 10 * window)
+    assert acc.speedup == pytest.approx(10.0, rel=0.05)
+
+    fixed = KeyAccounts(logging.getLogger("t.fixed"), speedup=2.0, clock=clock)
+    for k in range(5):
+        clock.now += window
+        fixed.observe_sim_time(100.0 * k)
+    assert fixed.speedup == 2.0 and not fixed.follows_clock
+
+
 def test_a_second_publisher_is_dropped_as_forged_until_the_first_falls_silent(caplog):
     clock = _Clock()
     acc = KeyAccounts(logging.getLogger("t.forge"), clock=clock)
