@@ -27,6 +27,8 @@ def fly(scene_name: str, strategy: str, seed: int) -> dict:
 
     seen: list[dict] = []
     original = SearchBrain.stop_rule
+    # before d33f0fc every search dwell spent the budget: the script also traces that code
+    budget = getattr(SearchBrain, "_budget_dwells", lambda brain: brain.search_dwells)
 
     def recording(self, belief, sigma, bound_fall_m_s=None):
         out = original(self, belief, sigma, bound_fall_m_s)
@@ -35,7 +37,7 @@ def fly(scene_name: str, strategy: str, seed: int) -> dict:
         before = [e for e in ests[-3:-1] if now is not None and now.dwell - e.dwell <= 2]
         s_before = min((e.sigma_m for e in before), default=math.nan)
         seen.append({
-            "dwells": len(self.history), "search_dwells": self.search_dwells, "budget_dwells": self._budget_dwells(),
+            "dwells": len(self.history), "search_dwells": self.search_dwells, "budget_dwells": budget(self),
             "sigma_m": sigma, "floor_m": now.drift_floor_m if now else math.nan,
             "pose_sd_m": now.pose_sd_m if now else math.nan, "p": now.p_value if now else math.nan,
             "s_before": s_before, "stable": self._stable(), "misfit": bool(self._misfit()),
