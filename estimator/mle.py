@@ -71,13 +71,13 @@ SCREEN_NCALL = 600
 #: (by 0.001-0.47 in -log L; 8 of them by under 0.01, one basin screened as two), and each was ahead of the best
 #: basin after 200 calls; losers crawled on to 471 calls (outdoor seed 2, dwell 4: 0.87 s of a 1.5 s refit)
 RUNNER_UP_NCALL = 200
-#: the likelihood's gradient (:class:`_Likelihood`) goes to MIGRAD when True; False: MIGRAD's own finite
-#: differences. Off: measured with benchmarks.likelihood_gradient, the gradient cut a one-wall diagnose call from
-#: 22 s to 9-14 s of CPU but took a two-wall + second-source call from 100 s to 294-331 s (more likelihood calls,
-#: not fewer) and ended it in another model (source error 0.28-0.51 m against 0.09 m), so it is not yet the default
-USE_GRADIENT = False
-#: steps of the gradient's central differences, in units of each parameter's scale (``Param.scale``)
-GRAD_STEP = 1e-4
+#: a profiled search of this many free parameters or more starts with HESSE at its start (MIGRAD then begins with
+#: the full curvature instead of learning it step by step): with every placement of two unmapped walls free, a
+#: wall's placement hangs on the source, and from a diagonal start MIGRAD crawled along that ridge (a backward
+#: check's drop fit on `uwall-1-spin-n2-s0`, 17 parameters: 3,495 profiled calls and 32 s of CPU without, 1,294 and
+#: 12.7 s with, -log L 0.34 lower). The selection's candidates (placements held) have 5-11 parameters; a runner-up
+#: basin's capped search goes without
+HESSE_FIRST_PARAMS = 12
 #: the profile keeps every pose offset within this many prior standard deviations
 OFFSET_LIMIT_SD = 5.0
 _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
@@ -701,123 +701,45 @@ def declared_pose_error(model: MeasurementModel) -> str | None:
 
 class _Likelihood:
     """Half the Poisson deviance of ``names`` (the other parameters held at ``fixed``), pose offsets profiled at each
-    theta when ``groups`` is given (:func:`profile_offsets`), and its gradient for MIGRAD (:meth:`grad`).
-
-    The gradient takes the offsets as they were profiled at theta and held there (the envelope theorem: at the
-    profile's maximum the offsets' own derivative is zero, so d nll / d theta is the partial derivative at fixed
-    offsets; their Gaussian penalty does not depend on theta). The expected counts' central differences in every
-    parameter come from one model evaluation with theta as arrays of 2k hypotheses (one-sided at a bound, steps
-    :data:`GRAD_STEP` of each parameter's scale); a parameter the model takes only as a scalar
-    (``MeasurementModel.scalar_params``: an unmapped wall's placement, and the source's x, y it is placed from)
-    costs two evaluations of its own. Finite differences by MIGRAD cost 2-4 profiled calls per parameter
-    instead. The last profile is kept, so the gradient at the point MIGRAD just evaluated costs no second
-    profile."""
+    theta when ``groups`` is given (:func:`profile_offsets`). MIGRAD takes its own finite differences (an analytic
+    gradient was tried and removed: it made multi-slab diagnose calls three times dearer)."""
 
     def __init__(self, model: MeasurementModel, frames: Frames, names: list[str], fixed: dict[str, float],
                  groups: PoseGroups | None):
         self.model, self.frames, self.names, self.fixed, self.groups = model, frames, names, fixed, groups
         self.n = model.observed_counts(frames)
-        params = [model.param(nm) for nm in names]
-        self._h = np.array([GRAD_STEP * p.scale for p in params])
-        self._lower = np.array([p.lower for p in params])
-        self._upper = np.array([p.upper for p in params])
-        scalar = model.scalar_params
-        self._vector = [j for j, nm in enumerate(names) if nm not in scalar]
-        self._scalar = [j for j, nm in enumerate(names) if nm in scalar]
-        self._last: tuple[tuple[float, ...], np.ndarray | None, np.ndarray, float] | None = None
 
     def theta(self, values: Sequence[float]) -> dict[str, Any]:
         return {**self.fixed, **dict(zip(self.names, (float(v) for v in values), strict=True))}
 
-    def profile(self, values: Sequence[float]) -> tuple[np.ndarray | None, np.ndarray, float]:
-        """(group offsets (G, 3) or None, expected counts (N,) there, their penalty) at ``values``."""
-        key = tuple(float(v) for v in values)
-        if self._last is not None and self._last[0] == key:
-            return self._last[1:]
-        theta = self.theta(key)
-        if self.groups is None:
-            out: tuple[np.ndarray | None, np.ndarray, float] = (None, self.model.expected_counts(theta, self.frames),
-                                                                 0.0)
-        else:
-            out = profile_offsets(self.model, theta, self.frames, self.groups)
-        self._last = (key, *out)
-        return out
-
     def __call__(self, *values: float) -> float:
-        _, mu, penalty = self.profile(values)
-        return 0.5 * float(poisson_deviance(self.n, mu).sum() + penalty)
-
-    def grad(self, *values: float) -> np.ndarray:
-        """d nll / d theta over ``names`` (see the class)."""
-        delta, mu, _ = self.profile(values)
-        offsets = None if delta is None else delta[self.groups.index]
         theta = self.theta(values)
-        jac = self.count_jacobian(theta, np.array(values, dtype=float), offsets)  # (k, N)
-        weight = 1.0 - self.n / np.maximum(mu, 1e-12)  # d (half deviance) / d mu per frame
-        out = jac @ weight
-        if delta is not None:
-            out -= jac @ self._profile_slack(theta, delta, offsets, mu, weight)
-        return out
-
-    def count_jacobian(self, theta: dict[str, Any], x: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
-        """d mu_i / d theta_j (k, N) at fixed offsets: central differences (one-sided at a bound), the vectorised
-        parameters as 2k hypotheses of one model evaluation, the scalar ones two evaluations each."""
-        hi = np.minimum(x + self._h, self._upper)
-        lo = np.maximum(x - self._h, self._lower)
-        width = np.where(hi > lo, hi - lo, np.inf)
-        out = np.zeros((len(x), len(self.frames)))
-        if self._vector:
-            k = len(self._vector)
-            arrays = {}
-            for i, j in enumerate(self._vector):
-                col = np.full(2 * k, x[j])
-                col[2 * i], col[2 * i + 1] = hi[j], lo[j]
-                arrays[self.names[j]] = col
-            mu = self.model.expected_counts({**theta, **arrays}, self.frames, offsets).reshape(k, 2, -1)
-            out[self._vector] = (mu[:, 0] - mu[:, 1]) / width[self._vector, None]
-        for j in self._scalar:
-            nm = self.names[j]
-            up = self.model.expected_counts({**theta, nm: hi[j]}, self.frames, offsets)
-            dn = self.model.expected_counts({**theta, nm: lo[j]}, self.frames, offsets)
-            out[j] = (up - dn) / width[j]
-        return out
-
-    def _profile_slack(self, theta: dict[str, Any], delta: np.ndarray, offsets: np.ndarray, mu: np.ndarray,
-                       weight: np.ndarray) -> np.ndarray:
-        """Per frame, what the offsets' move with theta adds to the gradient, divided by d mu / d theta: the profile
-        stops after a few steps, so the offsets' own gradient g is not quite zero, and the total derivative is the
-        partial one plus g^T d delta / d theta, with d delta / d theta = -H^-1 H_delta,theta (the optimum's
-        implicit derivative; H the offsets' Fisher information plus the prior's precision, H_delta,theta the
-        mixed Fisher information). Returns s (N,) with that term = -J s, J the counts' Jacobian in theta."""
-        groups = self.groups
-        _, jac = _counts_and_jacobian(self.model, theta, self.frames, offsets, mu)
-        jac = jac.copy()
-        jac[:, ~groups.active] = 0.0
-        mu_safe = np.maximum(mu, 1e-12)
-        g = groups.group_sum(weight[:, None] * jac) + groups.prior_times(delta)
-        # inactive axes, and offsets held at the profile's limit (they do not move with theta there)
-        g[(~groups.active)[None, :] | (np.abs(delta) >= OFFSET_LIMIT_SD * np.sqrt(groups.variance) * (1 - 1e-12))] = 0.0
-        x = groups.solve(groups.group_sum(jac[:, :, None] * jac[:, None, :] / mu_safe[:, None, None]), g)
-        return (jac * x[groups.index]).sum(1) / mu_safe
+        if self.groups is None:
+            mu, penalty = self.model.expected_counts(theta, self.frames), 0.0
+        else:
+            _, mu, penalty = profile_offsets(self.model, theta, self.frames, self.groups)
+        return 0.5 * float(poisson_deviance(self.n, mu).sum() + penalty)
 
 
 def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed: dict[str, float],
                groups: PoseGroups | None) -> _Likelihood:
-    """The likelihood MIGRAD minimises (:class:`_Likelihood`: callable, with its gradient as ``.grad``)."""
+    """The likelihood MIGRAD minimises (:class:`_Likelihood`)."""
     return _Likelihood(model, frames, names, fixed, groups)
 
 
 def _search(fcn: Callable[..., float], model: MeasurementModel, names: list[str], start: dict[str, float],
-            ncall: int = 4000) -> Minuit:
+            ncall: int = 4000, hesse_first: bool = False) -> Minuit:
     """MIGRAD from ``start`` with the search's cheap settings (strategy 0, :data:`SEARCH_TOL`), at most ``ncall``
-    calls."""
+    calls; ``hesse_first``: HESSE at the start first, so MIGRAD begins with the full curvature."""
     values = [float(np.clip(start[nm], model.param(nm).lower, model.param(nm).upper)) for nm in names]
-    m = Minuit(fcn, *values, name=names, grad=getattr(fcn, "grad", False) if USE_GRADIENT else False)
+    m = Minuit(fcn, *values, name=names)
     m.errordef = Minuit.LIKELIHOOD
     m.errors = [model.param(nm).scale for nm in names]
     m.limits = [(model.param(nm).lower, model.param(nm).upper) for nm in names]
     m.strategy = 0  # cheap steps from each start: on these datasets the same minima (0.3 mm) at half the calls
     m.tol = SEARCH_TOL
+    if hesse_first:
+        m.hesse()
     m.migrad(ncall=ncall)
     return m
 
@@ -923,7 +845,8 @@ def fit(
     best: Minuit | None = None
     all_nll = []
     for i, st in enumerate(starts):
-        m = _search(fcn, model, names, st, RUNNER_UP_NCALL if (i and groups is not None) else 4000)
+        m = _search(fcn, model, names, st, RUNNER_UP_NCALL if (i and groups is not None) else 4000,
+                    hesse_first=not i and groups is not None and len(names) >= HESSE_FIRST_PARAMS)
         all_nll.append(float(m.fval) + saturated)
         if best is None or m.fval < best.fval:
             best = m

@@ -12,7 +12,7 @@ with declared parameters and a pure evaluate, in the spirit of astropy.modeling:
 ``MeasurementModel(scenario, effects=(...))`` composes them and ``with_effect`` adds one, so the
 diagnosis can add or drop an effect and refit without rewriting the model. Everything is vectorised over
 hypotheses: parameter values may be arrays of shape (P,) (particles, grid cells) and the result is (P, N)
-for N frames (an effect that cannot take some parameter as an array declares it in ``Effect.scalar_params``).
+for N frames.
 
 Parameter names: ``x, y, z, cps_at_1m, background_cps`` for the baseline, ``"<effect>.<key>"`` with the
 truth.json keys for effects (``dead_time.tau_s``, ``second_source.x`` ...).
@@ -128,11 +128,6 @@ class Effect:
     def supports_position_grad(self) -> bool:
         """Every hook this effect overrides has its analytic derivative in the position."""
         return type(self).positions is Effect.positions or self.shifts_positions
-
-    def scalar_params(self) -> tuple[str, ...]:
-        """Parameters (of the model, not only this effect's) this effect takes as one value per evaluation, never as
-        arrays of hypotheses: a caller that varies them evaluates one hypothesis at a time."""
-        return ()
 
 
 class DeadTime(Effect):
@@ -314,37 +309,12 @@ class _SlabFrame:
         """The slab method's pieces for segments pos (..., N, 3) -> src (..., 1, 3) or (3,): the local
         direction d (..., N, 2W) and its height dz, each axis' entry and exit parameters t, the hard enter / exit
         and the segments' lengths |src - pos| (..., N, W) (the rotation keeps lengths)."""
+        w = self.n
         a = pos[..., :2] @ self.to_local - self.origin  # (..., N, 2W)
         d = (src[..., :2] @ self.to_local - self.origin) - a
         az = pos[..., 2:3]
-        return self._crossings(a, d, az, src[..., 2:3] - az)
-
-    def paired_lengths(self, pos: np.ndarray, src: np.ndarray) -> np.ndarray:
-        """Soft lengths (P, N) of hypothesis p's segments through slab p alone (this frame's W = P walls, one per
-        hypothesis): poses (N, 3) or (P, N, 3), sources (3,) or (P, 1, 3). One pass over P x N segments where
-        :meth:`lengths` would cross every slab with every hypothesis (P^2 N)."""
-        w = self.n
-        srcs = np.broadcast_to(np.reshape(src, (-1, 3)), (w, 3))
-        # each slab's local coordinates of its own hypothesis' source and poses: (2W,) and (N, 2W)
-        s_loc = np.concatenate([(srcs[:, :2] * self.to_local[:, :w].T).sum(1),
-                                (srcs[:, :2] * self.to_local[:, w:].T).sum(1)]) - self.origin
-        if pos.ndim == 2:
-            a = pos[:, :2] @ self.to_local - self.origin
-            az = pos[:, 2:3]
-        else:
-            a = np.concatenate([np.einsum("pnk,kp->np", pos[..., :2], self.to_local[:, :w]),
-                                np.einsum("pnk,kp->np", pos[..., :2], self.to_local[:, w:])], axis=1) - self.origin
-            az = pos[..., 2].T  # (N, P)
-        _, _, entries, exits, enter, exit_, seg = self._crossings(a, s_loc - a, az, srcs[:, 2] - az)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            span = self._soft_span(entries, exits, enter, exit_, seg)
-        return (span * seg).T
-
-    def _crossings(self, a: np.ndarray, d: np.ndarray, az: np.ndarray, dz: np.ndarray) -> tuple[Any, ...]:
-        """:meth:`_slab_method` from the local coordinates: the poses' ``a`` and the segments' ``d`` (..., N, 2W),
-        heights ``az`` and ``dz`` (broadcasting to (..., N, W))."""
-        w = self.n
-        shape = np.broadcast_shapes(d.shape[:-1] + (w,), np.shape(dz))
+        dz = src[..., 2:3] - az  # (..., N, 1)
+        shape = d.shape[:-1] + (w,)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             # a direction with no component along an axis: a huge inverse step keeps it in (or out of) that
             # slab as the explicit parallel case of path_lengths does
@@ -354,8 +324,8 @@ class _SlabFrame:
             for a_k, d_k, lo, hi in axes:
                 inv = 1.0 / np.where(d_k == 0, 1e-300, d_k)
                 t1, t2 = (lo - a_k) * inv, (hi - a_k) * inv
-                entries.append(np.broadcast_to(np.minimum(t1, t2), shape))
-                exits.append(np.broadcast_to(np.maximum(t1, t2), shape))
+                entries.append(_broadcast(np.minimum(t1, t2), shape))
+                exits.append(_broadcast(np.maximum(t1, t2), shape))
             enter = np.maximum(np.maximum(np.maximum(entries[0], entries[1]), entries[2]), 0.0)
             exit_ = np.minimum(np.minimum(np.minimum(exits[0], exits[1]), exits[2]), 1.0)
             seg = np.sqrt(d[..., :w] ** 2 + d[..., w:] ** 2 + dz**2)
@@ -432,6 +402,12 @@ class _SlabFrame:
     _FAR = 30.0
 
 
+def _broadcast(x: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``x`` broadcast to ``shape``: itself when it has that shape already (one slab and one source, every call of
+    a fit: np.broadcast_to's own cost was 6 % of a profiled likelihood call)."""
+    return x if x.shape == shape else np.broadcast_to(x, shape)
+
+
 def _soft_max(values: list[np.ndarray], top: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """eps log sum exp(v / eps), computed from the largest value ``top`` (no overflow)."""
     acc = np.zeros_like(top)
@@ -502,30 +478,19 @@ class UnmappedWall(Effect):
             Param(f"{p}.mu_per_m", 2.0, 0.0, 100.0, unit="1/m", step=0.5),
         ]
 
-    #: the placement's parameters (with the source's x, y), in :meth:`walls_of`'s order
-    PLACEMENT = ("r", "phi_deg", "tilt_deg", "length", "thickness", "height")
-
     @classmethod
     def wall_of(cls, values: Mapping[str, Any], name: str | None = None) -> np.ndarray:
         """(6,) slab (x0, y0, x1, y1, thickness, height) from the parameter values (the source's ``x``, ``y``
-        among them; of arrays of hypotheses, the first)."""
-        return cls.walls_of({k: np.ravel(values[k])[:1] for k in cls._placement_keys(name)}, name)[0]
-
-    @classmethod
-    def _placement_keys(cls, name: str | None) -> tuple[str, ...]:
+        among them)."""
         p = name or cls.name
-        return ("x", "y", *(f"{p}.{k}" for k in cls.PLACEMENT))
-
-    @classmethod
-    def walls_of(cls, values: Mapping[str, Any], name: str | None = None) -> np.ndarray:
-        """(P, 6) slabs, one per hypothesis, from parameter values that are scalars or arrays of P hypotheses."""
-        x, y, r, phi, tilt, length, thickness, height = np.broadcast_arrays(
-            *(np.ravel(np.asarray(values[k], dtype=float)) for k in cls._placement_keys(name)))
-        phi = np.radians(phi)
-        cx, cy = x + r * np.cos(phi), y + r * np.sin(phi)
-        a = phi + np.pi / 2 + np.radians(tilt)
-        hx, hy = length / 2 * np.cos(a), length / 2 * np.sin(a)
-        return np.stack([cx - hx, cy - hy, cx + hx, cy + hy, thickness, height], axis=1)
+        v = {k: float(np.ravel(values[k])[0]) for k in ("x", "y")}
+        v.update({k: float(np.ravel(values[f"{p}.{k}"])[0]) for k in ("r", "phi_deg", "tilt_deg", "length",
+                                                                      "thickness", "height")})
+        phi = np.radians(v["phi_deg"])
+        c = np.array([v["x"], v["y"]]) + v["r"] * np.array([np.cos(phi), np.sin(phi)])
+        a = phi + np.pi / 2 + np.radians(v["tilt_deg"])
+        h = v["length"] / 2 * np.array([np.cos(a), np.sin(a)])
+        return np.array([*(c - h), *(c + h), v["thickness"], v["height"]])
 
     @classmethod
     def placement(cls, wall: np.ndarray, source_xy: np.ndarray) -> dict[str, float] | None:
@@ -550,18 +515,11 @@ class UnmappedWall(Effect):
 
     def source_factor(self, th, src, ctx, dist):
         p = self.name
+        if any(np.size(th[k]) != 1 for k in ("x", "y", f"{p}.r", f"{p}.phi_deg", f"{p}.tilt_deg", f"{p}.length")):
+            raise ValueError(f"{p}: the wall's placement must be scalar (one hypothesis at a time)")
+        wall = self.wall_of(th, p)
         s = np.asarray(src, dtype=float)
-        walls = self.walls_of(th, p)
-        if len(walls) == 1:
-            wall = walls[0]
-            lengths = self._memoised(b"", wall, s, ctx.pos, lambda: self._slab(wall).lengths(ctx.pos, s))
-        elif ctx.pos.ndim == 2:  # placement hypotheses: each its own slab, crossed by its own lines of sight only,
-            # each distinct (slab, source) pair once (a gradient's rows move one parameter each: most share both)
-            pairs = np.concatenate([walls, np.broadcast_to(np.reshape(s, (-1, 3)), (len(walls), 3))], axis=1)
-            uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
-            lengths = _SlabFrame(uniq[:, :6], self.EDGE_M).paired_lengths(ctx.pos, uniq[:, 6:])[inverse.ravel()]
-        else:
-            lengths = _SlabFrame(walls, self.EDGE_M).paired_lengths(ctx.pos, s)
+        lengths = self._memoised(b"", wall, s, ctx.pos, lambda: self._slab(wall).lengths(ctx.pos, s))
         return np.exp(-th[f"{p}.mu_per_m"] * lengths)
 
     def _memoised(self, kind: bytes, wall: np.ndarray, s: np.ndarray, pos: np.ndarray, compute: Any) -> Any:
@@ -854,12 +812,6 @@ class MeasurementModel:
             if p.name == name:
                 return p
         raise KeyError(f"{self!r} has no parameter {name!r}")
-
-    @property
-    def scalar_params(self) -> frozenset[str]:
-        """Parameters that must be scalars in one evaluation (an effect takes one value of them at a time, e.g. an
-        unmapped wall's placement); every other parameter may be an array of hypotheses."""
-        return frozenset(nm for part in self._parts for nm in part.scalar_params())
 
     def with_effect(self, name: str) -> MeasurementModel:
         return MeasurementModel(self.scenario, (*self.effects, name), self.channels)

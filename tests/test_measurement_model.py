@@ -276,38 +276,3 @@ def test_the_analytic_position_jacobian_is_the_derivative_across_a_slabs_shadow(
         e[k] = h
         col = (m.expected_counts(th, f, offsets=off + e) - m.expected_counts(th, f, offsets=off - e)) / (2 * h)
         np.testing.assert_allclose(jac_o[:, k], col, rtol=1e-5, atol=1e-6 * np.abs(col).max())
-
-
-def test_every_parameter_of_every_effect_takes_arrays_of_hypotheses():
-    """The likelihood's gradient evaluates all its central differences as one array of hypotheses (each row moves
-    one parameter, the unmapped walls' placements and the source position they hang on among them): every row is
-    the model evaluated on its own, at pose offsets too, with the slabs' shadows crossing the flown frames."""
-    wall = Wall((4.0, 3.0), (6.0, 3.0), 0.2, 3.0)
-    rng = np.random.default_rng(11)
-    f = frames(rng.uniform([0, 0, 0.5], [10, 10, 2], size=(120, 3)), yaw=rng.uniform(-np.pi, np.pi, 120),
-               t=np.linspace(1, 60, 120))
-    effects = ("wall_attenuation", "unmapped_wall", "unmapped_wall_2", "dead_time", "air_attenuation", "anisotropy",
-               "background_gradient", "pose_drift", "second_source", "source_motion", "background_drift")
-    m = MeasurementModel(scenario([wall]), effects)
-    assert m.scalar_params == frozenset()
-    th = {**m.defaults(), **SRC, "wall_attenuation.mu_per_m": 5.0, "unmapped_wall.r": 2.0,
-          "unmapped_wall.phi_deg": -90.0, "unmapped_wall.length": 3.0, "unmapped_wall.mu_per_m": 4.0,
-          "unmapped_wall_2.r": 1.5, "unmapped_wall_2.phi_deg": 30.0, "unmapped_wall_2.tilt_deg": 20.0,
-          "dead_time.tau_s": 1e-4, "background_gradient.gx": 1.0, "pose_drift.vx": 0.01, "second_source.x": 8.0,
-          "second_source.y": 2.0, "second_source.cps_at_1m": 300.0, "anisotropy.fraction": 0.4,
-          "source_motion.vx": 0.02, "source_motion.t0": 10.0, "background_drift.amplitude": 0.3}
-    names = m.free_names
-    rows = np.tile([th[nm] for nm in names], (2 * len(names), 1))
-    for j, nm in enumerate(names):  # one parameter moved per row, up then down by a few of its steps
-        rows[2 * j, j] += 3 * m.param(nm).scale
-        rows[2 * j + 1, j] -= 3 * m.param(nm).scale
-    off = rng.normal(0, 0.05, (len(f), 3))
-    many = m.expected_counts({**th, **{nm: rows[:, j] for j, nm in enumerate(names)}}, f, offsets=off)
-    assert many.shape == (len(rows), len(f))
-    for i, row in enumerate(rows):
-        one = m.expected_counts({**th, **dict(zip(names, row, strict=True))}, f, offsets=off)
-        np.testing.assert_allclose(many[i], one, rtol=1e-12)
-    # the walls do shade some frames in some rows (the test is not of slabs nobody crosses)
-    bare = MeasurementModel(scenario(), tuple(e for e in effects if "wall" not in e))
-    plain = bare.expected_counts({k: v for k, v in th.items() if k in bare.param_names}, f, offsets=off)
-    assert (many[0] < 0.9 * plain).sum() >= 5
