@@ -40,7 +40,7 @@ def _truth(ds, model: MeasurementModel) -> dict[str, float]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [2])  # the closer of the two (0.09 higher); each costs ~40 s of CPU
 def test_hesse_first_reaches_a_minimum_at_least_as_low(seed):
     ds = _flight(seed)
     model = MeasurementModel(ds.scenario, ("second_source", *WALLS))
