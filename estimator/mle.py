@@ -71,13 +71,6 @@ SCREEN_NCALL = 600
 #: (by 0.001-0.47 in -log L; 8 of them by under 0.01, one basin screened as two), and each was ahead of the best
 #: basin after 200 calls; losers crawled on to 471 calls (outdoor seed 2, dwell 4: 0.87 s of a 1.5 s refit)
 RUNNER_UP_NCALL = 200
-#: a profiled search of this many free parameters or more starts with HESSE at its start (MIGRAD then begins with
-#: the full curvature instead of learning it step by step): with every placement of two unmapped walls free, a
-#: wall's placement hangs on the source, and from a diagonal start MIGRAD crawled along that ridge (a backward
-#: check's drop fit on `uwall-1-spin-n2-s0`, 17 parameters: 3,495 profiled calls and 32 s of CPU without, 1,294 and
-#: 12.7 s with, -log L 0.34 lower). The selection's candidates (placements held) have 5-11 parameters; a runner-up
-#: basin's capped search goes without
-HESSE_FIRST_PARAMS = 12
 #: the profile keeps every pose offset within this many prior standard deviations
 OFFSET_LIMIT_SD = 5.0
 _NO_VARIANCE = 1e-12  # m^2: axes with no reported variance get no offset
@@ -728,9 +721,9 @@ def _objective(model: MeasurementModel, frames: Frames, names: list[str], fixed:
 
 
 def _search(fcn: Callable[..., float], model: MeasurementModel, names: list[str], start: dict[str, float],
-            ncall: int = 4000, hesse_first: bool = False) -> Minuit:
+            ncall: int = 4000) -> Minuit:
     """MIGRAD from ``start`` with the search's cheap settings (strategy 0, :data:`SEARCH_TOL`), at most ``ncall``
-    calls; ``hesse_first``: HESSE at the start first, so MIGRAD begins with the full curvature."""
+    calls."""
     values = [float(np.clip(start[nm], model.param(nm).lower, model.param(nm).upper)) for nm in names]
     m = Minuit(fcn, *values, name=names)
     m.errordef = Minuit.LIKELIHOOD
@@ -738,8 +731,6 @@ def _search(fcn: Callable[..., float], model: MeasurementModel, names: list[str]
     m.limits = [(model.param(nm).lower, model.param(nm).upper) for nm in names]
     m.strategy = 0  # cheap steps from each start: on these datasets the same minima (0.3 mm) at half the calls
     m.tol = SEARCH_TOL
-    if hesse_first:
-        m.hesse()
     m.migrad(ncall=ncall)
     return m
 
@@ -845,8 +836,7 @@ def fit(
     best: Minuit | None = None
     all_nll = []
     for i, st in enumerate(starts):
-        m = _search(fcn, model, names, st, RUNNER_UP_NCALL if (i and groups is not None) else 4000,
-                    hesse_first=not i and groups is not None and len(names) >= HESSE_FIRST_PARAMS)
+        m = _search(fcn, model, names, st, RUNNER_UP_NCALL if (i and groups is not None) else 4000)
         all_nll.append(float(m.fval) + saturated)
         if best is None or m.fval < best.fval:
             best = m

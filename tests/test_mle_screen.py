@@ -159,8 +159,8 @@ def test_a_runner_up_basin_stopped_at_its_call_cap_still_wins_when_it_is_ahead(s
 
     stopped = []
 
-    def counted(fcn, model, names, start, ncall=4000, **kw):
-        found = search(fcn, model, names, start, ncall, **kw)
+    def counted(fcn, model, names, start, ncall=4000):
+        found = search(fcn, model, names, start, ncall)
         stopped.append(bool(found.fmin.has_reached_call_limit))
         return found
 
