@@ -13,6 +13,7 @@ from launch.report import write_team_report
 from mission.team_link import TeamLinkBase
 from radseek.dataset import Frames
 from radseek_io.dataset import read_dataset
+from tests.support.team_summary import write_found_summary
 
 
 def test_the_report_counts_ended_dwells_and_names_the_unfinished(tmp_path, shared_datasets):
@@ -23,10 +24,7 @@ def test_the_report_counts_ended_dwells_and_names_the_unfinished(tmp_path, share
         shutil.copytree(flight, out / "dataset" / name)
         log = [{"event": "dwell", "t": float(k)} for k in range(ended)] + [{"event": "done", "t": 99.0}]
         (out / "dataset" / name / "mission_log.jsonl").write_text("".join(json.dumps(e) + "\n" for e in log))
-    cov = np.diag([0.01, 0.01, 0.0, 100.0]).tolist()
-    (out / "dataset" / "uav0" / "mission_summary.json").write_text(json.dumps({
-        "estimate": {"x": 4.3, "y": 3.7, "covariance": cov, "sigma_m": 0.14}, "reason": "converged",
-        "mission_time_s": 80.0}))
+    write_found_summary(out / "dataset" / "uav0")
     summary = write_team_report(out, ["uav0", "uav1"], "uav0")
     rows = {r["vehicle"]: r for r in summary["per_vehicle"]}
     assert rows["uav1"]["dwell_points"] == 2 and rows["uav1"]["dwells_not_ended"] == begun - 2

@@ -1,12 +1,10 @@
 """A team member that recorded nothing (killed before its first frame, flooded) does not cost the team its result:
 the report and summary.json are written from the others, the member marked failed with the reason."""
 
-import json
 import shutil
 
-import numpy as np
-
 from launch.report import write_team_report
+from tests.support.team_summary import write_found_summary
 
 
 def test_a_member_with_no_frames_is_marked_and_the_others_reported(tmp_path, shared_datasets):
@@ -16,10 +14,7 @@ def test_a_member_with_no_frames_is_marked_and_the_others_reported(tmp_path, sha
     shutil.copy(shared_datasets / "lattice-clean" / "scenario.json", out / "dataset" / "uav1")
     header = (shared_datasets / "lattice-clean" / "frames.csv").read_text().splitlines()[0]
     (out / "dataset" / "uav1" / "frames.csv").write_text(header + "\n")  # only a header: no frames
-    cov = np.diag([0.01, 0.01, 0.0, 100.0]).tolist()
-    (out / "dataset" / "uav0" / "mission_summary.json").write_text(json.dumps({
-        "estimate": {"x": 4.3, "y": 3.7, "covariance": cov, "sigma_m": 0.14}, "reason": "converged",
-        "mission_time_s": 80.0}))
+    write_found_summary(out / "dataset" / "uav0")
     summary = write_team_report(out, ["uav0", "uav1"], "uav0")
     rows = {r["vehicle"]: r for r in summary["per_vehicle"]}
     assert not rows["uav0"]["failed"] and rows["uav0"]["dwell_points"] > 0
