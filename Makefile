@@ -3,8 +3,8 @@
 # as many tests wait on sockets, subprocesses and sped-up clocks: 10.5-11 min idle against 11.4 with 2 workers;
 # handed one test at a time, the slow ones first; tests taking the same fixed port are marked
 # `exclusive` and never overlap).
-# `make check` is the edit-test loop's unit tier (72 s on 2 idle cores, measured 2026-11-27): lint plus every test that is neither
-# `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
+# `make check` is the edit-test loop's unit tier (72 s on 2 idle cores, measured 2026-11-27): lint plus every test
+# that is neither `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
 # All create .venv and install radseek on first use.
 PY ?= python3
 VENV := .venv
