@@ -9,19 +9,15 @@ import math
 import pytest
 
 from benchmarks.forward2 import FlightSpec, simulate
-from estimator.diagnose.backend import split_transit_legs
-from estimator.diagnose.motion import BREAKS, STRONG_AIC, break_times, motion_check
-from estimator.mle import fit
-from estimator.model import MeasurementModel
+from estimator.diagnose.motion import BREAKS, break_times, motion_check
+from estimator.diagnose.verdict import STRONG_AIC
+from tests.support.off_list import run_check
 
 STAND_INS = ("second_source", "pose_drift")
 
 
 def _check(spec: FlightSpec, seed: int):
-    ds = simulate(spec, seed=seed)
-    frames = split_transit_legs(ds.frames)
-    named = fit(MeasurementModel(ds.scenario, STAND_INS), frames, n_starts=4)
-    return ds, motion_check(MeasurementModel(ds.scenario, ()), frames, named)
+    return run_check(motion_check, spec, seed, STAND_INS)
 
 
 def test_the_looks_span_the_flight_and_the_threshold_pays_for_them():

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.diagnose.verdict import STRONG_AIC
+from estimator.diagnose.verdict import aic_gap, off_list_threshold
 from estimator.mle import fit
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames
@@ -81,7 +81,7 @@ def background_time_check(start: MeasurementModel, frames: Frames, named: Any, s
     """The start model ``start`` (the effects the user gave) with its background changing in time, against the
     ``named`` FitResult (the start model with the named effects) on the same ``frames``."""
     periods = period_starts(frames)
-    threshold = STRONG_AIC + 2 * math.log(len(periods))
+    threshold = off_list_threshold(len(periods))
     span = float(frames.t[-1] - frames.t[0])
     m = MeasurementModel(start.scenario, (*start.effects, NAME), start.channels)
     m = m.with_params(**{f"{NAME}.period_s": {"value": float(periods[0]), "fixed": False,
@@ -91,7 +91,7 @@ def background_time_check(start: MeasurementModel, frames: Frames, named: Any, s
     inits = [{**base, f"{NAME}.period_s": float(p), f"{NAME}.phase": ph, f"{NAME}.amplitude": START_AMPLITUDE}
              for p in periods for ph in (0.0, math.pi / 2)]
     res = fit(m, frames, n_starts=len(inits), seed=seed, init=inits[0], more_inits=inits[1:])
-    gap = 2 * (named.nll - res.nll) + 2 * (len(named.free_names) - len(res.free_names))
+    gap = aic_gap(named, res)
     v, e = res.values, res.errors
     return BackgroundTimeCheck(float(v[f"{NAME}.period_s"]), float(v[f"{NAME}.amplitude"]),
                                float(e.get(f"{NAME}.amplitude", math.nan)), float(v[f"{NAME}.percent_per_min"]),

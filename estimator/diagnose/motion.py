@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.diagnose.verdict import STRONG_AIC
+from estimator.diagnose.verdict import aic_gap, off_list_threshold
 from estimator.mle import fit
 from estimator.model import MeasurementModel
 from radseek.dataset import Frames
@@ -87,8 +87,7 @@ def motion_check(start: MeasurementModel, frames: Frames, named: Any, seed: int 
     """The start model ``start`` (the effects the user gave) with a source moving from each break on, against the
     ``named`` FitResult (the start model with the named effects) on the same ``frames``."""
     looks = break_times(frames)
-    threshold = STRONG_AIC + 2 * math.log(len(looks))
-    k_named = len(named.free_names)
+    threshold = off_list_threshold(len(looks))
     best: MotionCheck | None = None
     gaps: dict[int, float] = {}
 
@@ -102,7 +101,7 @@ def motion_check(start: MeasurementModel, frames: Frames, named: Any, seed: int 
         base = {k: v for k, v in named.values.items() if k in m.param_names}
         inits = [{**base, **v, f"{NAME}.t0": float(t0)} for v in velocity_starts()]
         res = fit(m, frames, n_starts=len(inits), seed=seed, init=inits[0], more_inits=inits[1:])
-        gap = gaps[i] = 2 * (named.nll - res.nll) + 2 * (k_named - len(res.free_names))
+        gap = gaps[i] = aic_gap(named, res)
         if best is None or gap > best.aic_gap:
             v, e = (tuple(float(r.get(f"{NAME}.{k}", np.nan)) for k in ("vx", "vy")) for r in (res.values, res.errors))
             best = MotionCheck(float(t0), v, e, (float(res.values["x"]), float(res.values["y"])), float(gap), threshold)

@@ -41,6 +41,19 @@ if TYPE_CHECKING:
 #: checks (``motion``, ``background_time``) add their look-elsewhere allowance to it
 STRONG_AIC = 10.0
 
+
+def off_list_threshold(looks: int) -> float:
+    """The AIC gap an off-list check needs: :data:`STRONG_AIC` plus the look-elsewhere allowance 2 ln(looks), for
+    the best of ``looks`` alternatives (break times, period starts) fitted against the named model."""
+    return STRONG_AIC + 2 * math.log(looks)
+
+
+def aic_gap(named: Any, alternative: Any) -> float:
+    """AIC of the ``named`` FitResult minus the ``alternative``'s on the same frames (positive: the alternative is
+    better)."""
+    return 2 * (named.nll - alternative.nll) + 2 * (len(named.free_names) - len(alternative.free_names))
+
+
 #: a fitted source whose strength is below this many of its standard errors is not called a source: its position is
 #: wherever the counts' noise peaked (the fit maximises over position, so 2 sigma is what noise alone often gives)
 SOURCE_SIGMA = 3.0
