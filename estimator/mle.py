@@ -702,11 +702,8 @@ class _Likelihood:
         self.model, self.frames, self.names, self.fixed, self.groups = model, frames, names, fixed, groups
         self.n = model.observed_counts(frames)
 
-    def theta(self, values: Sequence[float]) -> dict[str, Any]:
-        return {**self.fixed, **dict(zip(self.names, (float(v) for v in values), strict=True))}
-
     def __call__(self, *values: float) -> float:
-        theta = self.theta(values)
+        theta = {**self.fixed, **dict(zip(self.names, values, strict=True))}
         if self.groups is None:
             mu, penalty = self.model.expected_counts(theta, self.frames), 0.0
         else:
