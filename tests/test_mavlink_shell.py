@@ -4,13 +4,18 @@ answered from the vehicle's state and parameter store (the same one PARAM_SET an
 transport rules of PX4's mavlink module (a message without RESPOND closes the shell; REPLY-flagged, other-device and
 over-long messages are not taken). Every exchange ends at the prompt, so nothing waits on wall time."""
 
+import json
 import re
+import subprocess
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from vehicle_sim.harness import Gcs, VehicleThread, free_udp_port, thread_config
+from tests.conftest import free_port
+from tests.test_mavsdk_examples import grpc_python
+from vehicle_sim.harness import Gcs, VehicleProcess, VehicleThread, free_udp_port, thread_config
 from vehicle_sim.navigator import Mode, px4_custom_mode
 
 pytestmark = pytest.mark.io
@@ -55,12 +60,13 @@ def test_pxh_over_serial_control_answers_from_the_vehicle(gcs):
     assert "INFO  [ver] HW arch: PX4_SITL\n" in out and out.endswith("INFO  [ver] UNKNOWN MCU\npxh> ")
     assert len(replies) > 1 and all(m.count <= 70 for m in replies)  # several SERIAL_CONTROLs of <= 70 bytes
     assert {(m.device, m.flags) for m in replies} == {(M.SERIAL_CONTROL_DEV_SHELL, M.SERIAL_CONTROL_FLAG_REPLY)}
-    # the version AUTOPILOT_VERSION announces, its flight_custom_version as PX4's git hash
+    # the version AUTOPILOT_VERSION announces; PX4 puts its git hash's first 8 bytes (as a little-endian number) in
+    # flight_custom_version, which MAVSDK and QGroundControl print back byte-reversed
     gcs.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     av = gcs.recv("AUTOPILOT_VERSION")
     v = av.flight_sw_version
     assert f"PX4 version: Release {v >> 24}.{v >> 16 & 255}.{v >> 8 & 255} ({v})\n" in out
-    assert f"PX4 git-hash: {bytes(av.flight_custom_version).hex()}\n" in out
+    assert f"PX4 git-hash: {bytes(av.flight_custom_version)[::-1].hex()}\n" in out
 
     # parameters: the store PARAM_SET and PARAM_REQUEST_READ use, with its bounds and read-only rule
     out, _ = shell(gcs, "param show mis_*\n")
@@ -114,3 +120,23 @@ def test_transport_rules_of_px4s_mavlink_module(gcs):
     # a line longer than one message arrives in pieces and runs once whole
     out, _ = shell(gcs, "param show " + "X" * 80 + "\n")
     assert re.search(r"\n (\d+)/\1 parameters used\.\npxh> $", out) and out.count("pxh> ") == 1
+
+
+@pytest.mark.slow
+def test_mavsdk_pythons_shell_plugin_runs_commands():
+    # the gRPC MAVSDK-Python 3.x of the upstream examples (.venv-mavsdk-grpc, its own mavsdk_server) on the API port
+    api = free_udp_port()
+    client = Path(__file__).parent / "support" / "mavsdk_shell_client.py"
+    with VehicleProcess(api, free_udp_port()):
+        run = subprocess.run([str(grpc_python()), str(client), str(api), str(free_port()), "--param", "MIS_TAKEOFF_ALT",
+                              "ver all", "param set MIS_TAKEOFF_ALT 4"], capture_output=True, text=True, timeout=240)
+    print(run.stdout, run.stderr)
+    assert run.returncode == 0
+    transcript, info = run.stdout.rstrip("\n").rsplit("\n", 1)
+    info = json.loads(info)
+    major, minor, patch = info["flight_sw"]
+    assert "ver all\nINFO  [ver] HW arch: PX4_SITL\n" in transcript  # the command echoed, then its output
+    # the version MAVSDK's info plugin read from AUTOPILOT_VERSION (its git hash: test_pxh_over_serial_control...)
+    assert f"INFO  [ver] PX4 version: Release {major}.{minor}.{patch} (" in transcript
+    assert "param set MIS_TAKEOFF_ALT 4\n  MIS_TAKEOFF_ALT: curr: 2.5000 -> new: 4.0000\npxh> " in transcript
+    assert info["MIS_TAKEOFF_ALT"] == 4.0  # set in the shell, read back by the parameter protocol

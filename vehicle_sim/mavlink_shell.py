@@ -20,7 +20,8 @@ AUTOPILOT_VERSION announces):
 
 - ``help``: the builtin commands (these four).
 - ``ver hw|git|bdate|uri|gcc|px4guid|mcu|all|hwcmp|hwtypecmp``: the version of AUTOPILOT_VERSION (PX4 1.14.0
-  release, git hash = its flight_custom_version), HW arch PX4_SITL as the ULog says.
+  release; the git hash whose first 8 bytes PX4 puts in its flight_custom_version, little-endian, as MAVSDK and
+  QGroundControl read them back), HW arch PX4_SITL as the ULog says.
 - ``param show [-a|-c|-q NAME|FILTER*]`` and ``param set NAME VALUE [fail]``, on the vehicle's parameter table with
   the bounds and read-only rule of PARAM_SET (``ParamTable.assign``). Every parameter is used (x); a value changed
   since boot is unsaved (*): the vehicle keeps no parameter file.
@@ -120,7 +121,7 @@ class Pxh:
         v = FLIGHT_SW_VERSION
         major, minor, patch, kind = v >> 24 & 0xFF, v >> 16 & 0xFF, v >> 8 & 0xFF, v & 0xFF
         release = f"Release {major}.{minor}.{patch}" if kind == 255 else f"{major}.{minor}.{patch} {kind:x}"
-        return [("hw", f"HW arch: {HW_ARCH}"), ("git", f"PX4 git-hash: {GIT_HASH.hex()}"),
+        return [("hw", f"HW arch: {HW_ARCH}"), ("git", f"PX4 git-hash: {GIT_HASH[::-1].hex()}"),
                 ("git", f"PX4 version: {release} ({v})"), ("git", "Vendor version: 0.0.0 0 (0)"),
                 ("git", f"OS: {platform.system()}"), ("git", "OS version: 0.0.0 0 (0)"),
                 ("bdate", "Build datetime: n/a (radseek's simulated vehicle)"), ("uri", "Build uri: localhost"),
