@@ -1,5 +1,6 @@
 """Interoperability: MAVProxy (headless, on the GCS port) connects to the vehicle process and lists the
-mission that an API client uploaded, item by item.
+mission that an API client uploaded, item by item; downloads the flight log (log and ftp modules); runs shell
+commands through its nsh module.
 
 MAVProxy is driven by what it prints (each command is sent once the output it depends on has appeared),
 not by fixed sleeps, so a slow start on a loaded host only makes the test wait longer."""
@@ -77,3 +78,29 @@ def test_mavproxy_lists_and_downloads_the_flight_log_by_log_protocol_and_ftp(tmp
         ulog = ULog(str(tmp_path / "flight.ulg"))  # log 0 is the vehicle's ULog, as on PX4
     assert printed.getvalue() == "" and not ulog.file_corruption
     assert len(ulog.get_dataset("vehicle_local_position").data["timestamp"]) > 5
+
+
+def test_mavproxy_nsh_module_runs_shell_commands():
+    # MAVProxy's `nsh` module (SERIAL_CONTROL, device SHELL; lines sent with "\r\n", output printed as it comes)
+    api, gcs_port = free_udp_port(), free_udp_port()
+    with VehicleProcess(api, gcs_port, []):
+        with MavProxy(gcs_port) as mp:
+            mp.wait_for("Detected vehicle 1:1", "vehicle detected")
+            mp.send("module load nsh")
+            mp.wait_for("Loaded module nsh")
+            mp.send("nsh start")
+            mp.send("ver all")
+            mp.wait_for("INFO  [ver] UNKNOWN MCU", "ver all's last line")
+            mp.send("param set MIS_TAKEOFF_ALT 4")
+            mp.wait_for("-> new: 4.0000", "the shell's param set")
+            mp.send("top")
+            mp.wait_for("Invalid command: top", "pxh's answer to a command it has not")
+            mp.send(".")  # leaves the shell (MAVProxy sends SERIAL_CONTROL without RESPOND: the shell closes)
+            mp.send("param fetch MIS_TAKEOFF_ALT")  # MAVProxy's own parameter protocol
+            mp.wait_for(lambda out: "MIS_TAKEOFF_ALT = 4.0" in out.split("Invalid command: top")[-1], "param fetch")
+    out = mp.output
+    print(out)
+    assert "INFO  [ver] PX4 version: Release 1.14.0 (17694975)\n" in out  # what AUTOPILOT_VERSION announces
+    # (the echoed "\r\n" MAVProxy ends lines with reads back as one newline: its output is read as text)
+    assert "pxh> param set MIS_TAKEOFF_ALT 4\n  MIS_TAKEOFF_ALT: curr: 2.5000 -> new: 4.0000\npxh> " in out
+    assert "pxh> top\nInvalid command: top\ntype 'help' for a list of commands\npxh> " in out

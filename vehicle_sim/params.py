@@ -15,7 +15,7 @@ import logging
 import math
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as M
 
@@ -34,10 +34,22 @@ class Param:
     unit: str
     apply: Callable[[float], None] | None = None
     ptype: int = REAL32  # MAV_PARAM_TYPE: REAL32 or INT32
+    default: float = field(init=False)  # the value at boot (the vehicle never saves parameters)
+
+    def __post_init__(self) -> None:
+        self.default = self.value
 
     @property
     def read_only(self) -> bool:
         return self.lo == self.hi
+
+
+class ParamRefused(ValueError):
+    """A set the vehicle refuses: ``error`` is its MAV_PARAM_ERROR, the message says why."""
+
+    def __init__(self, error: int, why: str):
+        super().__init__(why)
+        self.error = error
 
 
 def encode(value: float, ptype: int) -> float:
@@ -74,6 +86,24 @@ class ParamTable:
     def get(self, name: str) -> float:
         return self._by_name[name].value
 
+    def find(self, name: str) -> Param | None:
+        return self._by_name.get(name)
+
+    @staticmethod
+    def assign(p: Param, v: float) -> None:
+        """Set ``p`` to ``v`` as a PARAM_SET or the shell's ``param set`` does: read-only, out of bounds or not finite,
+        or refused by its apply hook: ParamRefused (the value unchanged)."""
+        if p.read_only and v != p.value:
+            raise ParamRefused(M.MAV_PARAM_ERROR_READ_ONLY, f"{p.name} is read-only")
+        if not (math.isfinite(v) and p.lo <= v <= p.hi):
+            raise ParamRefused(M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE, f"{p.name} = {v:g} out of [{p.lo:g}, {p.hi:g}]")
+        try:
+            if p.apply is not None:
+                p.apply(v)
+        except ValueError as exc:
+            raise ParamRefused(M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE, f"{p.name} = {v:g} refused: {exc}") from exc
+        p.value = v
+
     def set(self, name: str, value: float) -> None:
         """Set a parameter from inside the vehicle (its apply hook runs, as for a PARAM_SET)."""
         p = self._by_name[name]
@@ -100,20 +130,11 @@ class ParamTable:
                 log.info("PARAM_SET of unknown parameter %r: PARAM_ERROR does-not-exist", name)
                 return [_error(msg, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)]
             v = decode(float(msg.param_value), int(msg.param_type))
-            index = self._params.index(p)
-            if p.read_only and v != p.value:
-                log.warning("PARAM_SET %s=%g refused: read-only", p.name, v)
-                return [_error(msg, name, index, M.MAV_PARAM_ERROR_READ_ONLY), self.value_msg(p)]
-            if not (math.isfinite(v) and p.lo <= v <= p.hi):
-                log.warning("PARAM_SET %s=%g out of [%g, %g]: refused", p.name, v, p.lo, p.hi)
-                return [_error(msg, name, index, M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE), self.value_msg(p)]
             try:
-                if p.apply is not None:
-                    p.apply(v)
-                p.value = v
-            except ValueError as exc:
-                log.warning("PARAM_SET %s=%g refused: %s", p.name, v, exc)
-                return [_error(msg, name, index, M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE), self.value_msg(p)]
+                self.assign(p, v)
+            except ParamRefused as exc:
+                log.warning("PARAM_SET refused: %s", exc)
+                return [_error(msg, name, self._params.index(p), exc.error), self.value_msg(p)]
             return [self.value_msg(p)]  # the new value confirms
         return []
 

@@ -28,6 +28,8 @@ CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABIL
                 | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_FTP)
 FLIGHT_SW_VERSION = (1 << 24) | (14 << 16) | (0 << 8) | 255  # announces PX4-compatible 1.14.0 release
+GIT_HASH = b"radseek\x00"  # flight_custom_version: where PX4 puts the first 8 bytes of its git hash
+UID = 0x5241445345454B  # "RADSEEK"
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
            | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS
            | M.MAV_SYS_STATUS_SENSOR_VISION_POSITION | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
@@ -187,9 +189,8 @@ def mission_current(s: Snapshot):
 
 
 def autopilot_version(s: Snapshot):
-    return M.MAVLink_autopilot_version_message(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0,
-                                               list(b"radseek\x00"), [0] * 8, [0] * 8, 0, 0, 0x5241445345454B,
-                                               [0] * 18)
+    return M.MAVLink_autopilot_version_message(CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, list(GIT_HASH), [0] * 8,
+                                               [0] * 8, 0, 0, UID, [0] * 18)
 
 
 BUILDERS = {

@@ -35,6 +35,7 @@ from vehicle_sim.link import Endpoint, Link
 from vehicle_sim.log_transfer import LogServer
 from vehicle_sim.manual_control import ManualControl, sticks_from_msg
 from vehicle_sim.mavftp import FtpServer, VirtualFile, VirtualFs
+from vehicle_sim.mavlink_shell import MavlinkShell, Pxh, ShellStatus
 from vehicle_sim.mission_protocol import GLOBAL_FRAMES, MissionItem, MissionProtocol, basic_validate
 from vehicle_sim.motion import MotionLimits
 from vehicle_sim.navigator import MANUAL_MODES, Mode, NavParams
@@ -205,6 +206,7 @@ class Vehicle(SimVehicle):
         fs.add(f"{LOG_DIR}/{self.ulog.name}", VirtualFile(self.ulog.size, self.ulog.read))
         fs.add(f"{LOG_DIR}/{self.flight_log.name}", VirtualFile(self.flight_log.size, self.flight_log.read))
         self.ftp = FtpServer(fs)
+        self.shell = MavlinkShell(Pxh(self.params, self._shell_status, self._shell_command))
         self.logs = LogServer(self.ulog)
         self._log_ep: Endpoint | None = None
         self._bulk: deque = deque()  # (message, endpoint) of file transfers, paced by flush_bulk
@@ -374,6 +376,18 @@ class Vehicle(SimVehicle):
     def calibrate(self, params: tuple[float, ...]) -> int:
         return self.calibrations.command(params, self.nav.armed, self.t)
 
+    def _shell_status(self) -> ShellStatus:
+        return ShellStatus(self.nav.armed, self.nav.mode, self.failsafe_active)
+
+    def _shell_command(self, command: int, params: tuple[float, float, float, float]) -> commands.Answer:
+        """A shell's ``commander`` subcommand: the MAVLink command, answered as a COMMAND_LONG (without an ACK)."""
+        self.stats["commands"] += 1
+        ans = commands.answer(commands.Command(command, params, math.nan, math.nan, math.nan, M.MAV_FRAME_GLOBAL), self)
+        log.info("shell: command %d %s -> result %d", command, params, ans.result)
+        if ans.reason:
+            self.statustext(f"command {command} refused: {ans.reason}", M.MAV_SEVERITY_WARNING)
+        return ans
+
     def takeoff_note(self, text: str) -> None:
         self.statustext(text, M.MAV_SEVERITY_CRITICAL)  # PX4 logs it as critical
 
@@ -449,6 +463,10 @@ class Vehicle(SimVehicle):
                     src = (msg.get_srcSystem(), msg.get_srcComponent())
                     for payload in self.ftp.handle(msg.payload, src):
                         self._bulk.append((M.MAVLink_file_transfer_protocol_message(0, *src, list(payload)), ep))
+            elif kind == "SERIAL_CONTROL":
+                for m in self.shell.handle(msg, ep.name):
+                    self._bulk.append((m, ep))
+                self._log_param_changes()
             elif kind in LOG_MSGS:
                 if self._for_us(msg):
                     self._log_ep = ep
