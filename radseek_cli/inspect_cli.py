@@ -16,6 +16,7 @@ import threading
 import time
 from dataclasses import dataclass, fields
 
+from mission import key_accounts
 from radseek import topics, zenoh_auth
 from radseek.zenoh_session import add_arguments
 from radseek_cli.serve import open_session_or_report, serve_until_stopped
@@ -182,6 +183,44 @@ beyond loopback, listen and connect on zenoh's `tls/` endpoints as well. A detec
 (`--clock own`) publishes `sim/clock`, which a `detector` user may not put: run it alone on an open router."""
 
 
+#: what the authentication and the mission's key accounting protect against, and their limits (issue 34)
+THREAT_MODEL = f"""\
+**What this protects against, and what it does not.** The unit of trust is a line of the credentials file. A
+process that holds none cannot open a session; one that holds a line can put only the keys that line's role
+gives it (`tests/test_zenoh_auth.py`; a team run whose router refuses an outsider and drops every put of a
+process flooding and forging the stack's keys with the observer's credential flies the unattacked flight,
+`tests/test_team_flood.py`). A process holding a role's own credential
+*is* that role: the router cannot tell a second process on the board that uses `detector@uav0` from the board,
+and the missions of one team share `radseek/team/**`. Against such a publisher the mission only accounts
+(`mission/key_accounts.py`): samples over {key_accounts.FLOOD_FACTOR:g}x a key's contract rate are dropped per
+publisher as a flood, a second publisher on a key is dropped as forged while the first speaks, a copy of the
+first's zenoh id with a sequence number already taken is dropped as a forged sequence, and each is named per key
+and publisher in `mission_summary.json` and on `radseek run`'s stderr (`tests/test_run_flood_summary.py`: a run
+attacked so with the detector's credential flies the unattacked flight frame for frame). Payloads outside their
+schema (a clock at -5 s or 1e9 s, junk bytes) are dropped and counted by every subscriber. Left as limits,
+because zenoh lets a publisher stamp any `source_info` and does not tell a subscriber which user put a sample:
+
+- *First speaker owns a key*: a holder of the role's credential that puts a key before the real process is taken
+  as its publisher, and the real one's samples are dropped as a second publisher's (named) for as long as it
+  runs: refused while the first spoke, it never takes the key over, even after the first has been silent
+  {key_accounts.OWNER_SILENT_WALL_S:g} wall seconds (the rule that keeps a flooder from waiting out the owner's
+  pauses); only a restarted process, a new publisher, does.
+- *The copy race*: a copy of a real histogram with the real id and sequence number and forged counts that reaches
+  the mission before the original (a router delivers to its subscribers one after another) is taken, and the
+  original is dropped as the forged sequence: named, not prevented.
+- *One drop accounting*: only the mission rates samples per publisher. The clock's followers (detector, recorder:
+  `sim/clock`), the detector (`sim/truth_pose`) and the vehicle (`mission/lockstep`) drop, count and log invalid
+  payloads only (`radseek/payload_drops.py`), in their own logs: each of those keys has one putting role under the
+  ACL, so a flood there is that role's own, and `radseek run` could sum their counts only from processes that
+  end well (a killed one hands nothing back).
+
+What would close the first two: per-sample signatures by a key the transport credential does not carry (the
+board signing each frame's sequence number, time and counts in its firmware; the mission checking them), so that
+a stolen session credential no longer forges a frame. Not built: under this model a stolen role credential is a
+stolen role. A router started without `{zenoh_auth.CREDENTIALS_ENV}` (a stack started by hand) trusts every
+process that reaches it, and only the key accounting stands."""
+
+
 #: the router's congestion policy (``radseek.zenoh_qos``), as docs/topics.md says it
 CONGESTION_SECTION = """\
 **Congestion: a flood drops samples, it closes no connection.** Every router `radseek router` builds (under
@@ -235,7 +274,7 @@ def topics_markdown() -> str:
         lines.append(f"| `{role}@VEHICLE` | " + ", ".join(f"`{topics.PREFIX}/VEHICLE/{k}`" for k in keys)
                      + (f", {shared}" if shared else "") + " |")
     lines.append("| any other name (`recorder`, `observer`, `groundstation`) | nothing: it only subscribes |")
-    lines += ["", AUTH_HARDWARE, "", CONGESTION_SECTION]
+    lines += ["", AUTH_HARDWARE, "", THREAT_MODEL, "", CONGESTION_SECTION]
     flag_bits = [(n, getattr(topics, n)) for n in dir(topics) if n.startswith("FLAG_")]
     lines += ["", "## Histogram flag bits", "", "| bit | name | meaning |", "| --- | --- | --- |"]
     src = inspect.getsource(topics)

@@ -1,7 +1,9 @@
 """The ``radseek`` console command: one subcommand per job, each owned by the package that does it.
 
 Subcommand modules are imported lazily so that ``radseek echo`` does not pay for OMPL or MAVSDK.
-Each module exposes ``main(argv: list[str] | None) -> int`` with its own argparse parser.
+Each module exposes ``main(argv: list[str] | None) -> int`` with its own argparse parser. A file a command cannot
+read or write (an ``--out`` under a file, a full disk) ends it with one line naming the file, exit 1, whichever
+command it is: ``radseek compare: /x/f/cmp.png: Not a directory (ENOTDIR)``.
 """
 
 from __future__ import annotations
@@ -66,6 +68,13 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.main(rest) or 0)
     except KeyboardInterrupt:
         return 130
+    except OSError as exc:
+        if not exc.filename:  # not a file's: a bug or a socket, with its traceback
+            raise
+        from radseek_io.outdir import file_problem
+
+        print(f"radseek {name}: {file_problem(exc)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ exit codes (as ``radseek run``'s):
 from __future__ import annotations
 
 import argparse
-import errno
 import json
 import logging
 import sys
@@ -29,7 +28,7 @@ from mission.search import STRATEGIES, search_failure
 from radseek import topics, zenoh_session
 from radseek.dataset import DatasetError
 from radseek_io.dataset import read_scenario
-from radseek_io.outdir import OutputDirError, prepare_output
+from radseek_io.outdir import OutputDirError, file_problem, prepare_output
 
 #: what a mission writes under --out, summaries first: --force removes them in this order
 MISSION_OUTPUTS = ("mission_summary.json", "truth.json", "frames.csv", "frames_flagged.csv", "mission_log.jsonl",
@@ -42,8 +41,7 @@ def _write_error(exc: OSError) -> str:
 
     if isinstance(exc, FrameWriteError) or not exc.filename:
         return str(exc)
-    name = errno.errorcode.get(exc.errno or 0, "")
-    return f"cannot write {exc.filename}: {exc.strerror or exc}{f' ({name})' if name else ''}"
+    return f"cannot write {file_problem(exc)}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,11 +10,13 @@
 - ``atomic_write_text`` / ``atomic_write_bytes`` / ``atomic_write_json`` / ``atomic_path``: write to
   a temporary file in the same folder, flush it to disk, then ``os.replace`` it over the target, so a
   reader (or a crash) sees the old file or the new one, never half of one.
+- ``file_problem(exc)``: a failed file operation in one line, the file named (``radseek`` prints it for any command).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -24,6 +26,17 @@ from pathlib import Path
 from typing import Any
 
 TMP_PREFIX = ".tmp-"
+
+
+def file_problem(exc: OSError) -> str:
+    """``FILE: the system's words (ERRNO)`` for a failed file operation: ``.../plot.png: Not a directory (ENOTDIR)``;
+    ``.../f: File exists (EEXIST), not a folder`` where a file holds the name of a folder to be made."""
+    where = f"{exc.filename}" + (f" -> {exc.filename2}" if exc.filename2 else "")
+    name = errno.errorcode.get(exc.errno or 0, "")
+    line = f"{where}: {exc.strerror or exc}{f' ({name})' if name else ''}"
+    if isinstance(exc, FileExistsError) and exc.filename and not Path(exc.filename).is_dir():
+        line += ", not a folder"
+    return line
 
 
 class OutputDirError(Exception):

@@ -161,7 +161,7 @@ def _corrupted(path: Path) -> str:
 def test_a_damaged_flights_file_is_named_in_one_line_and_left_as_it_is(tmp_path, capsys, damage):
     from radseek_cli.campaign_cli import main
 
-    _, out, _ = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
+    sweep, out, rows = _recorded(tmp_path, 2 * ROW_GROUP_ROWS + 6)
     what = damage(out / "flights.parquet")
     before = (out / "flights.parquet").read_bytes()
     code = main(["--scenes", "default", "--seeds", str(2 * ROW_GROUP_ROWS + 6), *FAST, "--out", str(out), "-q"])
@@ -171,6 +171,16 @@ def test_a_damaged_flights_file_is_named_in_one_line_and_left_as_it_is(tmp_path,
     assert "Traceback" not in err and "rerun with --salvage" in err
     assert (out / "flights.parquet").read_bytes() == before and sorted(p.name for p in out.iterdir()) == [
         "campaign.json", "flights.parquet"]
+    # what --salvage does before it flies (run_campaign; flown again end to end in test_embedded_campaign_...):
+    # the file moved aside as it was, its readable rows kept, and exactly the other flights left to fly
+    with pytest.raises(DamagedStore) as exc:
+        load_rows(out)
+    (damaged,) = exc.value.damaged
+    assert salvage(out, damaged).read_bytes() == before
+    kept = {r["key"] for r in load_rows(out)}
+    todo = {f["key"] for f in sweep.flights()} - kept
+    assert kept == ({r["key"] for r in rows[:ROW_GROUP_ROWS] + rows[2 * ROW_GROUP_ROWS:]} if damage is _corrupted
+                    else set()) and todo == {r["key"] for r in rows} - kept
 
 
 def test_corrupted_bytes_cost_only_their_row_group_and_salvage_keeps_the_rest(tmp_path):

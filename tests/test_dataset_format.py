@@ -112,10 +112,15 @@ def test_a_team_runs_dataset_folder_names_its_vehicles(tmp_path, shared_datasets
     assert len(read_dataset_with_truth(tmp_path / "uav1").frames) > 0
 
 
-def test_a_duplicated_frame_is_named_by_row(tmp_path, shared_datasets):
+def test_a_duplicated_frame_is_named_by_row(tmp_path, shared_datasets, capsys):
     """One row repeated (a recorder that wrote a frame twice) was counted five more times by localize."""
     shutil.copy(shared_datasets / "lattice-clean" / "scenario.json", tmp_path)
     lines = (shared_datasets / "lattice-clean" / "frames.csv").read_text().splitlines()
     (tmp_path / "frames.csv").write_text("\n".join(lines[:11] + [lines[10]] * 5 + lines[11:]) + "\n")
     with pytest.raises(DatasetError, match=r"frames.csv: row 12, column 't': repeats the previous row's time"):
         read_dataset_with_truth(tmp_path)
+    from radseek_cli.localize_cli import main as localize_main
+
+    assert localize_main([str(tmp_path), "--method", "sphere"]) == 2  # the command, as the probe ran it
+    assert capsys.readouterr().err == (f"radseek localize: {tmp_path}/frames.csv: row 12, column 't': repeats the "
+                                       "previous row's time (a duplicated frame)\n")

@@ -273,3 +273,19 @@ def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path):
     blocker.write_text("x")
     with pytest.raises(OutputDirError, match=r"a-file/sub cannot be created or cleared: Not a directory"):
         prepare_output(blocker / "sub", force=False, outputs=())
+
+
+@pytest.mark.parametrize("argv", [["record", "--out", "{blocked}/flight.mcap"],
+                                  ["plan", "--fig4", "{blocked}/fig4.png"],
+                                  ["spectra", "export-n42", "{dataset}", "--out", "{blocked}"]])
+def test_any_command_names_a_file_it_cannot_write_in_one_line(tmp_path, capsys, shared_datasets, argv):
+    """`--out` under a file was a NotADirectoryError traceback from record, plan --fig4, spectra, compare, replay
+    --plot and calibrate --plot (issue 34): the `radseek` command says it in one line naming the path, exit 1."""
+    from radseek_cli.main import main
+
+    (tmp_path / "a-file").write_text("x")
+    blocked = tmp_path / "a-file" / "sub"
+    argv = [a.format(blocked=blocked, dataset=shared_datasets / "lattice-clean") for a in argv]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err == f"radseek {argv[0]}: {blocked}: Not a directory (ENOTDIR)\n", err

@@ -108,6 +108,32 @@ def test_radiacode_errors_name_file_and_element(tmp_path, mutate, expect):
     assert str(p) in str(exc.value) and expect in str(exc.value)
 
 
+#: a billion-laughs DOCTYPE: ten levels of ten references each, 10^10 "lol"s once expanded
+LAUGHS = (b'<!DOCTYPE r [<!ENTITY l0 "lol">'
+          + b"".join(b'<!ENTITY l%d "%s">' % (k, b"&l%d;" % (k - 1) * 10) for k in range(1, 11)) + b"]>",
+          b"&l10;", "limit on input amplification")
+
+
+@pytest.mark.parametrize("name, element", [("Cs137_b.xml", b"<SerialNumber>"),
+                                           ("data_am241.n42", b"<RadInstrumentModelName>")])
+def test_entity_expansion_and_external_entities_are_refused(tmp_path, name, element):
+    """Issue 34's held XML probes, kept: a billion-laughs file and one whose entity names a local file (XXE) are
+    refused as not well-formed, naming the file; nothing of the named file reaches the message or a field."""
+    secret = tmp_path / "secret.txt"
+    secret.write_text("radseek-xxe-secret")
+    xxe = (b'<!DOCTYPE r [<!ENTITY x SYSTEM "file://%s">]>' % str(secret).encode(), b"&x;", "undefined entity &x;")
+    data = (DATA / name).read_bytes()
+    after_decl = data.index(b"?>") + 2
+    hostile = tmp_path / f"hostile-{name}"
+    for doctype, ref, why in (LAUGHS, xxe):
+        hostile.write_bytes(data[:after_decl] + doctype + data[after_decl:].replace(element, element + ref, 1))
+        with pytest.raises(sf.SpectrumFileError, match=f"not well-formed XML \\({why}") as exc:
+            sf.read_spectrum(hostile)
+        assert str(hostile) in str(exc.value) and "radseek-xxe-secret" not in str(exc.value)
+    hostile.write_bytes(data[:after_decl] + xxe[0] + data[after_decl:])  # the control: declared, never used
+    assert sf.read_spectrum(hostile).counts.sum() > 0
+
+
 def test_n42_errors_name_element(tmp_path):
     text = (DATA / "data_am241.n42").read_text()
     p = tmp_path / "bad.n42"
