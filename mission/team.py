@@ -139,6 +139,7 @@ class TeamBrain(SearchBrain):
         self.team = team or TeamConfig()
         self.dwells = [DwellController(self.config.dwell) for _ in range(self.team.n_vehicles)]
         self.dwelled_by: list[int] = []  # the vehicle of each dwell of ``history``
+        self.search_dwelled_by: list[int] = []  # the vehicle of each search dwell (those ``search_dwells`` counts)
         self.holds = 0
         self._belief: SourceBelief | None = None
         self._in_row = [0] * self.team.n_vehicles  # holds in a row, per vehicle
@@ -210,6 +211,7 @@ class TeamBrain(SearchBrain):
             self.visited = np.vstack([self.visited, np.asarray(flown, dtype=float).reshape(-1, 3)])
         if self.phase is Phase.SEARCH:
             self.search_dwells += 1
+            self.search_dwelled_by.append(int(vehicle))
         elif self.phase is Phase.EXPLORE and exploration_done(self.history, self.scenario.background_cps,
                                                               self.config.frontier):
             self.phase = Phase.SEARCH

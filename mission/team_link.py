@@ -199,4 +199,7 @@ class TeamLinkBase:
                 # dwell may end after this vehicle stopped: it said 4 where the team's summary said 5)
                 "dwell_points": len(self.dwells), "own_dwell_points": len(self.dwells),
                 "team_dwell_points": len(brain.history),
+                # likewise its own search dwells (the executive's search_dwell_points is the joint brain's count)
+                "search_dwell_points": brain.search_dwelled_by.count(self.index),
+                "team_search_dwell_points": int(brain.search_dwells),
                 "teammates_lost": self.lost()}

@@ -138,3 +138,17 @@ def test_a_vehicle_boxed_in_for_long_retires_and_the_search_goes_on():
     d = brain.replan(1, np.array([2.0, 2.0, 1.5, 0.0]), ring)
     assert d.retire and not d.done and d.outcome is Outcome.RETIRED and d.reason.startswith("search aborted")
     assert brain.final is None  # the team's search is not over
+
+
+def test_search_dwells_are_attributed_to_the_vehicle_that_flew_them():
+    """The joint brain counts every search dwell once and knows whose it was (a member's mission_summary.json
+    gives its own count, the team's beside it): exploration dwells are neither."""
+    scenario = load_scene("default").scenario()
+    brain = TeamBrain(scenario, reproducible(SearchConfig()), TeamConfig(n_vehicles=2), seed=0)
+    brain.add_dwell(0, np.array([1.0, 1.0, 1.5]), 10.0)  # exploring: not a search dwell
+    assert brain.search_dwells == 0 and brain.search_dwelled_by == []
+    brain.phase = Phase.SEARCH
+    for v in (1, 0, 1):
+        brain.add_dwell(v, np.array([2.0 + v, 1.0, 1.5]), 10.0)
+    assert brain.search_dwells == 3 and brain.search_dwelled_by == [1, 0, 1]
+    assert brain.dwelled_by == [0, 1, 0, 1]

@@ -1,7 +1,7 @@
 """A team run counts each vehicle's dwells one way everywhere: the ended ones, in its mission_summary.json, the
 team's summary.json and the report's legend; a dwell begun but not ended when the search stopped (in frames.csv,
 drawn hollow) is named as such, not counted (issue 35: the report said "uav1: 2 dwells" and drew three, and
-uav1's mission_summary.json said 4, the joint count it knew of)."""
+uav1's mission_summary.json said 4, the joint count it knew of; its search dwells likewise)."""
 
 import json
 import shutil
@@ -40,7 +40,9 @@ def test_a_members_mission_summary_counts_its_own_ended_dwells():
     own = Frames(t=np.array([0.1, 0.2, 0.3]), duration=z + 0.1, x=np.array([0.0, 1.0, 1.0]),
                  y=np.array([0.0, 0.0, 1.0]), z=z + 1.5, yaw=z, var_x=z, var_y=z, var_z=z, dwell=np.array([-1, -1, 0]),
                  counts=np.zeros((3, 32), dtype=int))
-    brain = SimpleNamespace(history=[object()] * 4)  # the joint history it knew: its 2 and uav0's 2
+    # the joint history it knew: its 2 and uav0's 2, of which uav0's second and its own second were search dwells
+    brain = SimpleNamespace(history=[object()] * 4, search_dwells=2, search_dwelled_by=[0, 1])
     s = link.summary(brain, own)
     assert s["dwell_points"] == s["own_dwell_points"] == 2 and s["team_dwell_points"] == 4
+    assert s["search_dwell_points"] == 1 and s["team_search_dwell_points"] == 2
     assert s["distance_m"] == 1.0  # moving frames only: the step into the dwell is not counted
