@@ -80,6 +80,29 @@ def test_out_never_replaces_a_file_without_force(tmp_path, capsys):
     assert not list(tmp_path.glob(".tmp-*"))  # the atomic write left no temporary behind
 
 
+def test_calibrate_reads_a_csv_without_live_time_given_live_time(tmp_path, capsys):
+    """Cs137_b.xml's counts and calibration as a CSV that states no live time: calibrate refuses it naming
+    --live-time, and with --live-time 300 gives the XML's figures (the saved response, no refit)."""
+    from radseek_cli.main import main
+    from radseek_io.spectrum_io import read_spectrum
+
+    sp = read_spectrum(DATA / "Cs137_b.xml")
+    csv = tmp_path / "cs137.csv"
+    csv.write_text("# calibration: " + " ".join(f"{c!r}" for c in sp.calibration) + "\nchannel,counts\n"
+                   + "".join(f"{i},{int(c)}\n" for i, c in enumerate(sp.counts)))
+    args = ["calibrate", "--nuclide", "Cs-137", "--background", str(DATA / "bg.xml"), "--detector", str(JOINT_DET),
+            "--no-fit", "--json"]
+    assert main([*args, str(csv)]) == 2
+    err = capsys.readouterr().err
+    assert str(csv) in err and "--live-time" in err
+    assert main([*args, str(DATA / "Cs137_b.xml")]) == 0
+    want = json.loads(capsys.readouterr().out)
+    assert main([*args, str(csv), "--live-time", "300"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["live_time_s"] == 300
+    assert got["total_variation_32"] == pytest.approx(want["total_variation_32"], abs=1e-9)
+
+
 def test_no_nan_is_ever_written(tmp_path):
     det = DetectorFile(name="x", parameters={"fwhm_at_662": 0.1, "gain": float("nan")},
                        fit={"total_variation_32": 0.03})
