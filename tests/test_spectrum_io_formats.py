@@ -181,6 +181,63 @@ def test_radiacode_json_documents(tmp_path):
         sio.read_spectra(f)
 
 
+NPES = REPO / "tests" / "data" / "npes" / "example1_radiacode101.json"
+
+
+def test_npes_json_of_a_real_radiacode_101(tmp_path):
+    """The NPES-JSON project's example 1 (MIT): a RadiaCode-101 spectrum and its background as Gamma MCA saved them
+    (NPESv2, 256 channels, no calibration). Each spectrum's counts add up to the file's own validPulseCount, the
+    live time is its measurementTime, the channels stay channel numbers; the same package as an NPESv1 document
+    reads the same. Before this reader the file failed ('neither an RcSpectrum document nor a spectrum record')."""
+    doc = json.loads(NPES.read_text())
+    fg, bg = sio.read_spectra(NPES)
+    res = doc["data"][0]["resultData"]
+    for sp, kind, key in ((fg, "foreground", "energySpectrum"), (bg, "background", "backgroundEnergySpectrum")):
+        d = res[key]
+        assert sp.kind == kind and sp.n_channels == d["numberOfChannels"] == 256
+        np.testing.assert_array_equal(sp.counts, d["spectrum"])
+        assert sp.counts.sum() == d["validPulseCount"] and sp.livetime == d["measurementTime"]
+        np.testing.assert_array_equal(sp.edges_keV(), np.arange(257))
+        assert sp.meta["device"] == "RadiaCode-101"
+    assert (fg.livetime, bg.livetime, fg.counts.sum(), bg.counts.sum()) == (86843, 86516, 60800, 30266)
+    assert fg.start_time == res["startTime"] and bg.start_time is None
+    # foreground and background not swapped: the sample ("Mushrooms") adds to the room's rate
+    assert fg.counts.sum() / fg.livetime > 1.5 * bg.counts.sum() / bg.livetime
+    one = tmp_path / "v1.json"
+    one.write_text(json.dumps(dict(doc["data"][0], schemaVersion="NPESv1")))
+    a, b = sio.read_spectra(one)
+    np.testing.assert_array_equal(a.counts, fg.counts)
+    np.testing.assert_array_equal(b.counts, bg.counts)
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda e: e.pop("measurementTime"), "energySpectrum.measurementTime"),
+    (lambda e: e.update(numberOfChannels=1024), "energySpectrum.numberOfChannels"),
+    (lambda e: e.update(energyCalibration={"polynomialOrder": 1, "coefficients": [1.0, 3.0, 0.001]}),
+     "energySpectrum.energyCalibration.polynomialOrder"),
+    (lambda e: e.update(energyCalibration={"polynomialOrder": 1, "coefficients": [5.0, -3.0]}), "does not rise"),
+    (lambda e: e["spectrum"].__setitem__(3, -1), "channel 3"),
+])
+def test_npes_bad_values_refused_naming_the_field(tmp_path, change, field):
+    doc = json.loads(NPES.read_text())
+    change(doc["data"][0]["resultData"]["energySpectrum"])
+    f = tmp_path / "bad.json"
+    f.write_text(json.dumps(doc))
+    with pytest.raises(sio.SpectrumFileError, match=rf"bad\.json: data\[0\]\.resultData\..*{field}"):
+        sio.read_spectra(f)
+
+
+def test_npes_calibration_lowest_order_first(tmp_path):
+    doc = json.loads(NPES.read_text())
+    doc["data"][0]["resultData"]["energySpectrum"]["energyCalibration"] = {
+        "polynomialOrder": 2, "coefficients": [-3.5, 12.0, 0.004]}
+    f = tmp_path / "cal.json"
+    f.write_text(json.dumps(doc))
+    fg, bg = sio.read_spectra(f)
+    assert fg.calibration == (-3.5, 12.0, 0.004) and bg.calibration == (0.0, 1.0)
+    assert fg.edges_keV()[100] == pytest.approx(-3.5 + 1200 + 40)
+
+
 # ------------------------------------------------------------------------------------------------ CSV
 
 
