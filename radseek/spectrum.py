@@ -120,7 +120,7 @@ def check_counts_array(who: str, where: str, a: np.ndarray) -> None:
     bad = ~np.isfinite(a) | (a < 0) | (a > MAX_COUNTS_PER_CHANNEL)
     if bad.any():
         i = int(np.argmax(bad))
-        raise SpectrumFileError(f"{who}: {where}: channel {i} has {a[i]!r} counts (must be finite, >= 0 and "
+        raise SpectrumFileError(f"{who}: {where}: channel {i} has {float(a[i]):g} counts (must be finite, >= 0 and "
                                 f"<= {MAX_COUNTS_PER_CHANNEL:g})")
 
 

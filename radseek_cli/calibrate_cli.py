@@ -39,6 +39,7 @@ import json
 import sys
 from pathlib import Path
 
+from radseek_cli.flight_cli import _positive
 from radseek_io.detector_file import DetectorFileError
 from radseek_io.outdir import OutputDirError
 from radseek_io.spectrum_io import SpectrumFileError
@@ -155,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--drift-of", action="append", default=[], metavar="FILE",
                     help="joint form: only this spectrum (not the first) gets its own gain and offset, e.g. a "
                          "session days after the others (repeatable)")
+    ap.add_argument("--live-time", type=_positive, metavar="S",
+                    help="live time (s) of a CSV spectrum that states none (a file's own figure is kept)")
+    ap.add_argument("--max-mb", type=_positive, help="raise the file size limit (default 64 MB)")
     ap.add_argument("--json", action="store_true", help="print the result as JSON")
     a = ap.parse_args(argv)
     joint = any("=" in x for x in a.spectrum)
@@ -176,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
             if e not in M.EFFECTS:
                 ap.error(f"unknown effect {e!r}; known: {', '.join(M.EFFECTS)}")
         log = None if a.json else (lambda s: print("  " + s, file=sys.stderr))
+        reading = {"live_time_s": a.live_time, "max_bytes": int(a.max_mb * 1e6) if a.max_mb else None}
         if joint:
             pairs = [parse_pair(x) for x in a.spectrum]
             predict = [parse_pair(x) for x in a.predict]
@@ -189,10 +194,10 @@ def main(argv: list[str] | None = None) -> int:
                     ap.error(f"--drift-of {unknown[0]}: not one of the fitted spectra after the first")
                 drift = tuple(files.index(f, 1) for f in a.drift_of)
             r = run_joint(pairs, a.background, a.detector, a.no_fit, a.out, a.plot, effects, predict, drift,
-                          log=log, force=a.force)
+                          log=log, force=a.force, **reading)
         else:
             r = run(a.spectrum[0], a.nuclide, a.background, a.detector, a.no_fit, a.out, a.plot, effects,
-                    log=log, force=a.force)
+                    log=log, force=a.force, **reading)
         refuse_non_finite(r)
     except (SpectrumFileError, DetectorFileError, OutputDirError, ValueError) as exc:
         print(f"radseek calibrate: {exc}", file=sys.stderr)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from radseek.dataset import Frames, Scenario
-from radseek_io.dataset import read_dataset, write_dataset
+from radseek_io.dataset import MAX_EXTENT_M, read_dataset, write_dataset
 from radseek_io.spectrum_io import Spectrum, SpectrumFileError, read_commented_csv, write_n42
 
 EPOCH = dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
@@ -202,6 +202,10 @@ def import_ndjson_flight(log_path: str | Path, out: str | Path, edges_keV: np.nd
     sz = float(np.median(z) - 1.0) if source_z is None else float(source_z)
     lo = np.array([x.min(), y.min(), min(z.min(), sz)]) - 5.0
     hi = np.array([x.max(), y.max(), z.max()]) + 5.0
+    if np.any(hi - lo > MAX_EXTENT_M):
+        raise SpectrumFileError(f"{p}: the GNSS track spans {' x '.join(f'{v:.0f}' for v in hi - lo)} m (east, north, "
+                                f"up), over the {MAX_EXTENT_M:g} m per axis a dataset holds: import the part of the "
+                                "log that covers one search area")
     scenario = Scenario(channel_edges_keV=edges, background_cps=bg, source_z=sz, bounds_min=lo, bounds_max=hi,
                         nuclide=nuclide)
     summary = {"frames": int(keep.sum()), "dropped_no_fix": int((~keep).sum()), "device_resets": log.resets,

@@ -128,6 +128,18 @@ def _check_point(p: np.ndarray, where: str, file: Path) -> None:
                          f"{p.tolist()} (metres expected)")
 
 
+def check_bounds(bmin: np.ndarray, bmax: np.ndarray, file: Path) -> None:
+    """The source bounds a dataset may hold: max >= min, within MAX_COORD_M of the origin, at most MAX_EXTENT_M
+    per axis (read and write both check them)."""
+    if np.any(bmax < bmin):
+        raise _err(file, "key 'bounds': max must be >= min on every axis")
+    _check_point(bmin, "bounds.min", file)
+    _check_point(bmax, "bounds.max", file)
+    if np.any(bmax - bmin > MAX_EXTENT_M):
+        span = " x ".join(f"{v:.0f}" for v in bmax - bmin)
+        raise _err(file, f"key 'bounds' spans {span} m; at most {MAX_EXTENT_M:g} m per axis (metres expected)")
+
+
 def _read_wall(w: Any, where: str, file: Path) -> Wall:
     if not isinstance(w, dict):
         raise _err(file, f"{where} must be an object, got {w!r}")
@@ -180,13 +192,7 @@ def read_scenario(file: Path) -> Scenario:
     source_z = _number(d["source_z"], "source_z", file) if "source_z" in d else 0.0
     bmin = _vector(d, "bounds.min", file, 3)
     bmax = _vector(d, "bounds.max", file, 3)
-    if np.any(bmax < bmin):
-        raise _err(file, "key 'bounds': max must be >= min on every axis")
-    _check_point(bmin, "bounds.min", file)
-    _check_point(bmax, "bounds.max", file)
-    if np.any(bmax - bmin > MAX_EXTENT_M):
-        raise _err(file, f"key 'bounds' spans {(bmax - bmin).tolist()} m; at most {MAX_EXTENT_M:g} m per axis "
-                         "(metres expected)")
+    check_bounds(bmin, bmax, file)
     walls_raw = d.get("walls", []) or []
     if not isinstance(walls_raw, list):
         raise _err(file, f"key 'walls' must be a list, got {walls_raw!r}")
@@ -730,8 +736,11 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 def write_dataset(path: str | Path, frames: Frames, scenario: Scenario, truth: Truth | None = None) -> Path:
-    """Write a whole dataset directory (frames.csv, scenario.json, truth.json if given)."""
+    """Write a whole dataset directory (frames.csv, scenario.json, truth.json if given); bounds that
+    :func:`read_scenario` would refuse are refused before anything is written."""
     path = Path(path)
+    check_bounds(np.asarray(scenario.bounds_min, float), np.asarray(scenario.bounds_max, float),
+                 path / "scenario.json")
     with FrameWriter(path) as w:
         for i in range(len(frames)):
             w.write(frames.record(i, scenario.channel_edges_keV))

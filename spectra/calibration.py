@@ -46,14 +46,16 @@ def template_nuclides(nuclides) -> tuple[str, ...]:
 
 def run(spectrum: str, nuclides: list[str], background: str | None = None, detector: str | None = None,
         no_fit: bool = False, out: str | None = None, plot: str | None = None, effects: list[str] | None = None,
-        log=None, force: bool = False) -> dict:
+        log=None, force: bool = False, live_time_s: float | None = None, max_bytes: int | None = None) -> dict:
+    """The single form; ``live_time_s`` is the live time of a CSV that states none, ``max_bytes`` the file size
+    limit (``read_spectrum``)."""
     from spectra import fit as F
     from spectra import model as M
 
     if out and not no_fit:
         check_output_file(out, force=force)
-    sp = read_spectrum(spectrum)
-    bg = read_spectrum(background) if background else None
+    sp = read_spectrum(spectrum, live_time_s=live_time_s, max_bytes=max_bytes)
+    bg = read_spectrum(background, live_time_s=live_time_s, max_bytes=max_bytes) if background else None
     energy_law = None
     background_scale = None
     problem = F.Problem(sp, tuple(nuclides), bg)
@@ -155,9 +157,11 @@ def _spectrum_summary(F, problem, res, base) -> dict:
 def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None, detector: str | None = None,
               no_fit: bool = False, out: str | None = None, plot: str | None = None,
               effects: list[str] | None = None, predict: list[tuple[str, list[str]]] | None = None,
-              drift: bool | tuple[int, ...] = False, log=None, force: bool = False) -> dict:
+              drift: bool | tuple[int, ...] = False, log=None, force: bool = False, live_time_s: float | None = None,
+              max_bytes: int | None = None) -> dict:
     """The joint form: one response fitted to several spectra of one unit (module docstring). ``drift``: True for
-    every spectrum after the first, or the indices in ``pairs`` of the spectra that drift."""
+    every spectrum after the first, or the indices in ``pairs`` of the spectra that drift; ``live_time_s`` and
+    ``max_bytes`` as in :func:`run`, for every file read."""
     from spectra import fit as F
     from spectra import model as M
 
@@ -165,10 +169,11 @@ def run_joint(pairs: list[tuple[str, list[str]]], background: str | None = None,
         check_output_file(out, force=force)
     for _, nucs in list(pairs) + list(predict or []):
         _check_nuclides(nucs)
-    bg = read_spectrum(background) if background else None
+    bg = read_spectrum(background, live_time_s=live_time_s, max_bytes=max_bytes) if background else None
 
     def problem(path: str, nucs: list[str]):
-        return F.Problem(read_spectrum(path), tuple(nucs), bg, name=str(path))
+        return F.Problem(read_spectrum(path, live_time_s=live_time_s, max_bytes=max_bytes), tuple(nucs), bg,
+                         name=str(path))
 
     joint = F.Joint(tuple(problem(f, n) for f, n in pairs), drift=drift)
     start = M.baseline_params()

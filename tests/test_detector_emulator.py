@@ -223,7 +223,8 @@ def test_bad_frames_are_refused_with_a_clear_message():
     assert np.isfinite(em.expected_counts(np.array([[0.0, 0.0, 1.0, 0.0]]), 0.0, 0.1)).all()
 
 
-ESCAPE_DET = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc102-001272.joint-escape.detector.json"
+#: the benchmark's joint RC-102-001272 response: electron_escape among its effects
+ESCAPE_DET = Path(__file__).resolve().parents[1] / "docs" / "img" / "rc102-001272.joint.detector.json"
 
 
 def _calibrated_shares(params: dict, nuclide: str, edges: np.ndarray) -> np.ndarray:

@@ -292,6 +292,7 @@ _SPECTRUM_SEEDS = {
     ".rcspg": b"".join((_REAL_SPECTRA / "K40.rcspg").read_bytes().splitlines(keepends=True)[:8]),
     ".ndjson": b"".join((_REAL_SPECTRA / "walk_rc103_gnss.ndjson").read_bytes().splitlines(keepends=True)[:40]),
     ".json": (_REAL_SPECTRA / "xray_rc103.ndjson").read_bytes().splitlines()[0],
+    ".npes.json": (_REAL_SPECTRA.parent / "npes" / "example1_radiacode101.json").read_bytes(),
     ".csv": b"# MeasurementTime,532\nchannel,energy_keV,counts\n0,10,1\n1,12,2\n3,16,5\n2,14,3\n",
     ".xml": (_REAL_SPECTRA / "data_th232_plus_background.xml").read_bytes(),
 }

@@ -181,6 +181,63 @@ def test_radiacode_json_documents(tmp_path):
         sio.read_spectra(f)
 
 
+NPES = REPO / "tests" / "data" / "npes" / "example1_radiacode101.json"
+
+
+def test_npes_json_of_a_real_radiacode_101(tmp_path):
+    """The NPES-JSON project's example 1 (MIT): a RadiaCode-101 spectrum and its background as Gamma MCA saved them
+    (NPESv2, 256 channels, no calibration). Each spectrum's counts add up to the file's own validPulseCount, the
+    live time is its measurementTime, the channels stay channel numbers; the same package as an NPESv1 document
+    reads the same. Before this reader the file failed ('neither an RcSpectrum document nor a spectrum record')."""
+    doc = json.loads(NPES.read_text())
+    fg, bg = sio.read_spectra(NPES)
+    res = doc["data"][0]["resultData"]
+    for sp, kind, key in ((fg, "foreground", "energySpectrum"), (bg, "background", "backgroundEnergySpectrum")):
+        d = res[key]
+        assert sp.kind == kind and sp.n_channels == d["numberOfChannels"] == 256
+        np.testing.assert_array_equal(sp.counts, d["spectrum"])
+        assert sp.counts.sum() == d["validPulseCount"] and sp.livetime == d["measurementTime"]
+        np.testing.assert_array_equal(sp.edges_keV(), np.arange(257))
+        assert sp.meta["device"] == "RadiaCode-101"
+    assert (fg.livetime, bg.livetime, fg.counts.sum(), bg.counts.sum()) == (86843, 86516, 60800, 30266)
+    assert fg.start_time == res["startTime"] and bg.start_time is None
+    # foreground and background not swapped: the sample ("Mushrooms") adds to the room's rate
+    assert fg.counts.sum() / fg.livetime > 1.5 * bg.counts.sum() / bg.livetime
+    one = tmp_path / "v1.json"
+    one.write_text(json.dumps(dict(doc["data"][0], schemaVersion="NPESv1")))
+    a, b = sio.read_spectra(one)
+    np.testing.assert_array_equal(a.counts, fg.counts)
+    np.testing.assert_array_equal(b.counts, bg.counts)
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda e: e.pop("measurementTime"), "energySpectrum.measurementTime"),
+    (lambda e: e.update(numberOfChannels=1024), "energySpectrum.numberOfChannels"),
+    (lambda e: e.update(energyCalibration={"polynomialOrder": 1, "coefficients": [1.0, 3.0, 0.001]}),
+     "energySpectrum.energyCalibration.polynomialOrder"),
+    (lambda e: e.update(energyCalibration={"polynomialOrder": 1, "coefficients": [5.0, -3.0]}), "does not rise"),
+    (lambda e: e["spectrum"].__setitem__(3, -1), "channel 3"),
+])
+def test_npes_bad_values_refused_naming_the_field(tmp_path, change, field):
+    doc = json.loads(NPES.read_text())
+    change(doc["data"][0]["resultData"]["energySpectrum"])
+    f = tmp_path / "bad.json"
+    f.write_text(json.dumps(doc))
+    with pytest.raises(sio.SpectrumFileError, match=rf"bad\.json: data\[0\]\.resultData\..*{field}"):
+        sio.read_spectra(f)
+
+
+def test_npes_calibration_lowest_order_first(tmp_path):
+    doc = json.loads(NPES.read_text())
+    doc["data"][0]["resultData"]["energySpectrum"]["energyCalibration"] = {
+        "polynomialOrder": 2, "coefficients": [-3.5, 12.0, 0.004]}
+    f = tmp_path / "cal.json"
+    f.write_text(json.dumps(doc))
+    fg, bg = sio.read_spectra(f)
+    assert fg.calibration == (-3.5, 12.0, 0.004) and bg.calibration == (0.0, 1.0)
+    assert fg.edges_keV()[100] == pytest.approx(-3.5 + 1200 + 40)
+
+
 # ------------------------------------------------------------------------------------------------ CSV
 
 
@@ -199,6 +256,23 @@ def test_csv_channel_column_honoured(tmp_path):
         sio.read_spectra(_csv(tmp_path, "# live_time_s: 10\nchannel,counts\n0,5\n0,3\n"))
 
 
+def test_csv_channel_column_on_a_real_spectrum(tmp_path):
+    """Cs137_b.xml's 1024 real channels as channel,counts rows in a shuffled order with 37 channels left out: read
+    back channel for channel, the missing ones as zeros (before the channel column was honoured, the rows were
+    read in file order and the gaps collapsed)."""
+    sp = sio.read_spectrum(DATA / "Cs137_b.xml")
+    rng = np.random.default_rng(32)
+    keep = np.sort(rng.choice(1024, 1024 - 37, replace=False))
+    keep = np.union1d(keep, [1023])  # the last channel kept: the spectrum keeps its length
+    rows = rng.permutation(keep)
+    text = "# live_time_s: 300\ncounts,channel\n" + "".join(f"{int(sp.counts[i])},{i}\n" for i in rows)
+    got = sio.read_spectrum(_csv(tmp_path, text))
+    want = np.zeros(1024)
+    want[keep] = sp.counts[keep]
+    np.testing.assert_array_equal(got.counts, want)
+    assert got.counts.sum() < sp.counts.sum()  # a gap holding counts was left out, not shifted
+
+
 def test_csv_live_time_keys_and_command_line(tmp_path):
     body = "channel,energy_keV,counts\n0,10,1\n1,12,2\n2,14,3\n"
     for head, live, real in (("# MeasurementTime,532\n", 532, None), ("LiveTime,300\nRealTime,310\n", 300, 310),
@@ -209,6 +283,10 @@ def test_csv_live_time_keys_and_command_line(tmp_path):
     with pytest.raises(sio.SpectrumFileError, match="--live-time"):
         sio.read_spectra(_csv(tmp_path, body))
     assert sio.read_spectrum(_csv(tmp_path, body), live_time_s=60).livetime == 60
+    # the file's own live time is never replaced; a stated real time is kept beside --live-time
+    assert sio.read_spectrum(_csv(tmp_path, "# live_time_s: 40\n" + body), live_time_s=60).livetime == 40
+    sp = sio.read_spectrum(_csv(tmp_path, "# real_time_s: 70\n" + body), live_time_s=60)
+    assert (sp.livetime, sp.realtime) == (60, 70)
     sp = sio.read_spectrum(_csv(tmp_path, "# live_time_s: 5\nEnergy (keV);Counts\n30;1\n10;4\n20;2\n"))
     np.testing.assert_array_equal(sp.counts, [4, 2, 1])  # energy rows sorted, ';' delimited
     np.testing.assert_allclose(sp.edges_keV(), [10, 20, 30, 40])
@@ -250,6 +328,43 @@ def test_file_size_limit(tmp_path):
     big.write_bytes(K40.read_bytes())
     with pytest.raises(sio.SpectrumFileError, match="limit"):
         sio.read_spectra(big, max_bytes=1_000_000)
+
+
+def test_calibrate_and_show_refuse_bad_real_files_naming_the_field(tmp_path, capsys):
+    """The issue's bad inputs on real files, through the commands: a channel of 1e300 counts or a live time of
+    1e29 s in Cs137_b.xml (they used to run 200 s and write NaN), and a 500 MB file (a sparse one: it used to take
+    6-7 GB and end in a MemoryError). Each is refused in one line naming the file and the field, before any fit,
+    with no detector file written and no traceback."""
+    from radseek_cli.main import main
+
+    text = (DATA / "Cs137_b.xml").read_text()
+    huge = tmp_path / "huge.xml"
+    with open(huge, "wb") as f:
+        f.write(text.encode()[:200])
+        f.truncate(500 * 10**6)
+    cases = ((text.replace("<DataPoint>0</DataPoint>", "<DataPoint>1e300</DataPoint>", 1), "channel"),
+             (text.replace("<MeasurementTime>300</MeasurementTime>", "<MeasurementTime>1e29</MeasurementTime>"),
+              "live time"), (None, "500.0 MB, over the 64 MB limit"))
+    out = tmp_path / "det.json"
+    for k, (body, field) in enumerate(cases):
+        path = huge if body is None else tmp_path / f"bad{k}.xml"
+        if body is not None:
+            path.write_text(body)
+        if body is None:  # the last case: the commands' modules are imported by then, only the file is traced
+            tracemalloc.start()
+        try:
+            rcs = (main(["calibrate", str(path), "--nuclide", "Cs-137", "--out", str(out), "--json"]),
+                   main(["calibrate", f"{path}=Cs-137", f"{DATA / 'Eu152_b.xml'}=Eu-152", "--out", str(out)]),
+                   flight_cli.main(["show", str(path), "--json"]))
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        cap = capsys.readouterr()
+        assert rcs == (2, 2, 2) and cap.out == "", (field, rcs, cap.out)
+        lines = cap.err.strip().splitlines()
+        assert len(lines) == 3 and all(str(path) in ln and field in ln for ln in lines), cap.err
+        assert "Traceback" not in cap.err and not out.exists()
+    assert peak < 10e6, peak  # the 500 MB file is never read
 
 
 # ------------------------------------------------------------------------------------------------ commands
@@ -310,6 +425,40 @@ def test_import_ndjson_flight_then_localize(tmp_path):
     assert "Traceback" not in r.stderr and "source 1" in r.stdout
     # the same log with a pose file, or into a non-empty directory, is refused plainly
     assert flight_cli.main(["import-flight", str(WALK), "--out", str(out)]) == 2
+
+
+def test_import_refuses_a_track_longer_than_a_dataset_holds(tmp_path, capsys):
+    """radiacode-tools' whole log (6,913 lines) is a 2.9 km drive: import-flight wrote a scenario.json that radseek's
+    own reader refused (bounds over 2000 m), so localize failed on it. The walk's last fixes moved 3 km east: the
+    import is refused in one line naming the extent, and nothing is written; the dataset writer refuses such bounds
+    too."""
+    from radseek.dataset import DatasetError
+    from radseek_io.dataset import write_dataset
+
+    lines = WALK.read_text().splitlines()
+    fixes = [i for i, ln in enumerate(lines) if '"gnss": true' in ln]
+    for i in fixes[-50:]:
+        r = json.loads(lines[i])
+        lines[i] = json.dumps(dict(r, lon=r["lon"] + 0.034))  # 3.0 km east at 37.6 deg N
+    far = tmp_path / "far.ndjson"
+    far.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "far"
+    assert flight_cli.main(["import-flight", str(far), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(far) in err and "over the 2000 m per axis" in err, err
+    assert float(err.split("track spans ")[1].split(" x ")[0]) > 2900
+    assert not out.exists()
+    ds = read_dataset(_import(tmp_path))
+    ds.scenario.bounds_max[0] = ds.scenario.bounds_min[0] + 2500.0
+    with pytest.raises(DatasetError, match="spans 2500 x"):
+        write_dataset(tmp_path / "wide", ds.frames, ds.scenario)
+    assert not (tmp_path / "wide").exists()
+
+
+def _import(tmp_path) -> Path:
+    out = tmp_path / "walk"
+    assert flight_cli.main(["import-flight", str(WALK), "--out", str(out)]) == 0
+    return out
 
 
 def test_geodetic_to_enu_known_offsets():

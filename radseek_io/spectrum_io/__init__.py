@@ -37,7 +37,8 @@ Formats:
 - **CSV** (:func:`.csvfile.read_csv`): channel / energy / counts columns in any order, the channel column
   honoured, live time from a header line or ``--live-time``.
 - **RadiaCode spectrogram** (:mod:`.rcspg`), **radiacode-tools log** (:mod:`.ndjson`, streamed, frames from
-  cumulative spectra, GNSS fixes), **RadiaCode JSON** (:mod:`.radiacode_json`).
+  cumulative spectra, GNSS fixes), **RadiaCode JSON** (:mod:`.radiacode_json`), **NPES JSON** (Gamma MCA,
+  IMPULSE; :mod:`.npes`).
 
 Bad input: counts non-finite, negative or above :data:`MAX_COUNTS_PER_CHANNEL`, live or real times <= 0 or above
 :data:`MAX_TIME_S`, a live time above the real time, more than :data:`MAX_CHANNELS` channels, and files above
@@ -65,6 +66,7 @@ from .core import (
 from .csvfile import read_commented_csv, read_csv, write_csv
 from .n42 import N42_NS, n42_document, read_n42, write_n42
 from .ndjson import read_ndjson
+from .npes import read_npes
 from .radiacode_json import read_radiacode_json
 from .radiacode_xml import read_radiacode_xml
 from .rcspg import read_rcspg
@@ -74,8 +76,8 @@ __all__ = [
     "MAX_CHANNELS", "MAX_COUNTS_PER_CHANNEL", "MAX_FILE_BYTES", "MAX_TIME_S", "N42_NS", "READERS", "STREAMED",
     "SUFFIXES", "Spectrum", "SpectrumFileError", "detect_format", "format_duration", "format_of", "n42_document",
     "parse_duration", "polynomial_edges", "read_chn", "read_commented_csv", "read_csv", "read_n42", "read_ndjson",
-    "read_radiacode_json", "read_radiacode_xml", "read_rcspg", "read_spe", "read_spectra", "read_spectrum",
-    "write_chn", "write_csv", "write_n42", "write_spe",
+    "read_npes", "read_radiacode_json", "read_radiacode_xml", "read_rcspg", "read_spe", "read_spectra",
+    "read_spectrum", "write_chn", "write_csv", "write_n42", "write_spe",
 ]
 
 SUFFIXES = {".n42": "n42", ".xml": "xml", ".spe": "spe", ".chn": "chn", ".csv": "csv", ".txt": "csv",
@@ -104,6 +106,8 @@ def detect_format(path: str | Path, data: bytes) -> str:
     if head.startswith(b"Spectrogram:"):
         return "rcspg"
     if head.startswith(b"{"):
+        if b'"NPESv' in head or b'"resultData"' in head:
+            return "npes"
         if suffix in (".ndjson", ".jsonl"):
             return "ndjson"
         if suffix == ".json":
@@ -118,7 +122,7 @@ def detect_format(path: str | Path, data: bytes) -> str:
 
 
 READERS = {"n42": read_n42, "xml": read_radiacode_xml, "spe": read_spe, "chn": read_chn, "csv": read_csv,
-           "rcspg": read_rcspg, "json": read_radiacode_json, "ndjson": read_ndjson}
+           "rcspg": read_rcspg, "json": read_radiacode_json, "ndjson": read_ndjson, "npes": read_npes}
 #: formats read line by line from the file (never held whole in memory)
 STREAMED = {"rcspg", "ndjson"}
 

@@ -28,7 +28,7 @@ from radseek.spectrum import (  # noqa: F401 (re-exported: the readers' shared n
 
 #: files larger than this are refused before being read (``max_bytes`` raises it): the XML readers hold the
 #: whole tree in memory, several times the file
-MAX_FILE_BYTES = 64 * 1024 * 1024
+MAX_FILE_BYTES = 64_000_000  # 64 MB as --max-mb counts them (10^6 bytes)
 
 # ------------------------------------------------------------------------------------------------ helpers
 

@@ -67,11 +67,12 @@ def read_csv(path: str | Path, data: bytes | None = None, live_time_s: float | N
     ``counts`` in any order (named by a header row; without one: ``counts``, ``channel,counts`` (integral first
     column) or ``energy,counts``, or ``channel,energy,counts``); delimiter ``,``, ``;`` or tab. The channel
     column is honoured: rows are placed by channel number (sorted, gaps kept as zero counts; duplicate or absurd
-    channel numbers refused). Live time from ``live_time_s`` (``--live-time``), else a ``# live_time_s: 300`` /
-    ``# LiveTime, 300`` / ``MeasurementTime,532`` style line (``#`` optional before the data; keys matched
-    without case, spaces or units: live time, else real time or measurement time taken as the live time), else an
-    error saying so. ``# calibration: c0 c1 c2`` gives the energy calibration; without it an energy column does
-    (with a channel column: a polynomial of degree <= 2 fitted through it; without: its values are the edges)."""
+    channel numbers refused). Live time from a ``# live_time_s: 300`` / ``# LiveTime, 300`` style line (``#``
+    optional before the data; keys matched without case, spaces or units), else ``live_time_s`` (``--live-time``:
+    the file's own figure is never replaced), else a real or measurement time (``MeasurementTime,532``) taken as
+    the live time, else an error saying so. ``# calibration: c0 c1 c2`` gives the energy calibration; without it an
+    energy column does (with a channel column: a polynomial of degree <= 2 fitted through it; without: its values
+    are the edges)."""
     data = read_limited(path) if data is None else data
     text = data.decode("utf-8-sig", errors="replace")
     meta: dict[str, str] = {}
@@ -219,11 +220,11 @@ def _times(path, meta: dict[str, str], live_time_s: float | None) -> tuple[float
         if k in meta:
             real = _float(path, f"{k} (real time)", meta[k].split()[0] if meta[k].split() else "")
             break
-    if live_time_s is not None:
-        return float(live_time_s), real
     for k in LIVE_KEYS:
         if k in meta:
             return _float(path, f"{k} (live time)", meta[k].split()[0] if meta[k].split() else ""), real
+    if live_time_s is not None:
+        return float(live_time_s), real
     if real is not None:
         return real, None  # no dead time recorded: the measurement time is the live time
     raise _err(path, "live time", "not in the file: add a '# live_time_s: 300' line, or give --live-time SECONDS")
