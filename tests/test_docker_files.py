@@ -632,6 +632,7 @@ def test_compose_stack_flies_a_search_and_its_router_refuses_strangers(tmp_path)
     if os.geteuid() != 0:
         pytest.skip("the services' credentials must belong to the image's uid 10001: writing them needs root")
     from detector_fw_sim.scene import load_scene
+    from radseek.outcome import Outcome
     from radseek.zenoh_session import RouterRefused, open_session
     from radseek_cli.zenoh_credentials_cli import main as write_credentials
 
@@ -667,7 +668,8 @@ def test_compose_stack_flies_a_search_and_its_router_refuses_strangers(tmp_path)
         (truth,) = load_scene().sources
         est = summary["estimate"]
         error_m = math.hypot(est["x"] - truth.position[0], est["y"] - truth.position[1])
-        assert summary["outcome"] == "found", summary["reason"]
+        # drift_limited is a found source too (radseek.outcome): which stop rule holds first varies from run to run
+        assert Outcome(summary["outcome"]).found, summary["reason"]
         assert error_m < 0.5, (est, truth.position)
         assert (runs / "compose" / "frames.csv").stat().st_size > 0
 

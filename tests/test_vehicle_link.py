@@ -3,6 +3,8 @@ commands and their ACKs, parameters, malformed input, and MAVLink 2 signing."""
 
 import math
 import os
+import socket
+import threading
 import time
 
 import pytest
@@ -163,3 +165,47 @@ def test_signing_refuses_unsigned_and_wrongly_signed_commands():
             assert signed.mav.signing.goodsig_count > 0  # the vehicle signs what it sends
             assert signed.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
         assert vehicle.nav.armed
+
+
+@pytest.mark.io
+def test_a_remote_given_by_name_is_sent_to_by_address():
+    """compose starts the vehicle with --remote-host mission: the link resolves the name once, off the sim loop,
+    and hands sendto the address (a name in sendto is looked up again for every datagram, on the sim loop)."""
+    gcs_port = free_udp_port()
+    with VehicleThread(thread_config(free_udp_port(), gcs_port, remote_host="localhost")) as vehicle, \
+            Gcs(gcs_port) as gcs:
+        gcs.recv("HEARTBEAT")
+        assert vehicle.link.endpoints[1].remote == ("127.0.0.1", gcs_port)
+        assert vehicle.link.endpoints[1].target == ("localhost", gcs_port)
+
+
+@pytest.mark.io
+def test_a_name_the_resolver_never_answers_stops_neither_the_clock_nor_the_replies(monkeypatch):
+    """Under Docker, once the mission's container had stopped, its name took the resolver 10 s a lookup; looked up
+    by every sendto, that stopped the compose vehicle's clock, and so the detector's spectra. Here the resolver
+    never answers: the vehicle still steps, counts what it could not send, and answers a GCS that speaks to it."""
+    resolver_answers = threading.Event()
+    real = socket.getaddrinfo
+
+    def hung(host, *args, **kwargs):
+        if host == "mission":
+            resolver_answers.wait()
+            raise socket.gaierror(socket.EAI_AGAIN, "Temporary failure in name resolution")
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", hung)
+    gcs_port = free_udp_port()
+    try:
+        with VehicleThread(thread_config(free_udp_port(), gcs_port, speedup=10.0, remote_host="mission")) as vehicle, \
+                Gcs(gcs_port) as gcs:
+            deadline = time.monotonic() + 60  # bounds the wait only
+            while (vehicle.t < 5.0 or vehicle.link.stats.unresolved_tx == 0) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert vehicle.t >= 5.0 and vehicle.link.stats.unresolved_tx > 0
+            assert vehicle.link.stats.tx_packets == 0  # nothing went anywhere: no peer, no address
+            host, port = vehicle.link.endpoints[1].local_address
+            gcs.vehicle_addr = ("127.0.0.1" if host == "0.0.0.0" else host, port)
+            assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+            assert vehicle.link.endpoints[1].remote == ("127.0.0.1", gcs_port)
+    finally:
+        resolver_answers.set()

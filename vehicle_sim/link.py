@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import ipaddress
 import logging
 import os
 import select
 import socket
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,6 +38,7 @@ TICKS_PER_S = 100_000
 STALE_NEW_STREAM_S = 60.0  # a new stream may start at most this far behind our clock (the spec's minute)
 MAX_AHEAD_S = 60.0  # a timestamp further ahead of our clock is refused, even correctly signed
 MAX_DECODE_FAILURES = 32  # per datagram: bounds the work a hostile datagram can cause
+RESOLVE_EVERY_S = 2.0  # a remote given by name is looked up again this often (a restarted container moves)
 _STX_V1, _STX_V2, _IFLAG_SIGNED, _SIG_LEN = 0xFE, 0xFD, 0x01, 13
 
 
@@ -68,6 +71,7 @@ class LinkStats:
     bad_data: int = 0  # datagrams holding bytes that are no valid frame (garbage, truncated, bad CRC)
     rejected_signature: int = 0  # frames refused by signing: unsigned, wrong signature, stale/replayed/future
     unknown: int = 0  # well-framed messages of an id this dialect does not know
+    unresolved_tx: int = 0  # messages not sent: the remote is a name not (yet) resolved, and no peer has spoken
 
 
 def decode_datagram(decoder: mavlink.MAVLink, data: bytes) -> tuple[list[tuple[bytes, object]], int]:
@@ -150,14 +154,30 @@ class SignatureCheck:
         return None
 
 
+def _is_address(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
 class Endpoint:
-    """One UDP endpoint: its socket, an encoder (signs outgoing), a decoder and a signature check."""
+    """One UDP endpoint: its socket, an encoder (signs outgoing), a decoder and a signature check.
+
+    ``target`` is where its messages go until a peer speaks (then they go to the peer: ``remote``). A target
+    given by name (``--remote-host mission`` under compose) is looked up by a thread of its own, never by
+    ``sendto`` on the sim loop: a name the resolver cannot answer (under Docker, a stopped container's, ~10 s
+    a lookup) would stall the vehicle's clock. Until the name resolves, nothing is sent (``unresolved_tx``)."""
 
     def __init__(self, name: str, bind: tuple[str, int], remote: tuple[str, int], sysid: int, compid: int,
                  signing_key: bytes | None, link_id: int, wall_time_s: float,
                  clock: Callable[[], float] = time.time):
         self.name = name
-        self.remote = remote
+        self.target = remote
+        self.remote: tuple[str, int] | None = remote if _is_address(remote[0]) else None
+        self._closed = threading.Event()
+        self._remote_lock = threading.Lock()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(bind)
         self.sock.setblocking(False)
@@ -175,6 +195,27 @@ class Endpoint:
             s.link_id = link_id
             s.timestamp = signing_timestamp(wall_time_s)
             self.signature = SignatureCheck(signing_key, self.signing_now)
+        if self.remote is None:
+            threading.Thread(target=self._resolve, name=f"resolve-{name}", daemon=True).start()
+
+    def _resolve(self) -> None:
+        host, port = self.target
+        while not self._closed.is_set():
+            try:
+                info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+            except OSError as exc:
+                log.debug("%s: %s does not resolve: %s", self.name, host, exc)
+            else:
+                with self._remote_lock:
+                    if not self.peer_seen:  # a peer that spoke is answered where it spoke from
+                        self.remote = info[0][4][:2]
+            self._closed.wait(RESOLVE_EVERY_S)
+
+    def heard_from(self, addr: tuple[str, int], now_wall: float) -> None:
+        """A valid message came from ``addr``: answer there from now on (PX4 SITL behaviour)."""
+        with self._remote_lock:
+            self.remote = addr
+            self.peer_seen, self.last_rx_wall = True, now_wall
 
     def signing_now(self) -> int:
         """Our signing clock: real time, or later if we already sent later timestamps (one tick per message)."""
@@ -185,6 +226,10 @@ class Endpoint:
     @property
     def local_address(self) -> tuple[str, int]:
         return self.sock.getsockname()
+
+    def close(self) -> None:
+        self._closed.set()
+        self.sock.close()
 
 
 class Link:
@@ -248,8 +293,7 @@ class Link:
                 continue
             # answer whoever talks to us (PX4 SITL behaviour), but only once it said something valid:
             # refused or garbage datagrams must not redirect telemetry nor count as a live link
-            ep.remote = addr
-            ep.peer_seen, ep.last_rx_wall = True, now_wall
+            ep.heard_from(addr, now_wall)
             out.append(msg)
         return out
 
@@ -278,8 +322,12 @@ class Link:
             if self._drop():
                 self.stats.dropped_tx += 1
                 continue
+            remote = ep.remote
+            if remote is None:
+                self.stats.unresolved_tx += 1
+                continue
             try:
-                ep.sock.sendto(buf, ep.remote)
+                ep.sock.sendto(buf, remote)
                 self.stats.tx_packets += 1
             except OSError as exc:
                 log.debug("%s: send error %s", ep.name, exc)
@@ -293,4 +341,4 @@ class Link:
 
     def close(self) -> None:
         for ep in self.endpoints:
-            ep.sock.close()
+            ep.close()

@@ -630,7 +630,7 @@ class Vehicle(SimVehicle):
         clock = FreeRunningClock(cfg.speedup, t0=self.t)
         dt = cfg.dt
         log.info("vehicle up: api %s -> %s, gcs %s -> %s, speedup %g", self.link.endpoints[0].local_address,
-                 self.link.endpoints[0].remote, self.link.endpoints[1].local_address, self.link.endpoints[1].remote,
+                 self.link.endpoints[0].target, self.link.endpoints[1].local_address, self.link.endpoints[1].target,
                  cfg.speedup)
         try:
             while not self._stop.is_set():
