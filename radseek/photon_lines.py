@@ -223,8 +223,8 @@ def separated_seeds(head: str) -> dict[str, float]:
         for n, a in separated_seeds("U-235").items():
             seeds[n] = seeds.get(n, 0.0) + natural_uranium_activity_ratio() * a
         return seeds
-    z = _element(_nuclide_or_value_error(head).name)
-    return {n: w for n, w in equilibrium_members(head).items() if _element(n) == z}
+    head = _nuclide_or_value_error(head).name  # pydecay's spelling: the walk's members are named so
+    return {n: w for n, w in equilibrium_members(head).items() if _element(n) == _element(head)}
 
 
 def _nuclide_or_value_error(name: str) -> Nuclide:

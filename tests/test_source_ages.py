@@ -48,6 +48,7 @@ def test_separation_keeps_the_heads_element_at_the_ores_activity():
     assert separated_seeds("Th-232") == pytest.approx({"Th-232": 1.0, "Th-228": 1.0})
     assert separated_seeds("U-238") == pytest.approx({"U-238": 1.0, "U-234": 1.0})
     assert separated_seeds("Ra-226") == {"Ra-226": 1.0}
+    assert separated_seeds("th232") == separated_seeds("Th-232")  # any spelling pydecay reads
     assert separated_seeds("U-nat") == pytest.approx(
         {"U-238": 1.0, "U-234": 1.0, "U-235": natural_uranium_activity_ratio()})
 
