@@ -10,9 +10,11 @@ Joint form (``FILE=NUCLIDE[,NUCLIDE...]``, several spectra of one unit): one res
 resolving time); ``--drift`` gives every spectrum after the first its own gain and offset (sessions days apart),
 ``--drift-of FILE`` that spectrum only (one session days after the others). A nuclide may be a natural chain head in
 secular equilibrium (Th-232, U-238, U-235, Ra-226; K-40), its lines walked down the chain from pydecay
-(``radseek.photon_lines.source_lines``). ``--predict FILE=NUCLIDE`` evaluates the fitted response on a spectrum it
-was not fitted to (only the amplitude fitted, pile-up rescaled by rate). ``--json`` gives ``spectra`` and
-``predicted``, one entry per file, each with its ``total_variation_32``.
+(``radseek.photon_lines.source_lines``), ``U-nat`` (natural uranium without its long-lived daughters), or
+``HEAD@AGE`` (``Th-232@5y``, ``U-nat@60y``, ``Ra-226@70y``; AGE in y or d, at most 1000 y): the head's element
+separated AGE ago, its progeny grown in since (pydecay's Bateman solution). ``--predict FILE=NUCLIDE`` evaluates
+the fitted response on a spectrum it was not fitted to (only the amplitude fitted, pile-up rescaled by rate).
+``--json`` gives ``spectra`` and ``predicted``, one entry per file, each with its ``total_variation_32``.
 
 ``--out`` never replaces an existing file unless ``--force``; a NaN or infinity is never written (to the detector
 file or ``--json``): the command refuses and names the field.

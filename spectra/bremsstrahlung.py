@@ -4,7 +4,8 @@ Kramers' thick-target law, a stopping electron of kinetic energy T giving dN/dk 
 per unit photon energy k < T (Kramers 1923; Evans, The Atomic Nucleus, ch. 21); its size depends on the matrix's
 atomic number and the source's build, so it is a source amplitude, fitted like the activity.
 
-``spectra.model`` reads a source named ``brems:NAME`` (e.g. ``brems:U-nat``) through :func:`lines`.
+``spectra.model`` reads a source named ``brems:NAME`` (e.g. ``brems:U-nat``, ``brems:Th-232@5y``) through
+:func:`lines`; the members' decays per decay of the source are ``radseek.photon_lines.source_members``.
 """
 
 from __future__ import annotations
@@ -15,44 +16,11 @@ import numpy as np
 import pydecay
 from pydecay.nuclide import Nuclide
 
-from radseek.photon_lines import CHAIN_MIN_BRANCH, FRESH_URANIUM, NATURAL_CHAINS, natural_uranium_activity_ratio
+from radseek.photon_lines import source_members
 
 PREFIX = "brems:"
 STEP_KEV = 20.0
 MIN_KEV = 30.0
-
-
-def _members(name: str) -> dict[str, float]:
-    """Decays of each member per decay of the source (the same walks as ``radseek.photon_lines.source_lines``)."""
-    out: dict[str, float] = {}
-
-    def walk(nuc: str, w: float, follow, depth: int) -> None:
-        out[nuc] = out.get(nuc, 0.0) + w
-        if depth > 40:
-            return
-        n = Nuclide.load(nuc)
-        if n.is_stable:
-            return
-        for d, b in zip(n.progeny, n.branching, strict=False):
-            try:
-                dn = Nuclide.load(d)
-            except Exception:  # pydecay's own errors: no progeny to follow
-                continue
-            if not dn.is_stable and follow(n, dn, w * float(b)):
-                walk(d, w * float(b), follow, depth + 1)
-
-    def short(head: str):
-        t = Nuclide.load(head).half_life_s
-        return lambda _p, d, _w: d.half_life_s < 1e-3 * t and d.half_life_s < 30 * 86400
-
-    if name == FRESH_URANIUM:
-        for head, w in (("U-238", 1.0), ("U-234", 1.0), ("U-235", natural_uranium_activity_ratio())):
-            walk(head, w, short(head), 0)
-    elif name in NATURAL_CHAINS:
-        walk(name, 1.0, lambda _p, _d, w: w >= CHAIN_MIN_BRANCH, 0)
-    else:
-        walk(name, 1.0, short(name), 0)
-    return out
 
 
 @lru_cache(maxsize=16)
@@ -61,7 +29,7 @@ def lines(name: str) -> tuple[tuple[float, float], ...]:
     ``STEP_KEV`` grid from ``MIN_KEV``; normalised to 1 photon in all (its size is fitted)."""
     k = np.arange(MIN_KEV, 3000.0, STEP_KEV) + STEP_KEV / 2
     total = np.zeros_like(k)
-    for nuc, w in _members(name).items():
+    for nuc, w in source_members(name).items():
         beta = sum(m.branch for m in Nuclide.load(nuc).decay_modes if m.mode == "B-")
         if beta <= 0:  # an alpha emitter (ICRP-107 lists U-238's fission-fragment betas, 1e-6 of its decays)
             continue

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radseek.photon_lines import FRESH_URANIUM, NATURAL_CHAINS
+from radseek.photon_lines import is_chain_source
 from radseek_io.detector_file import DetectorFile, first_non_finite, read_detector_file
 from radseek_io.outdir import check_output_file
 from radseek_io.spectrum_io import read_spectrum
@@ -39,9 +39,9 @@ def templates(params: dict[str, float], nuclides: tuple[str, ...]) -> dict[str, 
 
 def template_nuclides(nuclides) -> tuple[str, ...]:
     """Nuclides the detector file carries a template for: the calibrated ones and ``TEMPLATE_NUCLIDES``; a natural
-    chain (or natural uranium) is a calibration source, not a flight source, so it gets none."""
-    sources = (*NATURAL_CHAINS, FRESH_URANIUM)
-    return tuple(dict.fromkeys([n for n in nuclides if n not in sources] + list(TEMPLATE_NUCLIDES)))
+    chain (a chain head, natural uranium, ``HEAD@AGE``) is a calibration source, not a flight source, so it gets
+    none."""
+    return tuple(dict.fromkeys([n for n in nuclides if not is_chain_source(n)] + list(TEMPLATE_NUCLIDES)))
 
 
 def run(spectrum: str, nuclides: list[str], background: str | None = None, detector: str | None = None,
@@ -54,6 +54,7 @@ def run(spectrum: str, nuclides: list[str], background: str | None = None, detec
 
     if out and not no_fit:
         check_output_file(out, force=force)
+    _check_nuclides(nuclides)
     sp = read_spectrum(spectrum, live_time_s=live_time_s, max_bytes=max_bytes)
     bg = read_spectrum(background, live_time_s=live_time_s, max_bytes=max_bytes) if background else None
     energy_law = None
