@@ -127,7 +127,7 @@ def test_the_estimate_ellipse_is_its_covariance():
     cov = np.zeros((4, 4))
     cov[:2, :2] = [[4.0, 1.5], [1.5, 1.0]]
     est = topics.Estimate(t=1.0, method="mle", sources=[{"x": 5.0, "y": 6.0, "z": 0.5, "cps_at_1m": 100.0}],
-                          background_cps=1.0, covariance=[cov.ravel().tolist()])
+                          background_cps=1.0, covariance=cov.ravel().tolist())
     ent = estimate_entity(json.loads(est.to_bytes()), 1)
     one, ninety_five = ent["lines"]
     inv = np.linalg.inv(cov[:2, :2])
@@ -138,8 +138,12 @@ def test_the_estimate_ellipse_is_its_covariance():
     xs = [p["x"] - 5.0 for p in one["points"]]
     assert max(xs) == pytest.approx(2.0, rel=0.01)  # sampled at 48 points: the extreme within 1 %
     assert ent["spheres"][0]["pose"]["position"] == {"x": 5.0, "y": 6.0, "z": 0.5}
-    no_cov = estimate_entity({"sources": [{"x": 1, "y": 2, "z": 0}], "covariance": []}, 1)
+    unknown = topics.Estimate(t=1.0, method="x", sources=[{"x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 9.0}],
+                              background_cps=1.0, covariance=[math.nan] * 16)  # a covariance not known
+    no_cov = estimate_entity(unknown.to_dict(), 1)
     assert no_cov["lines"] == [] and len(no_cov["spheres"]) == 1
+    with pytest.raises(topics.PayloadError):  # not the layout: nothing drawn (FoxgloveView.derive skips it)
+        estimate_entity({"t": 1.0, "sources": [{"x": 1, "y": 2, "z": 0}], "covariance": []}, 1)
 
 
 @pytest.mark.io
