@@ -76,7 +76,26 @@ def test_every_mavlink_message_validates_against_its_generated_schema():
     assert bat["voltages"]["maxItems"] == 10 and bat["temperature"]["type"] == "integer"
     assert mavlink_schema("STATUSTEXT")["properties"]["text"] == {"type": "string", "maxLength": 50,
                                                                   "description": "char[50]"}
-    assert mavlink_schema("ATTITUDE")["properties"]["roll"]["type"] == ["number", "null"]  # NaN written as null
+    assert mavlink_schema("ATTITUDE")["properties"]["roll"]["type"] == "number"  # a NaN roll is left out
+
+
+def test_a_nan_mavlink_float_is_left_out_and_a_nan_element_is_null():
+    """MAVLink's "unknown" is NaN, which JSON has not: a NaN field is left out of the message (its schema does not
+    require it), a NaN element of a float array is null (its position allows it); the message is strict JSON."""
+    M = dialect()
+    tx, rx = M.MAVLink(None, srcSystem=1), M.MAVLink(None)
+    cov = [math.nan] + [0.0] * 20  # ODOMETRY's "covariance unknown"
+    odo = M.MAVLink_odometry_message(5, 1, 12, 1.0, 2.0, math.nan, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.0, 0.0,
+                                     0.0, [0.0] * 21, cov, 0, 3, 98)
+    (parsed,) = rx.parse_buffer(odo.pack(tx))
+    d = message_dict(parsed)
+    assert "z" not in d and d["x"] == 1.0 and d["velocity_covariance"][0] is None
+    json.loads(json.dumps(d), parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    schema = mavlink_schema("ODOMETRY")
+    jsonschema.Draft202012Validator(schema).validate(d)
+    assert "z" not in schema["required"] and {"time_usec", "q", "quality"} <= set(schema["required"])  # arrays, ints
+    with pytest.raises(jsonschema.ValidationError):  # a null scalar is not a number: left out, never null
+        jsonschema.Draft202012Validator(schema).validate({**d, "z": None})
 
 
 def test_log_time_is_sim_time_monotonic_per_channel():
