@@ -219,7 +219,9 @@ def test_recorder_writes_walls_decoded_frames_and_mavlink_in_sim_time(router, tm
     assert dec["counts"] == list(range(topics.N_CHANNELS)) and (dec["seq"], dec["duration"]) == (7, 0.1)
     assert dec["t"] == 12.0 and m.log_time == 12_000_000_000  # no sim time of its own: the latest seen
     assert c.message_encoding == "json"
-    assert by[topics.key(topics.RAW_FRAME)][2].data == raw  # the raw channel is byte for byte
+    s, c, m = by[topics.key(topics.RAW_FRAME)]
+    assert m.data == raw  # the raw channel is byte for byte, a ROS 1 message (Foxglove decodes it)
+    assert (c.message_encoding, s.encoding, s.name) == ("ros1", "ros1msg", topics.RAW_FRAME_SCHEMA)
     _, _, m = by["mavlink/GLOBAL_POSITION_INT"]
     assert m.log_time == m.publish_time == 12_500_000_000  # the last one: several may have been sent
     _, _, m = by["foxglove/uav0/location"]
