@@ -112,8 +112,8 @@ class TeamLinkBase:
     # -- saying
     def status(self) -> topics.TeamStatus:
         return topics.TeamStatus(t=self.t, vehicle=self.me, seq=self.seq, state=self.state,
-                                 reservation=self.reservation.tolist(), dwells=self.dwells,
-                                 flown=self.flown[::4].tolist(), reason=self.reason, decided=self.decided,
+                                 reservation=self.reservation.ravel().tolist(), dwells=self.dwells,
+                                 flown=self.flown[::4].ravel().tolist(), reason=self.reason, decided=self.decided,
                                  stamp=self.stamp, var_xy=self.var_xy, outcome=self.outcome or "",
                                  handled_t=self.handled_t)
 
@@ -152,13 +152,13 @@ class TeamLinkBase:
     def reserved(self) -> dict[int, Reservation]:
         """Every teammate's last reservation by team index (a failed teammate's stays: where it was last); a
         teammate still taking off has said none yet."""
-        return {self.names.index(n): Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
+        return {self.names.index(n): Reservation(np.asarray(st.points("reservation"), dtype=float), st.var_xy)
                 for n, st in self._statuses().items() if st.state != "takeoff"}
 
     def earlier_crossing(self, path: np.ndarray, stamp: float, separation: float, var_xy: float) -> str | None:
         """A teammate whose reservation crosses ``path`` and was claimed before ``stamp`` (this claim yields)."""
         for n, st in self._statuses().items():
-            mate = Reservation(np.asarray(st.reservation, dtype=float), st.var_xy)
+            mate = Reservation(np.asarray(st.points("reservation"), dtype=float), st.var_xy)
             if st.state == "fly" and (st.stamp, self.names.index(n)) < (stamp, self.index) and \
                     not path_clear(path, [mate], separation, var_xy):
                 return n
@@ -179,7 +179,7 @@ class TeamLinkBase:
             if not new:
                 continue
             self._taken[n] = len(st.dwells)
-            flown = np.asarray(st.flown, dtype=float).reshape(-1, 3)
+            flown = np.asarray(st.points("flown"), dtype=float).reshape(-1, 3)
             path, self._flown_taken[n] = flown[self._flown_taken[n]:], len(flown)
             for k, d in enumerate(new):
                 out.append((self.names.index(n), d, path if k == 0 else None))

@@ -40,6 +40,6 @@ class DwellPlan:
     def to_topic(self, t: float) -> topics.Plan:
         return topics.Plan(
             t=float(t),
-            dwell_points=[[float(v) for v in row] for row in self.dwell_points],
-            path=[[float(v) for v in row] for row in self.path],
+            dwell_points=[float(v) for v in self.dwell_points.ravel()],  # (x, y, z, yaw) per point, one list
+            path=[float(v) for v in self.path.ravel()],
         )

@@ -36,9 +36,14 @@ from radseek.topics import N_CHANNELS
 SYNC = b"\xa5\x5a"
 VERSION = 1
 COUNT_MAX = 0xFFFF  # u16 channel field: a channel that counted more is clamped and flagged saturated
-_HEADER = struct.Struct("<2sBBIQIBB")  # sync, version, length, seq, board_time_us, integration_us, flags, rsvd
-_COUNTS = struct.Struct(f"<{N_CHANNELS}H")
-_CRC = struct.Struct("<I")
+#: the frame's fields in wire order as (name, ``struct`` format): the one declaration of the layout, from which the
+#: codec's structs are built and the MCAP log's schema of the raw frames (``radseek_io.mcap_log``)
+WIRE_FIELDS = (("sync", "2s"), ("version", "B"), ("length", "B"), ("seq", "I"), ("board_time_us", "Q"),
+               ("integration_us", "I"), ("status", "B"), ("reserved", "B"), ("counts", f"{N_CHANNELS}H"),
+               ("crc32", "I"))
+_HEADER = struct.Struct("<" + "".join(code for _, code in WIRE_FIELDS[:-2]))  # sync ... reserved
+_COUNTS = struct.Struct("<" + WIRE_FIELDS[-2][1])
+_CRC = struct.Struct("<" + WIRE_FIELDS[-1][1])
 FRAME_SIZE = _HEADER.size + _COUNTS.size + _CRC.size  # 90 bytes
 _CRC_START = len(SYNC)  # the CRC covers everything after the sync word up to the CRC itself
 _CRC_END = FRAME_SIZE - _CRC.size

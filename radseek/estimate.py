@@ -141,7 +141,7 @@ class SourceEstimate:
         msg = topics.Estimate(t=float(t), method=method,
                               sources=[{"x": float(self.x), "y": float(self.y), "z": float(self.z),
                                         "cps_at_1m": float(self.cps_at_1m)}],
-                              background_cps=float(self.background_cps), covariance=[block.ravel().tolist()])
+                              background_cps=float(self.background_cps), covariance=block.ravel().tolist())
         msg.validate()
         return msg
 

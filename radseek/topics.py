@@ -22,7 +22,7 @@ import itertools
 import json
 import math
 import threading
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any, ClassVar, Self
 
 from radseek.outcome import Outcome
@@ -154,7 +154,10 @@ class _Payload:
     TOPIC: ClassVar[str] = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The JSON object: every field, but an optional one (``X | None``) that is None is left out rather than
+        sent as null (:func:`json_schema`: a reader that takes one type per field, as Foxglove Studio 1.x does,
+        cannot also take null; ``from_dict`` reads an absent field as None)."""
+        return {k: v for k, v in asdict(self).items() if v is not None}
 
     def to_bytes(self) -> bytes:
         return json.dumps(self.to_dict(), separators=(",", ":")).encode()
@@ -366,24 +369,35 @@ class MissionLockstep(_Payload):
 ESTIMATE_STATE = ("x", "y", "z", "cps_at_1m")
 #: numbers per source in ``Estimate.covariance`` (and ``crlb``): one row-major 4 x 4 block
 ESTIMATE_BLOCK = len(ESTIMATE_STATE) ** 2
+#: metadata key of an object field (``dict[str, V]``, alone or as a list's items): its keys and their types, as
+#: field annotations are written (``{"x": "float", "index": "int"}``). :func:`json_schema` declares them as the
+#: object's properties: a schema object must name its properties for Foxglove Studio 1.x to read the channel
+KEYS = "keys"
+
+
+def rows(flat: list[float], width: int) -> list[list[float]]:
+    """A flat list of numbers as its rows of ``width`` (``Plan.dwell_points``, ``TeamStatus.reservation``...)."""
+    return [list(flat[i:i + width]) for i in range(0, len(flat) - width + 1, width)]
 
 
 @dataclass(frozen=True)
 class Estimate(_Payload):
     """``estimate``: the current source estimate with covariance (and CRLB when known).
 
-    ``covariance[i]`` is source i's covariance of (x, y, z, cps_at_1m) as one row-major 4 x 4 block:
-    16 numbers per source, one entry per source (cross-source terms are not sent). ``crlb`` has the same
-    layout, or is null when the method has no bound. Unknown entries are NaN.
+    ``covariance`` holds each source's covariance of (x, y, z, cps_at_1m) as one row-major 4 x 4 block, the
+    blocks one after the other: 16 numbers per source, source i's at ``covariance[16 i : 16 i + 16]``
+    (cross-source terms are not sent). ``crlb`` has the same layout, or is absent when the method has no bound.
+    Unknown entries are NaN.
     """
 
     TOPIC: ClassVar[str] = ESTIMATE
     t: float
     method: str
-    sources: list[dict[str, float]]  # per source: x, y, z (m, ENU), cps_at_1m (cps)
+    # per source: x, y, z (m, ENU), cps_at_1m (cps)
+    sources: list[dict[str, float]] = field(metadata={KEYS: dict.fromkeys(ESTIMATE_STATE, "float")})
     background_cps: float
-    covariance: list[list[float]]  # per source: row-major 4 x 4 of (x, y, z, cps_at_1m), 16 numbers
-    crlb: list[list[float]] | None = None  # same layout as covariance, or null
+    covariance: list[float]  # per source in turn: row-major 4 x 4 of (x, y, z, cps_at_1m), 16 numbers
+    crlb: list[float] | None = None  # same layout as covariance, or absent
 
     def validate(self) -> None:
         super().validate()
@@ -402,45 +416,60 @@ class Estimate(_Payload):
 
     def _check_blocks(self, name: str, blocks: Any) -> None:
         n = len(self.sources)
-        shape = f"one list of {ESTIMATE_BLOCK} numbers (row-major 4 x 4) per source"
-        if not isinstance(blocks, list) or len(blocks) != n:
+        shape = f"{ESTIMATE_BLOCK} numbers (a row-major 4 x 4 block) per source, one list"
+        if not isinstance(blocks, list) or len(blocks) != n * ESTIMATE_BLOCK:
             got = f"{len(blocks)} entries" if isinstance(blocks, list) else type(blocks).__name__
             raise PayloadError(f"{self.TOPIC}: field {name!r} must hold {shape}: {n} source(s), got {got}")
-        for i, block in enumerate(blocks):
-            if not isinstance(block, list) or len(block) != ESTIMATE_BLOCK:
-                got = f"{len(block)} numbers" if isinstance(block, list) else type(block).__name__
-                raise PayloadError(f"{self.TOPIC}: field {name!r} must hold {shape}; {name}[{i}] has {got}")
-            for k, v in enumerate(block):
-                _check_number(self.TOPIC, f"{name}[{i}][{k}]", v, finite=False)
+        for k, v in enumerate(blocks):
+            _check_number(self.TOPIC, f"{name}[{k}]", v, finite=False)
 
     def covariance_block(self, source: int = 0) -> list[list[float]]:
         """Source ``source``'s covariance of (x, y, z, cps_at_1m) as 4 rows of 4."""
-        n = len(ESTIMATE_STATE)
-        flat = self.covariance[source]
-        return [list(flat[n * r:n * (r + 1)]) for r in range(n)]
+        return rows(self.covariance[ESTIMATE_BLOCK * source:ESTIMATE_BLOCK * (source + 1)], len(ESTIMATE_STATE))
+
+
+#: the numbers of one point of ``Plan.dwell_points`` and ``Plan.path``, in order
+PLAN_POINT = ("x", "y", "z", "yaw")
+#: the numbers of one point of ``TeamStatus.reservation`` and ``TeamStatus.flown``, in order
+TEAM_POINT = ("x", "y", "z")
+
+
+def _check_points(topic: str, name: str, flat: Any, point: tuple[str, ...]) -> None:
+    """A flat list of points, ``len(point)`` finite numbers each (one list: Foxglove Studio 1.x reads no
+    arrays of arrays)."""
+    width = len(point)
+    shape = f"one list of numbers, ({', '.join(point)}) of each point in turn"
+    if not isinstance(flat, list):
+        raise PayloadError(f"{topic}: field {name!r} must be {shape}, got {_short(flat)}")
+    for k, v in enumerate(flat):
+        _check_number(topic, f"{name}[{k}]", v)
+    if len(flat) % width:
+        raise PayloadError(f"{topic}: field {name!r} must be {shape}: a multiple of {width} numbers, got {len(flat)}")
 
 
 @dataclass(frozen=True)
 class Plan(_Payload):
-    """``plan``: the next dwell points (x, y, z, yaw) and the collision-free path to the first."""
+    """``plan``: the next dwell points and the collision-free path to the first, each a flat list of points
+    (x, y, z, yaw): point i at ``[4 i : 4 i + 4]``."""
 
     TOPIC: ClassVar[str] = PLAN
     t: float
-    dwell_points: list[list[float]]
-    path: list[list[float]] = field(default_factory=list)
+    dwell_points: list[float]  # x, y, z, yaw (m, ENU; rad) of each dwell point in turn
+    path: list[float] = field(default_factory=list)  # x, y, z, yaw of each waypoint in turn
 
     def validate(self) -> None:
         super().validate()
         for name in ("dwell_points", "path"):
-            rows = getattr(self, name)
-            if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
-                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a list of (x, y, z[, yaw]) lists")
-            for i, row in enumerate(rows):
-                if not 3 <= len(row) <= 4:
-                    raise PayloadError(f"{self.TOPIC}: {name}[{i}] must hold 3 or 4 numbers, got {len(row)}")
-                for k, v in enumerate(row):
-                    _check_number(self.TOPIC, f"{name}[{i}][{k}]", v)
+            _check_points(self.TOPIC, name, getattr(self, name), PLAN_POINT)
 
+    def points(self, name: str) -> list[list[float]]:
+        """``dwell_points`` or ``path`` as a list of (x, y, z, yaw)."""
+        return rows(getattr(self, name), len(PLAN_POINT))
+
+
+#: the keys of each of ``TeamStatus.dwells`` and their types
+TEAM_DWELL = {"index": "int", "x": "float", "y": "float", "z": "float", "mean_rate": "float", "t_first": "float",
+              "t_last": "float"}
 
 #: what a team member is doing (``TeamStatus.state``)
 #: ``takeoff``: the mission runs but has not said where it starts (its reservation means nothing yet)
@@ -451,31 +480,30 @@ TEAM_STATES = ("takeoff", "start", "fly", "dwell", "hold", "done")
 class TeamStatus(_Payload):
     """``team/status``: one vehicle's mission to its teammates (paper 004's multi-robot search).
 
-    Sent on every change (a plan, a dwell's start and end, a hold, the end) and about once a wall second
-    in between (a heartbeat: a teammate silent for long is taken as failed). ``reservation`` is the
-    airspace the vehicle has committed to: (x, y, z) points of the rest of its path, its next dwell point
-    last (one point while it dwells or holds); teammates keep their separation from it. ``dwells`` lists
-    every dwell the vehicle has ended, cumulative so that a lost message loses nothing: each {index, x, y,
-    z, mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in
-    cps, the sim times of its first and last frames). ``flown`` samples the path it has flown (x, y, z),
-    for the team's explored area. ``reason`` says why the search ended (state ``done``; ``outcome`` as a
-    ``radseek.outcome.Outcome`` value), ``decided``
-    whether this vehicle's estimate ended it (the whole team then ends its search). ``var_xy`` is the drift
-    the vehicle expects by its reservation's end (its reported pose variance plus its growth over the path):
-    teammates widen the separation by it, since the vehicles fly on drifting estimates. ``stamp`` (the sim
-    time of the claim) orders two claims: of two crossing reservations the later claim yields and plans
-    again (of two at one time, the higher team index). ``handled_t`` is the last frame the sender's mission
-    has fully handled (its decisions on it sent): the team's vehicles take their frames in turn on it
-    (``mission.team_link``), so every vehicle decides on what the others said up to a known frame."""
+    Sent on every change (a plan, a dwell's start and end, a hold, the end) and about once a wall second in between
+    (a heartbeat: a teammate silent for long is taken as failed). ``reservation`` is the airspace the vehicle has
+    committed to: (x, y, z) points of the rest of its path, its next dwell point last (one point while it dwells or
+    holds), as one flat list (point i at ``[3 i : 3 i + 3]``); teammates keep their separation from it. ``dwells``
+    lists every dwell the vehicle has ended, cumulative so that a lost message loses nothing: each {index, x, y, z,
+    mean_rate, t_first, t_last} (its own dwell index, the estimated position, the dwell's gross rate in cps, the sim
+    times of its first and last frames). ``flown`` samples the path it has flown (x, y, z per point, flat as
+    ``reservation``), for the team's explored area. ``reason`` says why the search ended (state ``done``;
+    ``outcome`` as a ``radseek.outcome.Outcome`` value), ``decided`` whether this vehicle's estimate ended it (the
+    whole team then ends its search). ``var_xy`` is the drift the vehicle expects by its reservation's end (its
+    reported pose variance plus its growth over the path): teammates widen the separation by it, since the vehicles
+    fly on drifting estimates. ``stamp`` (the sim time of the claim) orders two claims: of two crossing reservations
+    the later claim yields and plans again (of two at one time, the higher team index). ``handled_t`` is the last
+    frame the sender's mission has fully handled (its decisions on it sent): the team's vehicles take their frames
+    in turn on it (``mission.team_link``), so every vehicle decides on what the others said up to a known frame."""
 
     TOPIC: ClassVar[str] = TEAM_STATUS
     t: float  # s, the sender's sim time
     vehicle: str
     seq: int  # counts the sender's messages
     state: str  # one of TEAM_STATES
-    reservation: list[list[float]]
-    dwells: list[dict[str, float]] = field(default_factory=list)
-    flown: list[list[float]] = field(default_factory=list)
+    reservation: list[float]  # x, y, z of each point in turn
+    dwells: list[dict[str, float]] = field(default_factory=list, metadata={KEYS: TEAM_DWELL})
+    flown: list[float] = field(default_factory=list)  # x, y, z of each point in turn
     reason: str = ""
     decided: bool = False
     stamp: float = 0.0  # s, sim time when this reservation was claimed
@@ -496,12 +524,7 @@ class TeamStatus(_Payload):
             raise PayloadError(f"{self.TOPIC}: field 'outcome' must be empty or one of "
                                f"{tuple(o.value for o in Outcome)}, got {_short(self.outcome)}")
         for name in ("reservation", "flown"):
-            rows = getattr(self, name)
-            if not isinstance(rows, list) or not all(isinstance(r, list) and len(r) == 3 for r in rows):
-                raise PayloadError(f"{self.TOPIC}: field {name!r} must be a list of (x, y, z) lists")
-            for i, row in enumerate(rows):
-                for k, v in enumerate(row):
-                    _check_number(self.TOPIC, f"{name}[{i}][{k}]", v)
+            _check_points(self.TOPIC, name, getattr(self, name), TEAM_POINT)
         if not self.reservation:
             raise PayloadError(f"{self.TOPIC}: field 'reservation' must hold at least one point")
         if not isinstance(self.dwells, list):
@@ -510,10 +533,14 @@ class TeamStatus(_Payload):
             if not isinstance(d, dict):
                 raise PayloadError(f"{self.TOPIC}: dwells[{i}] must be an object")
             _check_int(self.TOPIC, f"dwells[{i}].index", d.get("index"), 0)
-            for name in ("x", "y", "z", "mean_rate", "t_first", "t_last"):
+            for name in (k for k, kind in TEAM_DWELL.items() if kind == "float"):
                 if name not in d:
                     raise PayloadError(f"{self.TOPIC}: dwells[{i}] lacks {name!r}")
                 _check_number(self.TOPIC, f"dwells[{i}].{name}", d[name])
+
+    def points(self, name: str) -> list[list[float]]:
+        """``reservation`` or ``flown`` as a list of (x, y, z)."""
+        return rows(getattr(self, name), len(TEAM_POINT))
 
 
 PAYLOADS: dict[str, type[_Payload]] = {
@@ -521,6 +548,45 @@ PAYLOADS: dict[str, type[_Payload]] = {
     for cls in (SimClock, TruthPose, Pose, Histogram, DetectorStatus, MissionState, MissionLockstep,
                 Estimate, Plan, TeamStatus)
 }
+
+
+_SCALARS = {"float": {"type": "number"}, "int": {"type": "integer"}, "str": {"type": "string"},
+            "bool": {"type": "boolean"}}
+
+
+def _type_schema(type_text: str, keys: dict[str, str] | None, where: str) -> dict[str, Any]:
+    """JSON schema of a field annotation (as text: the module uses postponed annotations) in the one form that
+    both ``jsonschema`` and Foxglove Studio 1.x's JSON-schema reader take: one ``type`` per value, objects with
+    their ``properties``, arrays of scalars or of objects (docs/vehicle.md, "What Studio 1.48 reads")."""
+    t = type_text.replace(" ", "")
+    if t.endswith("|None"):  # absent when None (_Payload.to_dict): the value, when there, is an X
+        return _type_schema(t.removesuffix("|None"), keys, where)
+    if t.startswith("list["):
+        items = _type_schema(t[5:-1], keys, where)
+        if items["type"] == "array":
+            raise TypeError(f"{where}: an array of arrays ({type_text}): send one flat list (see Plan)")
+        return {"type": "array", "items": items}
+    if t.startswith("dict["):
+        if not keys:
+            raise TypeError(f"{where}: an object with no declared keys ({type_text}): give field(metadata={{KEYS: "
+                            "...}})")
+        return {"type": "object", "properties": {k: _type_schema(v, None, f"{where}.{k}") for k, v in keys.items()},
+                "required": list(keys)}
+    if t not in _SCALARS:
+        raise TypeError(f"{where}: no JSON schema for {type_text}")
+    return dict(_SCALARS[t])
+
+
+def json_schema(cls: type[_Payload]) -> dict[str, Any]:
+    """JSON schema (draft 2020-12) of a payload class, generated from its declaration: every field a property of
+    its type, the fields without a default required (``from_dict`` requires them); an optional field
+    (``X | None``) is absent when None, never null. The MCAP log (``radseek_io.mcap_log``) and the live view
+    (``radseek view``) give it to Foxglove."""
+    props = {f.name: _type_schema(str(f.type), f.metadata.get(KEYS), f"{cls.__name__}.{f.name}")
+             for f in fields(cls)}
+    required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": cls.__name__, "type": "object",
+            "properties": props, "required": required, "description": " ".join((cls.__doc__ or "").split())}
 
 
 #: schema name of the raw board frame (docs/frame-format.md; decoded by radseek.board_wire)

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import json
 import re
 import threading
 import time
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 
 from mission import key_accounts
 from radseek import topics, zenoh_auth
@@ -96,13 +97,25 @@ _FIELD_RE = re.compile(r"^\s+(\w+):\s*([^=#]+?)\s*(?:=\s*([^#]+?))?\s*(?:#\s*(.*
 
 
 def _field_comments(cls: type) -> dict[str, tuple[str, str]]:
-    """field name -> (default text, trailing comment) read from the class source in topics.py."""
+    """field name -> (default text, comment) read from the class source in topics.py: the field's trailing comment,
+    else the comment lines right above it."""
     out = {}
+    above: list[str] = []
     for line in inspect.getsource(cls).splitlines():
         m = _FIELD_RE.match(line)
         if m and m.group(1) != "TOPIC":
-            out[m.group(1)] = ((m.group(3) or "").strip(), (m.group(4) or "").strip())
+            out[m.group(1)] = ((m.group(3) or "").strip(), (m.group(4) or " ".join(above)).strip())
+        above = [*above, line.strip()[1:].strip()] if line.strip().startswith("#") else []
     return out
+
+
+def _default(f) -> str:
+    """A field's default as the topic table shows it (the declaration's metadata left out)."""
+    if f.default is not MISSING:
+        return f"`{json.dumps(f.default) if isinstance(f.default, str) else repr(f.default)}`"
+    if f.default_factory is not MISSING:
+        return f"`field(default_factory={f.default_factory.__name__})`"
+    return "required"
 
 
 #: one ``-k`` per JSON topic, every vehicle's: zenoh-cli's json decoder prints a traceback for each binary raw frame
@@ -254,6 +267,11 @@ def topics_markdown() -> str:
         "local ENU metres, yaw in radians counter-clockwise from +x (east); times in simulation seconds from",
         "the shared clock. Topics under `sim/` carry the simulated truth: only the detector emulator reads them.",
         "",
+        "Each payload's JSON schema is generated from its declaration (`radseek.topics.json_schema`; the MCAP log",
+        "and `radseek view` hand it to Foxglove). So that Foxglove Studio 1.x's JSON-schema reader takes every one",
+        "(docs/vehicle.md), a field whose default is `None` is left out while it is None, never sent as null; points",
+        "and covariance blocks go in one flat list of numbers (no arrays of arrays); an object's keys are declared.",
+        "",
         "Every sample carries its zenoh encoding with a schema name (the table's last column), so a subscriber",
         "that does not know radseek can tell JSON from binary by `sample.encoding` (`tests/test_topic_encodings.py`).",
         "",
@@ -287,8 +305,11 @@ def topics_markdown() -> str:
                   "| --- | --- | --- | --- |"]
         comments = _field_comments(cls)
         for f in fields(cls):
-            default, note = comments.get(f.name, ("", ""))
-            lines.append(f"| `{f.name}` | `{f.type}` | {f'`{default}`' if default else 'required'} | {note} |")
+            note = comments.get(f.name, ("", ""))[1]
+            if topics.KEYS in f.metadata:
+                keys = ", ".join(f"`{k}` ({kind})" for k, kind in f.metadata[topics.KEYS].items())
+                note = f"{note}{'; ' if note else ''}keys: {keys}"
+            lines.append(f"| `{f.name}` | `{f.type}` | {_default(f)} | {note} |")
     lines += ["", f"## `{topics.RAW_FRAME}`", "",
               "One board frame per message, bytes as on the wire: see docs/frame-format.md. Decode it with",
               "`radseek.board_wire.decode_frame` (raises `FrameError` on a truncated or corrupted frame).", ""]

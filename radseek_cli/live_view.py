@@ -25,7 +25,6 @@ from typing import Any
 
 from radseek import topics
 from radseek_cli.serve import serve_on_session
-from radseek_io.mcap_log import json_schema
 
 MAP_HZ = 5.0  # wall Hz at most for /map updates
 
@@ -69,17 +68,24 @@ class MapState:
                 del self.track[:-5000]
             return True
         if topic == topics.PLAN:
-            self.path = [list(map(float, q[:3])) for q in msg.get("path", [])]
-            self.dwells = [list(map(float, q[:3])) for q in msg.get("dwell_points", [])]
+            try:
+                plan = topics.Plan.from_dict(msg)
+            except topics.PayloadError:
+                return False
+            self.path = [q[:3] for q in plan.points("path")]
+            self.dwells = [q[:3] for q in plan.points("dwell_points")]
             return True
         if topic == topics.ESTIMATE:
-            cov = msg.get("covariance") or []  # per source: row-major 4 x 4 of (x, y, z, cps), 16 numbers
+            try:
+                est = topics.Estimate.from_dict(msg)
+            except topics.PayloadError:
+                return False
             out = []
-            for k, s in enumerate(msg.get("sources", [])):
-                block = cov[k] if k < len(cov) and isinstance(cov[k], list) and len(cov[k]) == 16 else []
-                var = [float(block[5 * i]) if block and block[5 * i] is not None else 0.0 for i in range(3)]
-                sig = [math.sqrt(v) if math.isfinite(v) and v > 0 else 0.0 for v in var]
-                out.append(([float(s.get("x", 0)), float(s.get("y", 0)), float(s.get("z", 0))], sig))
+            for k, s in enumerate(est.sources):
+                block = est.covariance_block(k)  # row-major 4 x 4 of (x, y, z, cps)
+                sig = [math.sqrt(block[i][i]) if math.isfinite(block[i][i]) and block[i][i] > 0 else 0.0
+                       for i in range(3)]
+                out.append(([float(s["x"]), float(s["y"]), float(s["z"])], sig))
             self.sources = out
             return True
         return False
@@ -163,7 +169,7 @@ class LiveView:
 
             cls = topics.PAYLOADS.get(topic)
             schema = None if cls is None else Schema(name=f"radseek.{cls.__name__}", encoding="jsonschema",
-                                                     data=json.dumps(json_schema(cls)).encode())
+                                                     data=json.dumps(topics.json_schema(cls)).encode())
             ch = self._channels[key] = Channel("/" + key, schema=schema, message_encoding="json")
         return ch
 

@@ -103,28 +103,26 @@ def scene_of_scenario(scenario: Scenario, ns: int) -> dict[str, Any]:
     return {"deletions": [], "entities": [_entity(ns, "bounds", lines=[bounds]), _entity(ns, "walls", cubes=cubes)]}
 
 
-def plan_entity(plan: dict[str, Any], ns: int) -> dict[str, Any]:
-    """The planned path (line) and dwell points (spheres) of a ``plan`` payload."""
+def plan_entity(msg: dict[str, Any], ns: int) -> dict[str, Any]:
+    """The planned path (line) and dwell points (spheres) of a ``plan`` payload (``topics.PayloadError`` if it
+    breaks its schema)."""
+    plan = topics.Plan.from_dict(msg)
     green = _color(0.1, 0.8, 0.1)
-    path = [list(map(float, q[:3])) for q in plan.get("path", [])]
+    path = [q[:3] for q in plan.points("path")]
     return _entity(ns, "plan", lines=[_line(path, green)] if len(path) > 1 else [],
-                   spheres=[_sphere(list(map(float, q[:3])), 0.3, green) for q in plan.get("dwell_points", [])])
+                   spheres=[_sphere(q[:3], 0.3, green) for q in plan.points("dwell_points")])
 
 
-def estimate_entity(estimate: dict[str, Any], ns: int) -> dict[str, Any]:
-    """Each estimated source (sphere) and, where the payload has its covariance, its x-y 1-sigma and 95 %
-    ellipses at the source's height."""
+def estimate_entity(msg: dict[str, Any], ns: int) -> dict[str, Any]:
+    """Each estimated source (sphere) and, where its covariance is known, its x-y 1-sigma and 95 % ellipses at
+    the source's height (``topics.PayloadError`` if the payload breaks its schema)."""
+    estimate = topics.Estimate.from_dict(msg)
     red = _color(0.9, 0.1, 0.1)
-    cov = estimate.get("covariance") or []
     spheres, lines = [], []
-    for k, s in enumerate(estimate.get("sources", [])):
-        p = [float(s.get(c, 0.0)) for c in ("x", "y", "z")]
+    for k, s in enumerate(estimate.sources):
+        p = [float(s[c]) for c in ("x", "y", "z")]
         spheres.append(_sphere(p, 0.15, red))
-        block = cov[k] if k < len(cov) and isinstance(cov[k], list) else []
-        if len(block) != topics.ESTIMATE_BLOCK or any(not isinstance(v, int | float) for v in block):
-            continue
-        n = len(topics.ESTIMATE_STATE)
-        c = np.array(block, dtype=float).reshape(n, n)[:2, :2]
+        c = np.array(estimate.covariance_block(k), dtype=float)[:2, :2]
         if not np.all(np.isfinite(c)):
             continue
         c = (c + c.T) / 2

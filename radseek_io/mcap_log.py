@@ -6,15 +6,17 @@ Channels:
 
 - ``radseek/<vehicle>/<topic>``: the zenoh payloads byte for byte. JSON topics are ``message_encoding
   json`` with a ``jsonschema`` schema generated from the dataclass in ``radseek/topics.py`` (one
-  declaration: the schema cannot drift from the code); ``detector/raw`` (the board's binary frame) has
-  no schema and the encoding ``radseek.board_frame`` (decode with ``radseek.board_wire.decode_frame``).
+  declaration: the schema cannot drift from the code: ``radseek.topics.json_schema``); ``detector/raw`` (the
+  board's binary frame) is ``ros1`` with the ``ros1msg`` schema ``radseek.BoardFrame`` generated from the
+  frame's layout (``board_frame_ros1msg``: the 90 bytes are that ROS 1 message as they are), so Foxglove shows
+  its fields; ``radseek.board_wire.decode_frame`` decodes it too.
 - ``radseek/<vehicle>/detector/raw/decoded``: each raw board frame decoded, as JSON (schema
   ``radseek.BoardFrameDecoded``: ``t``, ``seq``, ``board_time``, ``duration``, ``flags``, ``counts``,
   ``total``) so a generic tool can plot it; a frame that does not decode has ``error`` instead.
 - ``mavlink/<MESSAGE>``: each MAVLink message the vehicle sent to the GCS port, as JSON
-  (pymavlink's ``to_dict()``; byte arrays as lists, NaN as null), schema ``mavlink.<MESSAGE>`` generated
-  from pymavlink's message definitions (:mod:`radseek_io.mavlink_json`: every field with its type); a team's
-  vehicles each on their own GCS port, ``mavlink/<vehicle>/<MESSAGE>``.
+  (pymavlink's ``to_dict()``; byte arrays as lists, a NaN field left out, a NaN array element null), schema
+  ``mavlink.<MESSAGE>`` generated from pymavlink's message definitions (:mod:`radseek_io.mavlink_json`: every
+  field with its type); a team's vehicles each on their own GCS port, ``mavlink/<vehicle>/<MESSAGE>``.
 - ``foxglove/...``: the flight as ``foxglove.LocationFix``, ``PoseInFrame``, ``FrameTransform`` and
   ``SceneUpdate`` (walls, plan, estimate and its ellipses) for the Map and 3D panels
   (:mod:`radseek_io.foxglove_view`, schemas :mod:`radseek_io.foxglove_schemas`).
@@ -43,13 +45,12 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from radseek import topics
-from radseek.board_wire import FrameError, decode_frame
+from radseek.board_wire import FRAME_SIZE, WIRE_FIELDS, FrameError, decode_frame
 from radseek.coordinates import Home
 from radseek.dataset import Scenario
 from radseek_io.foxglove_schemas import schema as foxglove_schema
@@ -57,7 +58,8 @@ from radseek_io.foxglove_view import FoxgloveView
 from radseek_io.mavlink_json import dialect, mavlink_schema, message_dict
 
 log = logging.getLogger(__name__)
-RAW_ENCODING = "radseek.board_frame"
+#: message and schema encoding of the raw board frames (``board_frame_ros1msg``)
+RAW_ENCODING, RAW_SCHEMA_ENCODING = "ros1", "ros1msg"
 #: channel of the decoded raw frames, beside ``radseek/<vehicle>/detector/raw``
 DECODED_SUFFIX = "/decoded"
 DECODED_SCHEMA = "radseek.BoardFrameDecoded"
@@ -65,26 +67,21 @@ DECODED_SCHEMA = "radseek.BoardFrameDecoded"
 SIM_MAX_NS = int(topics.SIM_TIME_MAX_S * 1e9)
 
 
-def _type_schema(type_text: str) -> dict[str, Any]:
-    """JSON schema of a dataclass field annotation (as text: the module uses postponed annotations)."""
-    t = type_text.replace(" ", "")
-    if "|None" in t:
-        inner = _type_schema(t.replace("|None", ""))
-        return {"anyOf": [inner, {"type": "null"}]}
-    if t.startswith("list["):
-        return {"type": "array", "items": _type_schema(t[5:-1])}
-    if t.startswith("dict["):
-        value = t[5:-1].split(",", 1)[1]
-        return {"type": "object", "additionalProperties": _type_schema(value)}
-    return {"float": {"type": "number"}, "int": {"type": "integer"}, "str": {"type": "string"},
-            "bool": {"type": "boolean"}}.get(t, {})
+#: ROS 1 type of each ``struct`` format character of the board frame (``radseek.board_wire.WIRE_FIELDS``)
+_ROS1_TYPES = {"s": "uint8", "B": "uint8", "H": "uint16", "I": "uint32", "Q": "uint64"}
 
 
-def json_schema(cls: type) -> dict[str, Any]:
-    """JSON schema (draft 2020-12) of a ``radseek.topics`` payload dataclass."""
-    props = {f.name: _type_schema(str(f.type)) for f in fields(cls)}
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": cls.__name__, "type": "object",
-            "properties": props, "description": " ".join((cls.__doc__ or "").split())}
+def board_frame_ros1msg() -> str:
+    """The raw board frame's layout as a ROS 1 message definition (``ros1msg``), generated from
+    ``radseek.board_wire.WIRE_FIELDS``. ROS 1 serialises fixed-length arrays and integers little-endian with no
+    length prefix or padding, as the board does, so the 90 bytes on ``detector/raw`` are this message byte for
+    byte: the channel is ``ros1``, which Foxglove, Lichtblick and the ``mcap`` tools decode with no plug-in."""
+    lines = [f"# {topics.RAW_FRAME_SCHEMA}: the spectroscopy board's frame, {FRAME_SIZE} bytes little-endian "
+             "(docs/frame-format.md)"]
+    for name, code in WIRE_FIELDS:
+        count, kind = code[:-1], code[-1]
+        lines.append(f"{_ROS1_TYPES[kind]}{f'[{count}]' if count else ''} {name}")
+    return "\n".join(lines) + "\n"
 
 
 def decoded_frame_schema() -> dict[str, Any]:
@@ -151,10 +148,11 @@ class McapLog:
         self.count = 0
         self.metadata: dict[str, str] = {}  # written as the radseek.recording metadata record on close()
 
-    def _schema(self, name: str, schema: dict[str, Any]) -> int:
+    def _schema(self, name: str, schema: dict[str, Any] | str, encoding: str = "jsonschema") -> int:
         sid = self._schemas.get(name)
         if sid is None:
-            sid = self._schemas[name] = self._writer.register_schema(name, "jsonschema", json.dumps(schema).encode())
+            data = schema if isinstance(schema, str) else json.dumps(schema)
+            sid = self._schemas[name] = self._writer.register_schema(name, encoding, data.encode())
         return sid
 
     def _channel(self, name: str, schema: tuple[str, dict[str, Any]] | None = None) -> int:
@@ -169,11 +167,14 @@ class McapLog:
         else:
             topic = name.split("/", 2)[2] if name.count("/") >= 2 else name
             cls = topics.PAYLOADS.get(topic)
-            if cls is None:  # binary board frames and any key we do not know: bytes, no schema
-                ch = self._writer.register_channel(name, RAW_ENCODING if topic == topics.RAW_FRAME else "", 0)
+            if topic == topics.RAW_FRAME:
+                ch = self._writer.register_channel(name, RAW_ENCODING, self._schema(
+                    topics.RAW_FRAME_SCHEMA, board_frame_ros1msg(), RAW_SCHEMA_ENCODING))
+            elif cls is None:  # any key we do not know: bytes, no schema
+                ch = self._writer.register_channel(name, "", 0)
             else:
                 ch = self._writer.register_channel(name, "json", self._schema(f"radseek.{cls.__name__}",
-                                                                              json_schema(cls)))
+                                                                              topics.json_schema(cls)))
         self._channels[name] = ch
         return ch
 
@@ -335,7 +336,7 @@ class Recorder:
 
 def read(path: str | Path) -> Iterator[tuple[str, int, int, Any]]:
     """(channel, log_time ns, publish_time ns, payload) of every message, in log-time order; JSON
-    payloads decoded to dicts, binary ones as bytes."""
+    payloads decoded to dicts, binary ones (the raw board frames) as bytes."""
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:

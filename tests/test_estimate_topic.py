@@ -38,7 +38,7 @@ def test_a_localizer_estimate_crosses_zenoh_into_the_planner_belief(router):
 
     msg = got[0]
     assert msg == sent  # every covariance number survives the JSON round trip exactly
-    assert [len(b) for b in msg.covariance] == [topics.ESTIMATE_BLOCK] * len(loc.sources_)
+    assert len(msg.covariance) == topics.ESTIMATE_BLOCK * len(loc.sources_)
     np.testing.assert_array_equal(np.asarray(msg.covariance_block(0)), cov[:4, :4])
 
     belief = SourceBelief.from_estimate(msg)

@@ -22,10 +22,13 @@ def test_map_state_draws_walls_track_plan_and_estimate_ellipse():
     st = MapState(((0, 0, 0), (10, 8, 3)), [Wall((1.0, 1.0), (5.0, 1.0), 0.2, 2.5)])
     st.update(topics.POSE, {"x": 1.0, "y": 2.0, "z": 1.5, "yaw": 0.0})
     st.update(topics.POSE, {"x": 2.0, "y": 2.0, "z": 1.5, "yaw": 0.0})
-    st.update(topics.PLAN, {"path": [[2, 2, 1.5, 0], [4, 4, 1.5, 0]], "dwell_points": [[4, 4, 1.5, 0]]})
+    st.update(topics.PLAN, topics.Plan(t=1.0, path=[2, 2, 1.5, 0, 4, 4, 1.5, 0], dwell_points=[4, 4, 1.5, 0]).to_dict())
     cov = [0.0] * 16
     cov[0], cov[5], cov[10] = 0.04, 0.09, 0.01
-    st.update(topics.ESTIMATE, {"sources": [{"x": 5, "y": 4, "z": 0, "cps_at_1m": 900}], "covariance": [cov]})
+    source = {"x": 5, "y": 4, "z": 0, "cps_at_1m": 900}
+    st.update(topics.ESTIMATE, topics.Estimate(t=1.0, method="mle", sources=[source], background_cps=30.0,
+                                               covariance=cov).to_dict())
+    assert not st.update(topics.PLAN, {"t": 1.0, "dwell_points": [[4, 4, 1.5, 0]]})  # not the layout: not drawn
     assert st.track == [(1.0, 2.0, 1.5), (2.0, 2.0, 1.5)] and st.vehicle == (2.0, 2.0, 1.5, 0.0)
     assert st.path == [[2, 2, 1.5], [4, 4, 1.5]] and st.dwells == [[4, 4, 1.5]]
     (centre, sigma), = st.sources

@@ -76,7 +76,26 @@ def test_every_mavlink_message_validates_against_its_generated_schema():
     assert bat["voltages"]["maxItems"] == 10 and bat["temperature"]["type"] == "integer"
     assert mavlink_schema("STATUSTEXT")["properties"]["text"] == {"type": "string", "maxLength": 50,
                                                                   "description": "char[50]"}
-    assert mavlink_schema("ATTITUDE")["properties"]["roll"]["type"] == ["number", "null"]  # NaN written as null
+    assert mavlink_schema("ATTITUDE")["properties"]["roll"]["type"] == "number"  # a NaN roll is left out
+
+
+def test_a_nan_mavlink_float_is_left_out_and_a_nan_element_is_null():
+    """MAVLink's "unknown" is NaN, which JSON has not: a NaN field is left out of the message (its schema does not
+    require it), a NaN element of a float array is null (its position allows it); the message is strict JSON."""
+    M = dialect()
+    tx, rx = M.MAVLink(None, srcSystem=1), M.MAVLink(None)
+    cov = [math.nan] + [0.0] * 20  # ODOMETRY's "covariance unknown"
+    odo = M.MAVLink_odometry_message(5, 1, 12, 1.0, 2.0, math.nan, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0.0, 0.0,
+                                     0.0, [0.0] * 21, cov, 0, 3, 98)
+    (parsed,) = rx.parse_buffer(odo.pack(tx))
+    d = message_dict(parsed)
+    assert "z" not in d and d["x"] == 1.0 and d["velocity_covariance"][0] is None
+    json.loads(json.dumps(d), parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    schema = mavlink_schema("ODOMETRY")
+    jsonschema.Draft202012Validator(schema).validate(d)
+    assert "z" not in schema["required"] and {"time_usec", "q", "quality"} <= set(schema["required"])  # arrays, ints
+    with pytest.raises(jsonschema.ValidationError):  # a null scalar is not a number: left out, never null
+        jsonschema.Draft202012Validator(schema).validate({**d, "z": None})
 
 
 def test_log_time_is_sim_time_monotonic_per_channel():
@@ -127,7 +146,7 @@ def test_the_estimate_ellipse_is_its_covariance():
     cov = np.zeros((4, 4))
     cov[:2, :2] = [[4.0, 1.5], [1.5, 1.0]]
     est = topics.Estimate(t=1.0, method="mle", sources=[{"x": 5.0, "y": 6.0, "z": 0.5, "cps_at_1m": 100.0}],
-                          background_cps=1.0, covariance=[cov.ravel().tolist()])
+                          background_cps=1.0, covariance=cov.ravel().tolist())
     ent = estimate_entity(json.loads(est.to_bytes()), 1)
     one, ninety_five = ent["lines"]
     inv = np.linalg.inv(cov[:2, :2])
@@ -138,8 +157,12 @@ def test_the_estimate_ellipse_is_its_covariance():
     xs = [p["x"] - 5.0 for p in one["points"]]
     assert max(xs) == pytest.approx(2.0, rel=0.01)  # sampled at 48 points: the extreme within 1 %
     assert ent["spheres"][0]["pose"]["position"] == {"x": 5.0, "y": 6.0, "z": 0.5}
-    no_cov = estimate_entity({"sources": [{"x": 1, "y": 2, "z": 0}], "covariance": []}, 1)
+    unknown = topics.Estimate(t=1.0, method="x", sources=[{"x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 9.0}],
+                              background_cps=1.0, covariance=[math.nan] * 16)  # a covariance not known
+    no_cov = estimate_entity(unknown.to_dict(), 1)
     assert no_cov["lines"] == [] and len(no_cov["spheres"]) == 1
+    with pytest.raises(topics.PayloadError):  # not the layout: nothing drawn (FoxgloveView.derive skips it)
+        estimate_entity({"t": 1.0, "sources": [{"x": 1, "y": 2, "z": 0}], "covariance": []}, 1)
 
 
 @pytest.mark.io
@@ -196,7 +219,9 @@ def test_recorder_writes_walls_decoded_frames_and_mavlink_in_sim_time(router, tm
     assert dec["counts"] == list(range(topics.N_CHANNELS)) and (dec["seq"], dec["duration"]) == (7, 0.1)
     assert dec["t"] == 12.0 and m.log_time == 12_000_000_000  # no sim time of its own: the latest seen
     assert c.message_encoding == "json"
-    assert by[topics.key(topics.RAW_FRAME)][2].data == raw  # the raw channel is byte for byte
+    s, c, m = by[topics.key(topics.RAW_FRAME)]
+    assert m.data == raw  # the raw channel is byte for byte, a ROS 1 message (Foxglove decodes it)
+    assert (c.message_encoding, s.encoding, s.name) == ("ros1", "ros1msg", topics.RAW_FRAME_SCHEMA)
     _, _, m = by["mavlink/GLOBAL_POSITION_INT"]
     assert m.log_time == m.publish_time == 12_500_000_000  # the last one: several may have been sent
     _, _, m = by["foxglove/uav0/location"]

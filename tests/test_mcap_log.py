@@ -8,8 +8,9 @@ import time
 import pytest
 
 from radseek import topics
+from radseek.topics import json_schema
 from radseek.zenoh_session import open_session
-from radseek_io.mcap_log import Recorder, json_schema, read
+from radseek_io.mcap_log import Recorder, read
 from vehicle_sim.harness import VehicleProcess, free_udp_port
 
 WAIT_S = 60.0  # bounds waiting only
@@ -18,7 +19,8 @@ WAIT_S = 60.0  # bounds waiting only
 def test_json_schema_follows_the_dataclass():
     s = json_schema(topics.Histogram)
     assert s["title"] == "Histogram" and s["properties"]["counts"] == {"type": "array", "items": {"type": "integer"}}
-    assert s["properties"]["live_time"] == {"anyOf": [{"type": "number"}, {"type": "null"}]}
+    assert s["properties"]["live_time"] == {"type": "number"} and "live_time" not in s["required"]  # absent if None
+    assert s["required"] == ["seq", "board_time", "t", "duration", "counts"]  # the fields without a default
 
 
 @pytest.mark.slow

@@ -70,8 +70,10 @@ def test_types_of_every_declared_field_are_checked():
         topics.MissionState.from_dict({"t": 1.0, "phase": [1]})
     with pytest.raises(topics.PayloadError, match="'speedup'"):
         topics.SimClock.from_dict({"t": 1.0, "speedup": 0})
-    with pytest.raises(topics.PayloadError, match=r"dwell_points\[0\]\[1\]"):
-        topics.Plan.from_dict({"t": 1.0, "dwell_points": [[1.0, float("nan"), 1.5, 0.0]]})
+    with pytest.raises(topics.PayloadError, match=r"dwell_points\[1\]"):
+        topics.Plan.from_dict({"t": 1.0, "dwell_points": [1.0, float("nan"), 1.5, 0.0]})
+    with pytest.raises(topics.PayloadError, match=r"'dwell_points'.*a multiple of 4 numbers, got 3"):
+        topics.Plan.from_dict({"t": 1.0, "dwell_points": [1.0, 2.0, 1.5]})  # one point is x, y, z and yaw
 
 
 def _rows(path: Path) -> list[dict]:

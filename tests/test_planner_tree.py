@@ -212,8 +212,8 @@ def test_plan_converts_to_the_topic_payload(planned):
     plan = planned[0]
     msg = Plan.from_bytes(plan.to_topic(12.5).to_bytes())
     assert msg.t == 12.5
-    np.testing.assert_allclose(msg.dwell_points, plan.dwell_points)
-    np.testing.assert_allclose(msg.path, plan.path)
+    np.testing.assert_allclose(msg.points("dwell_points"), plan.dwell_points)  # (x, y, z, yaw) per point
+    np.testing.assert_allclose(msg.points("path"), plan.path)
 
 
 def test_no_valid_node_gives_an_empty_plan(tree):
@@ -251,7 +251,7 @@ def test_belief_from_an_estimate_message():
     full = np.diag([0.04, 0.09, 0.01, 400.0])
     full[0, 1] = full[1, 0] = 0.02
     msg = Estimate(t=3.0, method="pf", sources=[{"x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 900.0}],
-                   background_cps=25.0, covariance=[full.ravel().tolist()])
+                   background_cps=25.0, covariance=full.ravel().tolist())
     b = SourceBelief.from_estimate(msg)
     np.testing.assert_allclose(b.mean, [1.0, 2.0, 0.0])
     np.testing.assert_allclose(b.covariance, full[:3, :3])

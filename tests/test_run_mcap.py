@@ -65,7 +65,8 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
     for name in declared:
         encoding, schema, m = by_topic[topics.key(name)][0]
         if name == topics.RAW_FRAME:
-            assert encoding == "radseek.board_frame" and len(decode_frame(m.data).counts) == topics.N_CHANNELS
+            assert (encoding, schema.encoding, schema.name) == ("ros1", "ros1msg", topics.RAW_FRAME_SCHEMA)
+            assert len(decode_frame(m.data).counts) == topics.N_CHANNELS
             continue
         cls = topics.PAYLOADS[name]
         assert encoding == "json" and schema.encoding == "jsonschema" and schema.name == f"radseek.{cls.__name__}"
@@ -132,10 +133,13 @@ def test_run_records_every_topic_and_replay_reproduces_the_flight_from_it(tmp_pa
 
 
 def _check_foxglove(by_topic, clock, mission, scenario):
-    """flight.mcap as Foxglove reads it: the well-known schemas on their channels, each JSON message valid
-    against its channel's schema, the raw frames decoded beside them, MAVLink schemas with the real fields,
+    """flight.mcap as Foxglove reads it: the well-known schemas on their channels, every channel one Foxglove Studio
+    1.48 reads (tests/support/studio_reader.py), each JSON message strict JSON valid against its channel's schema,
+    each raw frame its ros1 message, the raw frames decoded beside them, MAVLink schemas with the real fields,
     and log times in simulation time (an N s simulated flight spans N s of log time)."""
     import jsonschema
+
+    from tests.support.studio_reader import parse_channel, ros1_read, strict_json
 
     wanted = {"foxglove/uav0/location": "foxglove.LocationFix", "foxglove/uav0/pose": "foxglove.PoseInFrame",
               "foxglove/uav0/truth_pose": "foxglove.PoseInFrame", "foxglove/uav0/tf": "foxglove.FrameTransform",
@@ -151,10 +155,14 @@ def _check_foxglove(by_topic, clock, mission, scenario):
         for encoding, schema, m in msgs:
             assert m.log_time >= last, f"{topic}: log_time goes back"  # monotonic per channel
             last = m.log_time
+            if schema.id not in validators:  # Studio refuses no channel
+                parse_channel(encoding, schema.name, schema.encoding, schema.data)
+                validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data)) \
+                    if encoding == "json" else None
             if encoding != "json":
+                ros1_read(schema.data.decode(), m.data)  # the raw frame, every byte of it
                 continue
-            v = validators.setdefault(schema.id, jsonschema.Draft202012Validator(json.loads(schema.data)))
-            v.validate(json.loads(m.data))
+            validators[schema.id].validate(strict_json(m.data))  # JSON.parse takes it: no NaN
     # log time is simulation time: every stamped message at its own time, and the file spans the sim clock
     for topic in (topics.key(topics.SIM_CLOCK), topics.key(topics.POSE), topics.key(topics.HISTOGRAM)):
         for _, _, m in by_topic[topic]:

@@ -133,7 +133,7 @@ def test_search_failure_is_the_outcome(outcome, failed):
 def test_parse_outcome_and_the_team_status_field():
     assert parse_outcome("found") is Outcome.FOUND and parse_outcome("") is None and parse_outcome(None) is None
     assert parse_outcome("source found") is None  # the text is never read back
-    st = topics.TeamStatus(t=1.0, vehicle="uav0", seq=0, state="done", reservation=[[0.0, 0.0, 1.5]],
+    st = topics.TeamStatus(t=1.0, vehicle="uav0", seq=0, state="done", reservation=[0.0, 0.0, 1.5],
                            reason="source found: 1-sigma 0.05 m < 0.1 m", decided=True, outcome=Outcome.FOUND)
     back = topics.TeamStatus.from_bytes(st.to_bytes())
     assert parse_outcome(back.outcome) is Outcome.FOUND

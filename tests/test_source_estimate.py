@@ -85,7 +85,7 @@ def test_from_topic_reads_a_localizer_message_as_the_planner_does():
     full = np.arange(16.0).reshape(4, 4) / 100 + np.eye(4)
     src = {"x": 1.0, "y": 2.0, "z": 0.5, "cps_at_1m": 900.0}
     msg = topics.Estimate(t=3.0, method="mle", sources=[src, {**src, "x": 4.0}], background_cps=25.0,
-                          covariance=[np.eye(4).ravel().tolist(), full.ravel().tolist()])
+                          covariance=[*np.eye(4).ravel().tolist(), *full.ravel().tolist()])
     est = SourceEstimate.from_topic(msg, source=1)
     assert est.x == 4.0 and est.background_cps == 25.0
     np.testing.assert_allclose(est.covariance, (full[:3, :3] + full[:3, :3].T) / 2)
@@ -94,4 +94,4 @@ def test_from_topic_reads_a_localizer_message_as_the_planner_does():
     np.testing.assert_array_equal(belief.mean, est.position)
     with pytest.raises(topics.PayloadError):
         SourceEstimate.from_topic(topics.Estimate(t=0.0, method="x", sources=[src], background_cps=1.0,
-                                                  covariance=[[1.0, 0.0, 0.0, 1.0]]))
+                                                  covariance=[1.0, 0.0, 0.0, 1.0]))

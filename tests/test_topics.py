@@ -35,17 +35,19 @@ def test_pose_rejects_negative_variance_and_nan():
 def test_estimate_covariance_is_one_4x4_block_per_source():
     src = {"x": 1.0, "y": 2.0, "z": 0.0, "cps_at_1m": 900.0}
     block = [float(k) for k in range(topics.ESTIMATE_BLOCK)]
-    est = topics.Estimate(t=1.0, method="mle", sources=[src, src], background_cps=30.0, covariance=[block, block],
-                          crlb=[block, [float("nan")] * 16])
+    est = topics.Estimate(t=1.0, method="mle", sources=[src, src], background_cps=30.0,
+                          covariance=[*[-1.0] * 16, *block], crlb=[*block, *[float("nan")] * 16])
     back = topics.Estimate.from_bytes(est.to_bytes())
     assert back.covariance == est.covariance and back.covariance_block(1)[2] == [8.0, 9.0, 10.0, 11.0]
+    assert back.covariance_block(0) == [[-1.0] * 4] * 4
     d = est.to_dict()
-    with pytest.raises(topics.PayloadError, match="field 'covariance'.*2 source.*1 entries"):
-        topics.Estimate.from_dict({**d, "covariance": [block]})
-    with pytest.raises(topics.PayloadError, match=r"field 'covariance'.*covariance\[0\] has 4 numbers"):
-        topics.Estimate.from_dict({**d, "covariance": [[1.0, 0, 0, 1.0], block]})  # a 2 x 2 is not the layout
+    with pytest.raises(topics.PayloadError, match="field 'covariance'.*2 source.*16 entries"):
+        topics.Estimate.from_dict({**d, "covariance": block})
+    with pytest.raises(topics.PayloadError, match=r"covariance\[31\]' must be a number"):
+        topics.Estimate.from_dict({**d, "covariance": [*block, *block[:15], block]})  # a block as a list is not
     with pytest.raises(topics.PayloadError, match="field 'crlb'"):
-        topics.Estimate.from_dict({**d, "crlb": [block * 2, block]})  # a 4M x 4M row is not either
+        topics.Estimate.from_dict({**d, "crlb": block * 4})  # the 4M x 4M matrix is not either
+    assert "crlb" not in topics.Estimate(**{**vars(est), "crlb": None}).to_dict()  # no bound: left out, not null
     with pytest.raises(topics.PayloadError, match="missing field 'covariance'"):
         topics.Estimate.from_dict({k: v for k, v in d.items() if k != "covariance"})
     with pytest.raises(topics.PayloadError, match=r"sources\[1\] lacks 'z'"):

@@ -180,7 +180,7 @@ class Localizer:
 
     def to_estimate(self, t: float = 0.0) -> Estimate:
         """The zenoh ``estimate`` payload of the current result: per source, its 4 x 4 block of
-        ``covariance_`` (and ``crlb_``) flattened row-major, as ``radseek.topics.Estimate`` declares."""
+        ``covariance_`` (and ``crlb_``) row-major, the blocks in one list, as ``radseek.topics.Estimate`` declares."""
         self._check_fitted()
         crlb = getattr(self, "crlb_", None)
         n = len(self.sources_)
@@ -191,14 +191,14 @@ class Localizer:
         return est
 
 
-def _source_blocks(matrix: Any, n_sources: int) -> list[list[float]]:
-    """The diagonal 4 x 4 blocks of a 4M x 4M matrix, one row-major list of 16 numbers per source."""
+def _source_blocks(matrix: Any, n_sources: int) -> list[float]:
+    """The diagonal 4 x 4 blocks of a 4M x 4M matrix, each row-major (16 numbers), one after the other."""
     k = len(ESTIMATE_STATE)
     m = np.asarray(matrix, dtype=float)
     if m.shape != (k * n_sources, k * n_sources):
         raise ValueError(f"expected a {k * n_sources} x {k * n_sources} matrix for {n_sources} source(s), "
                          f"got shape {m.shape}")
-    return [m[k * i:k * (i + 1), k * i:k * (i + 1)].ravel().tolist() for i in range(n_sources)]
+    return [v for i in range(n_sources) for v in m[k * i:k * (i + 1), k * i:k * (i + 1)].ravel().tolist()]
 
 
 def _jsonable(v: Any) -> Any:

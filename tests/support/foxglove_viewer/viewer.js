@@ -1,7 +1,8 @@
 // Mounts studio-base's App (exported onto window by its UMD bundle) with what a host must give it: settings and
 // layouts kept in memory, no extensions, and the data sources radseek uses: a Foxglove WebSocket (radseek view)
 // and an MCAP file (flight.mcap), chosen by the URL as in Foxglove: ?ds=foxglove-websocket&ds.url=ws://...
-// The layout in layout.json beside this page is stored as "radseek": add &layoutId=radseek to open with it.
+// The layout in layout.json beside this page (or the file &layoutFile= names) is stored as "radseek": add
+// &layoutId=radseek to open with it.
 (async function main() {
   const api = window;
 
@@ -41,7 +42,7 @@
                          JSON.stringify({ onboarding: { settingsTooltipShownForPanelTypes: ["3D"] } }));
   }
   const layouts = new MemoryLayouts();
-  const response = await fetch("layout.json");
+  const response = await fetch(new URLSearchParams(window.location.search).get("layoutFile") ?? "layout.json");
   if (response.ok) {
     const data = await response.json();
     // "local": studio-base's LayoutManager.LOCAL_STORAGE_NAMESPACE
