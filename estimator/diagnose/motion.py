@@ -17,6 +17,7 @@ beats the named one by an AIC of -1 to +7 in five of six (the counts cannot tell
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,33 +84,54 @@ def velocity_starts(speeds: tuple[float, ...] = START_SPEEDS, n_dir: int = 8) ->
     return out
 
 
-def motion_check(start: MeasurementModel, frames: Frames, named: Any, seed: int = 0) -> MotionCheck:
+class MotionSearch:
+    """The moved-source check's looks as independent fits, so that a caller can run them side by side: every other
+    break first (:meth:`first_looks`), then the best one's two neighbours (:meth:`next_looks`), then the verdict
+    (:meth:`result`). Looks are named by the index of their break."""
+
+    def __init__(self, start: MeasurementModel, frames: Frames, named: Any, seed: int = 0):
+        self.start, self.frames, self.named, self.seed = start, frames, named, seed
+        self.looks = break_times(frames)
+
+    def _look(self, i: int) -> Callable[[], Any]:
+        t0 = float(self.looks[i])
+
+        def fit_look() -> Any:
+            m = MeasurementModel(self.start.scenario, (*self.start.effects, NAME), self.start.channels)
+            m = m.with_params(**{f"{NAME}.t0": {"value": t0, "fixed": True}})
+            base = {k: v for k, v in self.named.values.items() if k in m.param_names}
+            inits = [{**base, **v, f"{NAME}.t0": t0} for v in velocity_starts()]
+            return fit(m, self.frames, n_starts=len(inits), seed=self.seed, init=inits[0], more_inits=inits[1:])
+
+        return fit_look
+
+    def first_looks(self) -> dict[str, Callable[[], Any]]:
+        return {f"look {i}": self._look(i) for i in range(0, len(self.looks), 2)}
+
+    def next_looks(self, fits: Mapping[str, Any]) -> dict[str, Callable[[], Any]]:
+        gaps = {int(k.split()[1]): aic_gap(self.named, r) for k, r in fits.items()}
+        top = max(gaps, key=gaps.__getitem__)
+        return {f"look {i}": self._look(i) for i in (top - 1, top + 1) if 0 <= i < len(self.looks) and i not in gaps}
+
+    def result(self, fits: Mapping[str, Any]) -> MotionCheck:
+        threshold = off_list_threshold(len(self.looks))
+        i, res = max(((int(k.split()[1]), r) for k, r in fits.items()), key=lambda kr: aic_gap(self.named, kr[1]))
+        v, e = (tuple(float(r.get(f"{NAME}.{k}", np.nan)) for k in ("vx", "vy")) for r in (res.values, res.errors))
+        return MotionCheck(float(self.looks[i]), v, e, (float(res.values["x"]), float(res.values["y"])),
+                           float(aic_gap(self.named, res)), threshold)
+
+
+def run_in_turn(calls: Mapping[str, Callable[[], Any]]) -> dict[str, Any]:
+    """Each call's result, one after the other (the default runner of independent fits)."""
+    return {k: f() for k, f in calls.items()}
+
+
+def motion_check(start: MeasurementModel, frames: Frames, named: Any, seed: int = 0,
+                 run: Callable[[Mapping[str, Callable[[], Any]]], dict[str, Any]] = run_in_turn) -> MotionCheck:
     """The start model ``start`` (the effects the user gave) with a source moving from each break on, against the
-    ``named`` FitResult (the start model with the named effects) on the same ``frames``."""
-    looks = break_times(frames)
-    threshold = off_list_threshold(len(looks))
-    best: MotionCheck | None = None
-    gaps: dict[int, float] = {}
-
-    def look(i: int) -> None:
-        nonlocal best
-        if i in gaps or not 0 <= i < len(looks):
-            return
-        t0 = looks[i]
-        m = MeasurementModel(start.scenario, (*start.effects, NAME), start.channels)
-        m = m.with_params(**{f"{NAME}.t0": {"value": float(t0), "fixed": True}})
-        base = {k: v for k, v in named.values.items() if k in m.param_names}
-        inits = [{**base, **v, f"{NAME}.t0": float(t0)} for v in velocity_starts()]
-        res = fit(m, frames, n_starts=len(inits), seed=seed, init=inits[0], more_inits=inits[1:])
-        gap = gaps[i] = aic_gap(named, res)
-        if best is None or gap > best.aic_gap:
-            v, e = (tuple(float(r.get(f"{NAME}.{k}", np.nan)) for k in ("vx", "vy")) for r in (res.values, res.errors))
-            best = MotionCheck(float(t0), v, e, (float(res.values["x"]), float(res.values["y"])), float(gap), threshold)
-
-    for i in range(0, len(looks), 2):
-        look(i)
-    top = max(gaps, key=gaps.__getitem__)
-    look(top - 1)
-    look(top + 1)
-    assert best is not None
-    return best
+    ``named`` FitResult (the start model with the named effects) on the same ``frames``; ``run`` runs a batch of
+    independent looks (in parallel processes in ``radseek diagnose``)."""
+    search = MotionSearch(start, frames, named, seed)
+    fits = run(search.first_looks())
+    fits.update(run(search.next_looks(fits)))
+    return search.result(fits)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,7 @@ from estimator.diagnose.dispersion import fit_dispersion
 from estimator.diagnose.explain import feature_of
 from estimator.diagnose.features import Features, compute_features
 from estimator.diagnose.motion import BREAKS as MOTION_BREAKS
-from estimator.diagnose.motion import MotionCheck, motion_check
+from estimator.diagnose.motion import MotionCheck, MotionSearch
 from estimator.diagnose.nuclide import NuclideChoice, identify_second_nuclide
 from estimator.diagnose.residuals import (
     GoodnessOfFit,
@@ -292,12 +293,21 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     if ok and n_count >= 1 and final.fit.model.channels is None:
         # an adequate fit that needed count effects: do they stand in for off-list physics?
         start = fitter.model(count)
-        progress("checking whether a background changing in time explains the counts better", quiet)
-        d.background_time = background_time_check(start, fitter.fit_frames, final.fit, seed=fitter.seed)
-        if n_count >= 2:
-            progress(f"checking whether one moved source explains the counts better ({len(MOTION_BREAKS)} break "
-                     "times)", quiet)
-            d.motion = motion_check(start, fitter.fit_frames, final.fit, seed=fitter.seed)
+        checks = {"background_time": partial(background_time_check, start, fitter.fit_frames, final.fit,
+                                             seed=fitter.seed)}
+        search = MotionSearch(start, fitter.fit_frames, final.fit, fitter.seed) if n_count >= 2 else None
+        progress("checking whether a background changing in time explains the counts better"
+                 + (f", and one moved source ({len(MOTION_BREAKS)} break times)" if search else ""), quiet)
+
+        def run(calls: dict[str, Any]) -> dict[str, Any]:  # independent fits side by side, with --jobs
+            return fitter.fit_many([], calls, label="off-list checks")[1]
+
+        # the changing background and the moved source's first looks are independent fits: one batch
+        looks = run({**checks, **(search.first_looks() if search else {})})
+        d.background_time = looks.pop("background_time")
+        if search is not None:
+            looks.update(run(search.next_looks(looks)))
+            d.motion = search.result(looks)
         ok = d.off_list is None
     d.missing, d.partial = (_report_names(named), []) if ok else ([], _report_names(named))
     d.unexplained = not ok
