@@ -5,10 +5,17 @@ here): shared by the emulator's detector response (``detector_fw_sim.response``)
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import re
+import tempfile
 from collections.abc import Callable
 from functools import cache, lru_cache
+from pathlib import Path
 from typing import Any
 
+import pydecay.data
 from pydecay.data import load_catalog, load_rad_for
 from pydecay.exceptions import NuclideNotFoundError
 from pydecay.nuclide import Nuclide, normalize_nuclide_name
@@ -32,12 +39,93 @@ def _nuclide(name: str) -> Nuclide:
 @cache
 def _emissions(name: str) -> tuple[dict[str, Any], ...]:
     """``pydecay.emissions(name)`` (its RAD rows of a known nuclide) without its uncached ``Nuclide.load``, once per
-    name and process; () when pydecay has none or does not know the name."""
+    name and process; () when pydecay has none or does not know the name. The rows come from this machine's
+    :func:`rows_cache` when it holds them: pydecay's ``load_rad_for`` parses the whole 37 MB RAD table (0.6 s of
+    CPU) for the handful of nuclides a scene names, in every process that loads a scene or a detector response."""
     try:
-        _nuclide(name)
-        return tuple(load_rad_for(name))
+        norm = _nuclide(name).name
     except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
         return ()
+    cached = _read_rows(norm)
+    if cached is not None:
+        return cached
+    try:
+        rows = tuple(load_rad_for(name))
+    except Exception:  # pydecay's own errors: a known nuclide without RAD rows
+        rows = ()
+    _store_rows(norm, rows)
+    return rows
+
+
+# ---- the per-machine cache of pydecay's RAD rows
+#
+# A folder per pydecay installation (its version, and the RAD file's path, size and modification time: a new pydecay
+# or a changed table is a new folder), holding one JSON file per nuclide a process on this machine has asked for:
+# pydecay's rows as it gives them. Each file is written atomically (a temporary file replaced into place); any
+# OSError or unreadable content falls back to pydecay's own table. Nothing is typed here: every row is pydecay's,
+# read through ``load_rad_for``.
+
+#: the cache folder: $RADSEEK_CACHE_DIR, else $XDG_CACHE_HOME/radseek, else ~/.cache/radseek
+CACHE_ENV = "RADSEEK_CACHE_DIR"
+
+
+def _rad_file() -> Path:
+    return Path(pydecay.data.__file__).with_name("icrp107_rad.json.gz")
+
+
+def rows_cache() -> Path | None:
+    """The folder caching pydecay's RAD rows on this machine (None when pydecay's table cannot be stat'ed)."""
+    try:
+        st = _rad_file().stat()
+    except OSError:
+        return None
+    root = os.environ.get(CACHE_ENV) or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "radseek")
+    key = json.dumps([getattr(pydecay, "__version__", "?"), str(_rad_file()), st.st_size, st.st_mtime_ns])
+    return Path(root) / f"pydecay-rad-rows-{hashlib.sha256(key.encode()).hexdigest()[:16]}"
+
+
+def _row_file(name: str) -> Path | None:
+    folder = rows_cache()
+    if folder is None or not _SAFE_NAME.fullmatch(name):
+        return None
+    return folder / f"{name}.json"
+
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
+
+
+def _read_rows(name: str) -> tuple[dict[str, Any], ...] | None:
+    """``name``'s cached rows; None when the cache has none, or none it can read."""
+    path = _row_file(name)
+    if path is None:
+        return None
+    try:
+        rows = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # missing or unreadable: pydecay's table instead
+        return None
+    if not (isinstance(rows, list) and all(isinstance(r, dict) for r in rows)):
+        return None
+    return tuple(rows)
+
+
+def _store_rows(name: str, rows: tuple[dict[str, Any], ...]) -> None:
+    """Cache ``name``'s rows (atomically; an OSError leaves the cache as it was)."""
+    path = _row_file(name)
+    if path is None:
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(list(rows), fh)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except OSError:
+        return
 
 
 def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:
