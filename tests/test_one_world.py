@@ -15,7 +15,9 @@ from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import SearchConfig
 from tests.conftest import free_port
+from tests.support import flooded_team_run as flooded
 from tests.support import same_seed_runs as same_seed
+from tests.support.flooded_team_run import flooded_team_run
 from tests.support.team_frames import assert_frames_csv, assert_same_team_flight
 from vehicle_sim.harness import free_udp_port
 
@@ -60,19 +62,12 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, tmp_p
     assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
 
 
-# no port flags: the run takes the first free PX4 instance, the defaults (7447, 14540) when free, so never beside
-# test_run_ports, which holds those two while its runs fly (it took 14540 between this run's port check and its
-# mission's bind once: uav0 "lost", BIND_ERROR on udpin://0.0.0.0:14540)
-@pytest.mark.exclusive("default-ports-7447-14540")
-def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path):
+def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path_factory):
     """``radseek run --vehicles 2`` (four processes taking their frames in turn over zenoh) and
     ``launch.offline_team.fly_team_offline`` (two executives in one process): each vehicle's frames.csv row for
-    row, and the same joint estimate."""
-
-    seed = 3
-    cmd = [sys.executable, "-m", "radseek_cli", "run", "--vehicles", "2", "--out", str(tmp_path), "--quiet",
-           "--speedup", "50", "--seed", str(seed), "--no-mcap", "--timeout", str(RUN_TIMEOUT_S)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 60)
-    assert p.returncode in (0, 3), p.stderr[-3000:]
-    stack = json.loads((tmp_path / "summary.json").read_text())
-    assert_same_team_flight(tmp_path, stack, "default", seed)
+    row, and the same joint estimate. The run is test_team_flood's (default scene, seed 3, flown once per test run),
+    flooded and forged while it flew: test_team_flood holds that the flood changes nothing of it."""
+    run = flooded_team_run(tmp_path_factory)
+    assert run["code"] in (0, 3), run["stderr"][-3000:]
+    stack = json.loads((run["out"] / "summary.json").read_text())
+    assert_same_team_flight(run["out"], stack, flooded.SCENE, flooded.SEED, tmp_path_factory=tmp_path_factory)
