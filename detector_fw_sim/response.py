@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,7 @@ import pydecay
 from scipy.special import erf
 
 from detector_fw_sim import electron_escape
+from radseek import machine_cache
 
 # the photon lines of a nuclide and its short-lived progeny are shared with the flight software's nuclide test
 # (estimator.diagnose.nuclide): they live in the contracts package and are re-exported here for the emulator's users
@@ -158,12 +160,55 @@ def csi_coefficients(E_keV: float) -> tuple[float, float]:
     if E_keV >= 150.0:
         photo = _csi_photo_mass(E_keV)
     else:
+        mass = sum(a for _, a in CSI_ATOMS)
+        photo = sum(_mu_elam_photo(el, max(E_keV, 1.0) * 1000.0) * a for (el, a) in CSI_ELEMENTS) / mass
+    return photo * CSI_DENSITY, compton
+
+
+def _mu_elam_photo(element: str, energy_eV: float) -> float:
+    """``xraydb.mu_elam(element, energy_eV, kind="photo")`` (cm^2/g), through this machine's cache
+    (``radseek.machine_cache``, keyed by xraydb's version and database file): importing xraydb (SQLAlchemy and its
+    database) is 0.6 s of CPU in every process that builds a detector response, for the few dozen values a scene's
+    lines and the attenuation table below 150 keV need. Each value is xraydb's, computed the first time it is asked
+    for on this machine."""
+    key = f"{element} {energy_eV!r}"
+    values = _elam_values()
+    if key not in values:
         import xraydb
 
-        mass = sum(a for _, a in CSI_ATOMS)
-        photo = sum(float(xraydb.mu_elam(el, max(E_keV, 1.0) * 1000.0, kind="photo")) * a
-                    for (el, a) in CSI_ELEMENTS) / mass
-    return photo * CSI_DENSITY, compton
+        values[key] = float(xraydb.mu_elam(element, energy_eV, kind="photo"))
+        path = _elam_file()
+        machine_cache.write_json(path, {**_elam_read(path), **values})  # with what other processes added meanwhile
+    return values[key]
+
+
+def _elam_file() -> Path | None:
+    import importlib.metadata
+    import importlib.util
+
+    spec = importlib.util.find_spec("xraydb")  # without importing it
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    try:
+        version = importlib.metadata.version("xraydb")
+    except importlib.metadata.PackageNotFoundError:
+        version = "?"
+    db = Path(next(iter(spec.submodule_search_locations))) / "xraydb.sqlite"
+    return machine_cache.keyed_path("xraydb-mu-elam-photo", version, db, ".json")
+
+
+def _elam_read(path: Path | None) -> dict[str, float]:
+    """The cached values at ``path``; {} when there are none, or none readable."""
+    values = machine_cache.read_json(path)
+    if not isinstance(values, dict) or not all(isinstance(v, float) for v in values.values()):
+        return {}
+    return values
+
+
+@lru_cache(maxsize=1)
+def _elam_values() -> dict[str, float]:
+    """The cached values, read once per process (and added to as values are computed)."""
+    return _elam_read(_elam_file())
 
 
 def csi_mu_over_rho(E_keV: float) -> float:

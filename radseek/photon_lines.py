@@ -5,11 +5,7 @@ here): shared by the emulator's detector response (``detector_fw_sim.response``)
 
 from __future__ import annotations
 
-import hashlib
-import json
-import os
 import re
-import tempfile
 from collections.abc import Callable
 from functools import cache, lru_cache
 from pathlib import Path
@@ -19,6 +15,8 @@ import pydecay.data
 from pydecay.data import load_catalog, load_rad_for
 from pydecay.exceptions import NuclideNotFoundError
 from pydecay.nuclide import Nuclide, normalize_nuclide_name
+
+from radseek import machine_cache
 
 MIN_LINE_KEV = 10.0  # lines below this never reach a 40 keV threshold
 MIN_LINE_YIELD = 1e-3
@@ -57,16 +55,13 @@ def _emissions(name: str) -> tuple[dict[str, Any], ...]:
     return rows
 
 
-# ---- the per-machine cache of pydecay's RAD rows
+# ---- this machine's cache of pydecay's RAD rows (radseek.machine_cache)
 #
-# A folder per pydecay installation (its version, and the RAD file's path, size and modification time: a new pydecay
-# or a changed table is a new folder), holding one JSON file per nuclide a process on this machine has asked for:
-# pydecay's rows as it gives them. Each file is written atomically (a temporary file replaced into place); any
-# OSError or unreadable content falls back to pydecay's own table. Nothing is typed here: every row is pydecay's,
-# read through ``load_rad_for``.
+# A folder per pydecay installation (its version, and the RAD file's path, size and modification time), holding one
+# JSON file per nuclide a process on this machine has asked for: pydecay's rows as it gives them.
 
-#: the cache folder: $RADSEEK_CACHE_DIR, else $XDG_CACHE_HOME/radseek, else ~/.cache/radseek
-CACHE_ENV = "RADSEEK_CACHE_DIR"
+#: the cache folder's variable (radseek.machine_cache)
+CACHE_ENV = machine_cache.CACHE_ENV
 
 
 def _rad_file() -> Path:
@@ -75,14 +70,10 @@ def _rad_file() -> Path:
 
 def rows_cache() -> Path | None:
     """The folder caching pydecay's RAD rows on this machine (None when pydecay's table cannot be stat'ed)."""
-    try:
-        st = _rad_file().stat()
-    except OSError:
-        return None
-    root = os.environ.get(CACHE_ENV) or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "radseek")
-    key = json.dumps([getattr(pydecay, "__version__", "?"), str(_rad_file()), st.st_size, st.st_mtime_ns])
-    return Path(root) / f"pydecay-rad-rows-{hashlib.sha256(key.encode()).hexdigest()[:16]}"
+    return machine_cache.keyed_path("pydecay-rad-rows", getattr(pydecay, "__version__", "?"), _rad_file())
+
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
 
 
 def _row_file(name: str) -> Path | None:
@@ -92,18 +83,9 @@ def _row_file(name: str) -> Path | None:
     return folder / f"{name}.json"
 
 
-_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
-
-
 def _read_rows(name: str) -> tuple[dict[str, Any], ...] | None:
     """``name``'s cached rows; None when the cache has none, or none it can read."""
-    path = _row_file(name)
-    if path is None:
-        return None
-    try:
-        rows = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):  # missing or unreadable: pydecay's table instead
-        return None
+    rows = machine_cache.read_json(_row_file(name))
     if not (isinstance(rows, list) and all(isinstance(r, dict) for r in rows)):
         return None
     return tuple(rows)
@@ -111,21 +93,7 @@ def _read_rows(name: str) -> tuple[dict[str, Any], ...] | None:
 
 def _store_rows(name: str, rows: tuple[dict[str, Any], ...]) -> None:
     """Cache ``name``'s rows (atomically; an OSError leaves the cache as it was)."""
-    path = _row_file(name)
-    if path is None:
-        return
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(list(rows), fh)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
-    except OSError:
-        return
+    machine_cache.write_json(_row_file(name), list(rows))
 
 
 def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:
