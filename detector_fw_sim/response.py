@@ -436,10 +436,10 @@ def deposit_parts(E_keV: float, crystal: Crystal) -> tuple[tuple[tuple[float, fl
     T2, w2 = _kn_samples(E1c, 200)
     esc2 = np.exp(-_mu_total_interp(E1c[:, None] - T2) * ell)
     w2 = w2 * (w1c * (1 - ph1c))[:, None]
-    second = np.histogram((T1c[:, None] + T2).ravel(), bins=edges, weights=(w2 * esc2).ravel())[0]
+    second = _histogram((T1c[:, None] + T2).ravel(), (w2 * esc2).ravel(), edges)
     primary_photo = p_int * photo / mu
     peak = primary_photo + float(np.sum(w1c * ph1c)) + float(np.sum(w2 * (1 - esc2)))
-    out = np.histogram(T1, bins=edges, weights=w1 * esc1)[0] + second
+    out = _histogram(T1, w1 * esc1, edges) + second
     peaks = []
     if crystal.effects is not None and crystal.effects.k_escape:
         for e_dep, p in k_escape_lines(round(float(E_keV), 3)):
@@ -447,6 +447,31 @@ def deposit_parts(E_keV: float, crystal: Crystal) -> tuple[tuple[tuple[float, fl
             peak -= primary_photo * p
     out.setflags(write=False)
     return ((float(E_keV), peak), *peaks), out
+
+
+#: np.histogram sorts in blocks of this many values (``BLOCK`` in numpy/lib/_histograms_impl.py)
+_NP_HISTOGRAM_BLOCK = 65536
+
+
+def _histogram(values: np.ndarray, weights: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``np.histogram(values, bins=edges, weights=weights)[0]``, the same numbers bit for bit, found faster.
+
+    For given edges numpy sorts the values (quicksort), sums the weights in that order and differences the running
+    sum at the edges. The running sum depends only on the order, and values with no two equal have one order: a
+    stable sort finds it in half the time on the second scatter's deposits (200 runs already sorted; the sort was
+    2.1 of the 3.5 ms a 40,000-deposit call took, 273 calls in a detector's start). Anything else (equal values,
+    more than one of numpy's blocks) is numpy's own call."""
+    if len(values) > _NP_HISTOGRAM_BLOCK:
+        return np.histogram(values, bins=edges, weights=weights)[0]
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    if (ordered[1:] == ordered[:-1]).any():
+        return np.histogram(values, bins=edges, weights=weights)[0]
+    running = np.concatenate((np.zeros(1, dtype=weights.dtype), weights[order].cumsum()))
+    at_edges = np.concatenate((ordered.searchsorted(edges[:-1], "left"), ordered.searchsorted(edges[-1:], "right")))
+    total = np.zeros(edges.shape, dtype=weights.dtype)
+    total += running[at_edges]
+    return np.diff(total)
 
 
 def scattered_energies(E_keV: float, theta_lo_deg: float, theta_hi_deg: float, n: int = 24
