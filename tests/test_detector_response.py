@@ -174,3 +174,19 @@ def test_the_deposit_histogram_is_numpys_bit_for_bit():
         ours = response._histogram(values, weights, edges)
         numpys = np.histogram(values, bins=edges, weights=weights)[0]
         assert np.array_equal(ours, numpys) and np.array_equal(np.signbit(ours), np.signbit(numpys))
+
+
+@pytest.mark.parametrize(("fwhm", "exponent"),
+                         [(0.07, 0.5), (0.126626, 0.562612), (0.3, 0.2), (0.02, 0.8), (1e-4, 0.5)])
+def test_the_resolution_matrix_is_erf_over_every_edge_bit_for_bit(fwhm, exponent):
+    """``_resolution_matrix`` evaluates erf only near each row's centre: the same matrix as erf over all edges."""
+    import math
+
+    from scipy.special import erf
+
+    edges = response.energy_grid()
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    sigma = np.maximum(response.fwhm_keV(centres, fwhm, exponent) / (2 * math.sqrt(2 * math.log(2))),
+                       response.GRID_STEP_KEV / 2)
+    dense = np.diff(0.5 * (1 + erf((edges[None, :] - centres[:, None]) / (sigma[:, None] * math.sqrt(2)))), axis=1)
+    assert np.array_equal(response._resolution_matrix.__wrapped__(fwhm, exponent), dense)
