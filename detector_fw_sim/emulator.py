@@ -63,7 +63,7 @@ def background_cdf(nuclides: tuple[tuple[str, float], ...], scatter_ratio: float
     for e, w in list(lines.items()) + list(zip(node_e, node_w, strict=True)):
         if w > 0:
             dep += w * response.deposit_spectrum(float(e), crystal)
-    spec = response.escaped_electrons(dep, crystal) @ response._resolution_matrix(round(fwhm_at_662, 6))
+    spec = response.escaped_electrons(dep, crystal) @ response._resolution_matrix(round(fwhm_at_662, 6), 0.5)
     return np.concatenate([[0.0], np.cumsum(spec)])
 
 

@@ -48,7 +48,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from estimator.localizers.base import Localizer, make_localizer
 from estimator.localizers.mle import covering_covariance
@@ -85,10 +85,10 @@ _INIT_KEYS = ("x", "y", "cps_at_1m", "background_cps")
 #: ``replay`` say so (:func:`gof_warning`)
 GOOD_FIT_P = 1e-3
 #: a second source is kept when 2 delta log L exceeds this: chi2 with 3 dof (its x, y and strength) at GOOD_FIT_P
-SECOND_SOURCE_LR = float(chi2.isf(GOOD_FIT_P, 3))
+SECOND_SOURCE_LR = float(chdtri(3, GOOD_FIT_P))
 #: a walled fit replaces a wall-free one that fits and is not in a wall's shadow when 2 delta log L exceeds this:
 #: chi2 with 1 dof (the wall's mu; the wall-free model is mu = 0) at GOOD_FIT_P
-WALL_LR = float(chi2.isf(GOOD_FIT_P, 1))
+WALL_LR = float(chdtri(1, GOOD_FIT_P))
 #: a one-source fit is tried against two below this goodness-of-fit p (the likelihood-ratio test above decides):
 #: a weak second source read as background leaves p ~ 0.002 once the deviance is the profile's maximum (the
 #: two-source scene: one-source fit 0.45 m off, background 80 cps against 30); fits that fit well rarely pay
@@ -210,7 +210,7 @@ def error_sigmas(covariance: Any, dx: float, dy: float) -> float:
 
 
 #: an error vs truth more than this many 1-sigmas outside the ellipse is flagged: chi2 with 2 dof at GOOD_FIT_P
-ERROR_SIGMAS_FLAG = float(math.sqrt(chi2.isf(GOOD_FIT_P, 2)))
+ERROR_SIGMAS_FLAG = float(math.sqrt(chdtri(2, GOOD_FIT_P)))
 
 
 class InflightEstimator:

@@ -189,6 +189,14 @@ def _zoom_inset(ax, ds: Dataset, src: dict[str, float], cov: np.ndarray, est: So
     ax.indicate_inset_zoom(ins, edgecolor="0.3")
 
 
+def _tight_layout(fig) -> None:
+    """``fig.tight_layout()``, and no layout engine left behind: matplotlib leaves a placeholder engine after it,
+    and ``savefig`` then draws the whole figure once more, unseen, before the drawing it saves (0.19 s of the
+    report's 1.24 s of CPU). The PNG is the same byte for byte."""
+    fig.tight_layout()
+    fig.set_layout_engine(None)
+
+
 def write_report(out: str | Path, wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
     from estimator.inflight import gof_warning
     from mission.search import SearchConfig
@@ -281,7 +289,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     ax.set_ylabel("total count rate (cps)")
     ax.set_title("count rate (dwells shaded)")
     fig.suptitle(wrapped_title(f"radseek run: {mission.get('reason', '')}", fig.get_figwidth(), 11), fontsize=11)
-    fig.tight_layout()
+    _tight_layout(fig)
     with atomic_path(out / "report.png") as tmp:  # a reader never sees half a PNG
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
@@ -439,7 +447,7 @@ def write_team_report(out: str | Path, names: list[str], decider: str | None, ki
                                ax.get_position().width * fig.get_figwidth(), 9),
                  fontsize=9)
     ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
+    _tight_layout(fig)
     with atomic_path(out / "report.png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

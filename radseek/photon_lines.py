@@ -8,12 +8,16 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from functools import cache, lru_cache
+from pathlib import Path
 from typing import Any
 
+import pydecay.data
 from pydecay import Inventory
 from pydecay.data import load_catalog, load_rad_for
 from pydecay.exceptions import NuclideNotFoundError
 from pydecay.nuclide import Nuclide, normalize_nuclide_name
+
+from radseek import machine_cache
 
 MIN_LINE_KEV = 10.0  # lines below this never reach a 40 keV threshold
 MIN_LINE_YIELD = 1e-3
@@ -34,12 +38,63 @@ def _nuclide(name: str) -> Nuclide:
 @cache
 def _emissions(name: str) -> tuple[dict[str, Any], ...]:
     """``pydecay.emissions(name)`` (its RAD rows of a known nuclide) without its uncached ``Nuclide.load``, once per
-    name and process; () when pydecay has none or does not know the name."""
+    name and process; () when pydecay has none or does not know the name. The rows come from this machine's
+    :func:`rows_cache` when it holds them: pydecay's ``load_rad_for`` parses the whole 37 MB RAD table (0.6 s of
+    CPU) for the handful of nuclides a scene names, in every process that loads a scene or a detector response."""
     try:
-        _nuclide(name)
-        return tuple(load_rad_for(name))
+        norm = _nuclide(name).name
     except Exception:  # pydecay raises its own NuclideNotFoundError / DataFormatError
         return ()
+    cached = _read_rows(norm)
+    if cached is not None:
+        return cached
+    try:
+        rows = tuple(load_rad_for(name))
+    except Exception:  # pydecay's own errors: a known nuclide without RAD rows
+        rows = ()
+    _store_rows(norm, rows)
+    return rows
+
+
+# ---- this machine's cache of pydecay's RAD rows (radseek.machine_cache)
+#
+# A folder per pydecay installation (its version, and the RAD file's path, size and modification time), holding one
+# JSON file per nuclide a process on this machine has asked for: pydecay's rows as it gives them.
+
+#: the cache folder's variable (radseek.machine_cache)
+CACHE_ENV = machine_cache.CACHE_ENV
+
+
+def _rad_file() -> Path:
+    return Path(pydecay.data.__file__).with_name("icrp107_rad.json.gz")
+
+
+def rows_cache() -> Path | None:
+    """The folder caching pydecay's RAD rows on this machine (None when pydecay's table cannot be stat'ed)."""
+    return machine_cache.keyed_path("pydecay-rad-rows", getattr(pydecay, "__version__", "?"), _rad_file())
+
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
+
+
+def _row_file(name: str) -> Path | None:
+    folder = rows_cache()
+    if folder is None or not _SAFE_NAME.fullmatch(name):
+        return None
+    return folder / f"{name}.json"
+
+
+def _read_rows(name: str) -> tuple[dict[str, Any], ...] | None:
+    """``name``'s cached rows; None when the cache has none, or none it can read."""
+    rows = machine_cache.read_json(_row_file(name))
+    if not (isinstance(rows, list) and all(isinstance(r, dict) for r in rows)):
+        return None
+    return tuple(rows)
+
+
+def _store_rows(name: str, rows: tuple[dict[str, Any], ...]) -> None:
+    """Cache ``name``'s rows (atomically; an OSError leaves the cache as it was)."""
+    machine_cache.write_json(_row_file(name), list(rows))
 
 
 def add_photon_lines(lines: dict[float, float], nuclide: str, weight: float) -> None:

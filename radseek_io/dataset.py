@@ -495,8 +495,8 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
         for batch in reader:
             if len(invalid) > 1 or (invalid and invalid[0][0] >= invalid[0][1]):
                 raise _FastPathFailed("invalid row")
-            block = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in (*POSE_COLUMNS, *board)}
-            counts = np.column_stack([batch.column(c).to_numpy(zero_copy_only=False) for c in CHANNEL_COLUMNS])
+            block = {c: _float_column(batch.column(c)) for c in (*POSE_COLUMNS, *board)}
+            counts = np.column_stack([_float_column(batch.column(c)) for c in CHANNEL_COLUMNS])
             if counts.shape[0] and _block_error(block, counts, sink.last_t) is not None:
                 raise _FastPathFailed("invalid value")
             if any(_board_error(block[c], c) is not None for c in board):
@@ -514,6 +514,17 @@ def _read_fast(file: Path, header: list[str], sink: _Sink, progress: Callable[[i
                 or text.encode("utf-8", errors="surrogatepass").rstrip(b" \t\r\n,") != last_line):
             raise _FastPathFailed("invalid row")
         _truncated_last_row(file, last_lineno, n_fields, n_header, policy)
+
+
+def _float_column(col: Any) -> np.ndarray:
+    """A float64 column of the reader (no nulls: ``null_values=[]``) as numpy, a view of its data buffer: pyarrow's
+    own ``to_numpy`` imports pandas on its first call (0.3 s of CPU in every process that reads a dataset, for
+    nothing else of pandas)."""
+    import pyarrow as pa
+
+    if col.null_count or col.type != pa.float64():  # not what the reader is told to make: pyarrow's own way
+        return col.to_numpy(zero_copy_only=False)
+    return np.frombuffer(col.buffers()[1], dtype=np.float64, count=len(col), offset=col.offset * 8)
 
 
 def _read_exact(file: Path, header: list[str], sink: _Sink, progress: Callable[[int, int], None] | None,

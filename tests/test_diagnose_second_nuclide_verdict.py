@@ -8,26 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.forward2 import FlightSpec, simulate
-from estimator.diagnose.runner import diagnose
 from estimator.diagnose.verdict import SPECTRAL_Z, spectral_channel_z
-from tests.support.once_per_run import once_per_run
+from tests.support.co60_second import co60_second_diagnosis
 
-#: a whole diagnose call (~25 s of CPU) behind both tests: not the unit tier's (make check)
+#: a whole diagnose call (~25 s of CPU, shared with test_diagnose_verdict) behind both tests: not the unit tier's
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def co60_second(tmp_path_factory):
-    spec = FlightSpec(geometry="lawnmower", crystal="wide", scatter=0.02, pose_error="independent",
-                      effects={"second_source": {"x": 1.5, "y": 1.5, "z": 0.0, "cps_at_1m": 1300.0,
-                                                 "nuclide": "Co-60"}})
-
-    def run(_folder):
-        ds = simulate(spec, seed=90021)
-        return ds, diagnose(ds, quiet=True, n_starts=4)
-
-    return once_per_run(tmp_path_factory, "co60-second", run)
+    return co60_second_diagnosis(tmp_path_factory)  # the flight's spec: tests/support/co60_second.py
 
 
 def test_a_co60_second_source_is_named_with_its_nuclide_and_the_model_with_it_is_adequate(co60_second):

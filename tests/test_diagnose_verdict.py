@@ -8,6 +8,7 @@ import pytest
 from benchmarks.forward2 import FlightSpec, simulate
 from estimator.diagnose.runner import diagnose
 from reporting.diagnose_report import json_report
+from tests.support.co60_second import co60_second_diagnosis
 
 
 @pytest.mark.slow
@@ -31,13 +32,13 @@ def test_physics_off_the_list_is_called_unexplained_with_where_it_lives():
 
 
 @pytest.mark.slow
-def test_a_co60_second_source_is_named_with_its_nuclide():
+def test_a_co60_second_source_is_named_with_its_nuclide(tmp_path_factory):
     """A Co-60 source (measured spectrum) 1300 cps at 1 m beside the Cs-137 primary: second_source is missing,
-    its nuclide Co-60, in effect_params and in the candidate's params; the fit with it is adequate."""
-    ds = simulate(FlightSpec(geometry="lattice", effects={"second_source": {"x": 8.5, "y": 1.5, "z": 0.0,
-                                                                            "cps_at_1m": 1300.0, "nuclide": "Co-60"}},
-                             scatter=0.02), seed=70_004)
-    j = json_report(diagnose(ds, quiet=True, n_starts=4))
+    its nuclide Co-60, in the JSON report's effect_params and in the candidate's params; the fit with it is adequate.
+    The flight and its diagnosis are test_diagnose_second_nuclide_verdict's (tests/support/co60_second.py), made
+    once per test run: this test flew a lattice flight of its own for the same claim (16 s of CPU)."""
+    _, d = co60_second_diagnosis(tmp_path_factory)
+    j = json_report(d)
     assert j["missing"] == ["second_source"] and not j["unexplained"]
     assert j["with_missing"]["effect_params"]["second_source.nuclide"]["value"] == "Co-60"
     cand = next(c for c in j["candidates"] if c["effect"] == "second_source")

@@ -151,23 +151,25 @@ def test_a_drift_of_0_6_percent_per_min_is_found_in_other_units_spectra(name):
 
 @pytest.mark.slow
 def test_no_drift_in_other_units_spectra_gives_no_false_alarm():
-    """12 flights without drift from the three other units' spectra: under a calibrated test the chance that the
-    smallest of 12 uniform p-values is below 1e-3 is 1.2 %."""
+    """6 flights without drift from the three other units' spectra, each unit with and without a scattered
+    continuum: under a calibrated test the chance that the smallest of 6 uniform p-values is below 1e-3 is 0.6 %
+    (12 flights, two of each, were 1.2 %)."""
     p = np.array([SpectralModel(EDGES).fit(flight(other_unit(OTHER_UNITS[k % 3]), 0.0, seed=200 + k,
-                                                  scatter=0.04 * (k // 3 % 2))).p_value for k in range(12)])
+                                                  scatter=0.04 * (k // 3 % 2))).p_value for k in range(6)])
     assert p.min() > 1e-3, p
 
 
 @pytest.mark.slow
 def test_no_drift_gives_no_false_alarm_across_shapes_and_scattered_photons():
-    """20 flights without drift: analytic shapes, Co-60, the measured Cs-137, with and without a scattered
-    continuum that grows with distance. Under a calibrated test the 20 p-values are uniform: the chance that
-    the smallest is below 1e-3 is 2 %, and of 5 or more below 0.05 is 0.3 % (binomial)."""
+    """10 flights without drift: analytic shapes, Co-60, the measured Cs-137, each with and without a scattered
+    continuum that grows with distance. Under a calibrated test the 10 p-values are uniform: the chance that
+    the smallest is below 1e-3 is 1 %, and of 4 or more below 0.05 is 0.1 % (binomial; 20 flights, two of each,
+    allowed 4 of 20 at 0.3 %)."""
     sources = [*SHAPES, analytic("co60"), measured("Cs137_b.xml")]
     p = []
-    for k in range(20):
+    for k in range(10):
         fit = SpectralModel(EDGES).fit(flight(sources[k % 5], 0.0, seed=100 + k, scatter=0.04 * (k // 5 % 2)))
         p.append(fit.p_value)
     p = np.array(p)
     assert p.min() > 1e-3, p
-    assert (p < 0.05).sum() <= 4, p
+    assert (p < 0.05).sum() <= 3, p

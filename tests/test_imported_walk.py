@@ -6,15 +6,14 @@ logger gap) or made irregular by dropping spectrum records (the same real record
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from estimator.diagnose.verdict import SOURCE_SIGMA, source_reading
-from radseek_cli import flight_cli
+from radseek_cli import diagnose_cli, flight_cli, localize_cli
 from radseek_io.dataset import read_dataset
 
 REPO = Path(__file__).resolve().parent.parent
@@ -22,9 +21,14 @@ WALK = REPO / "tests" / "data" / "real-spectra" / "walk_rc103_gnss.ndjson"
 PLAIN = "no source above background"
 
 
-def _run(*args):
-    return subprocess.run([sys.executable, "-m", "radseek_cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=REPO, timeout=3600)  # a hang guard only: minutes of wall on a loaded machine
+def _run(capsys, command: str, *args) -> SimpleNamespace:
+    """``radseek COMMAND ARGS`` in this process, as the command line runs it (its exit code, stdout and stderr): the
+    answers are the command's, not the process boundary's (a subprocess each cost ~1.3 s of start-up CPU)."""
+    main = {"localize": localize_cli.main, "diagnose": diagnose_cli.main}[command]
+    capsys.readouterr()
+    code = main([*map(str, args)])
+    out, err = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
 
 
 def _thinned(tmp_path: Path, keep: float, seed: int) -> Path:
@@ -47,26 +51,25 @@ def _import(log: Path, out: Path):
     return read_dataset(out).frames
 
 
-def _check_answers(ds: Path, tmp_path: Path) -> None:
-    r = _run("localize", ds)
+def _check_answers(capsys, ds: Path, tmp_path: Path) -> None:
+    r = _run(capsys, "localize", ds)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert "source 1" in r.stdout and PLAIN in r.stdout, r.stdout
-    r = _run("diagnose", ds, "--no-plots", "--starts", "2", "--jobs", "1", "--quiet", "--out", tmp_path / "diag")
+    r = _run(capsys, "diagnose", ds, "--no-plots", "--starts", "2", "--jobs", "1", "--quiet", "--out",
+             tmp_path / "diag")
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert PLAIN in r.stdout and "Verdict:" in r.stdout, r.stdout
 
 
-@pytest.mark.io
 @pytest.mark.slow
-def test_real_walk_localize_and_diagnose_say_no_source(tmp_path):
+def test_real_walk_localize_and_diagnose_say_no_source(tmp_path, capsys):
     f = _import(WALK, tmp_path / "walk")
     assert len(f) == 80
-    _check_answers(tmp_path / "walk", tmp_path)
+    _check_answers(capsys, tmp_path / "walk", tmp_path)
 
 
-@pytest.mark.io
 @pytest.mark.slow
-def test_unevenly_polled_walk_imports_and_answers(tmp_path):
+def test_unevenly_polled_walk_imports_and_answers(tmp_path, capsys):
     full = _import(WALK, tmp_path / "walk")
     f = _import(_thinned(tmp_path, 0.7, seed=3), tmp_path / "uneven")
     d = np.asarray(f.duration)
@@ -75,19 +78,18 @@ def test_unevenly_polled_walk_imports_and_answers(tmp_path):
     assert np.all(np.diff(f.t) > 0)
     # the counts are the device's: thinning merges frames, it cannot make counts
     assert 0 < f.counts.sum() <= full.counts.sum()
-    _check_answers(tmp_path / "uneven", tmp_path)
+    _check_answers(capsys, tmp_path / "uneven", tmp_path)
 
 
-@pytest.mark.io
-def test_too_sparse_a_walk_is_refused_by_diagnose_in_one_line(tmp_path):
+def test_too_sparse_a_walk_is_refused_by_diagnose_in_one_line(tmp_path, capsys):
     """Polled at under half the records (35 frames of 5-35 s), diagnose says it needs 50 frames, plainly;
     localize still answers."""
     f = _import(_thinned(tmp_path, 0.45, seed=3), tmp_path / "sparse")
     assert len(f) == 35 and np.asarray(f.duration).max() > 6 * np.asarray(f.duration).min()
-    r = _run("diagnose", tmp_path / "sparse", "--no-plots", "--quiet")
+    r = _run(capsys, "diagnose", tmp_path / "sparse", "--no-plots", "--quiet")
     assert r.returncode == 2 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "only 35 usable frames" in r.stderr and "50" in r.stderr
-    r = _run("localize", tmp_path / "sparse")
+    r = _run(capsys, "localize", tmp_path / "sparse")
     assert r.returncode == 0 and PLAIN in r.stdout, r.stderr
 
 def test_a_source_is_named_only_above_three_standard_errors():

@@ -5,14 +5,14 @@ a flown `radseek run` is tests/test_run_mcap.py."""
 
 import json
 import math
-import subprocess
-import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from radseek import topics
 from radseek.frame_record import FrameRecord
+from radseek_cli.replay_cli import main as replay_main
 from radseek_cli.replay_cli import replay
 from radseek_io.mcap_frames import McapFrameError, beside, read_flight
 from radseek_io.mcap_log import McapLog
@@ -105,8 +105,16 @@ def _as_messages(ds):
     return msgs
 
 
-@pytest.mark.io
-def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, tmp_path):
+def _replay(capsys, *args: str) -> SimpleNamespace:
+    """``radseek replay ARGS`` in this process, as the command line runs it: exit code, stdout and stderr (a
+    subprocess each cost ~1.3 s of start-up CPU; the entry point itself: test_replay's CLI test)."""
+    capsys.readouterr()
+    code = replay_main(list(args))
+    out, err = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
+
+
+def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, tmp_path, capsys):
     """A reference flight written as topics and read back: the same frames column for column, and `radseek
     replay FILE.mcap` (scenario and truth found beside it in dataset/) gives the dataset's replay."""
     ds = read_dataset_with_truth(shared_datasets / "lattice-clean")  # replay reports the error vs truth
@@ -122,8 +130,7 @@ def test_replay_from_an_mcap_log_is_the_replay_of_its_dataset(shared_datasets, t
     assert beside(path, "scenario.json") == run / "dataset" / "scenario.json"
     last = ds.frames.dwell.max() + 1  # the last dwell only: one fit (the machine is shared)
     expected = replay(ds, first_dwell=int(last))
-    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(path), "--from-dwell", str(last),
-                          "--json"], capture_output=True, text=True, timeout=300)
+    out = _replay(capsys, str(path), "--from-dwell", str(last), "--json")
     assert out.returncode == 0, out.stderr
     assert f"{len(f)} frames rebuilt from {path}" in out.stderr
     rows = json.loads(out.stdout)
@@ -157,15 +164,13 @@ def test_unreadable_logs_are_refused_naming_the_file(tmp_path):
         read_flight(good, vehicle="uav1")
 
 
-@pytest.mark.io
-def test_replay_cli_says_which_mcap_file_it_cannot_use(shared_datasets, tmp_path):
+def test_replay_cli_says_which_mcap_file_it_cannot_use(shared_datasets, tmp_path, capsys):
     scenario = str(shared_datasets / "lattice-clean" / "scenario.json")
     good = _write(tmp_path / "good.mcap", [(topics.POSE, _pose(0.1, 0.0)), (topics.HISTOGRAM, _hist(0.1))])
     (tmp_path / "bad.mcap").write_text("not mcap")
 
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "radseek_cli", "replay", *args], capture_output=True,
-                              text=True, timeout=120)
+        return _replay(capsys, *args)
 
     bad = run(str(tmp_path / "bad.mcap"), "--scenario", scenario)
     assert bad.returncode == 2 and f"{tmp_path / 'bad.mcap'}: not an MCAP file" in bad.stderr

@@ -1,27 +1,26 @@
 """One simulated world: ``radseek run SCENE --seed S`` (each part its own process over zenoh and MAVLink, with
 lockstep) and the in-process driver the campaigns and benchmarks use (``launch.offline.fly_offline``) fly
 the same flight: the same frames.csv row for row (times, estimated poses, counts, dwell indices), the same
-dwell points, mission time and error. Two scenes, a short honest configuration (3-4 dwells) at 50x: the default
-scene's run is the first of tests/test_lockstep_repro.py's pair (seed 0, 4 dwells, flight.mcap recorded: the
-recorder is one more subscriber and changes no flight), flown once per test run for both."""
+dwell points, mission time and error. Two scenes, a short honest configuration (3-4 dwells) at 50x, each a run
+other tests read too, flown once per test run (flight.mcap recorded: the recorder is one more subscriber and changes
+no flight): the default scene's is the first of tests/test_lockstep_repro.py's pair (seed 0, 4 dwells),
+lattice-wall's the second of tests/test_run_ports.py's side-by-side pair (seed 1, 3 dwells)."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 
 from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import SearchConfig
-from tests.conftest import free_port
+from tests.support import flooded_team_run as flooded
 from tests.support import same_seed_runs as same_seed
+from tests.support import side_by_side_runs as side_by_side
+from tests.support.flooded_team_run import flooded_team_run
 from tests.support.team_frames import assert_frames_csv, assert_same_team_flight
-from vehicle_sim.harness import free_udp_port
 
-RUN_TIMEOUT_S = 600
-MAX_DWELLS = 3
-pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.timeout(RUN_TIMEOUT_S + 120)]
+#: the shared runs' own wall bound (each test may wait for another worker's run), and room to compare
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.timeout(side_by_side.RUN_TIMEOUT_S + 300)]
 
 
 def _summary(out) -> dict:
@@ -29,26 +28,18 @@ def _summary(out) -> dict:
     return {**summary, "error_m": json.loads((out / "summary.json").read_text())["error_m"]}
 
 
-def _run(scene: str, seed: int, out) -> dict:
-    cmd = [sys.executable, "-m", "radseek_cli", "run", scene, "--out", str(out), "--quiet", "--speedup", "50",
-           "--max-dwells", str(MAX_DWELLS), "--seed", str(seed), "--no-mcap", "--zenoh-port", str(free_port()),
-           "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
-           "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--timeout", str(RUN_TIMEOUT_S)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 60)
-    assert p.returncode in (0, 3), p.stderr[-3000:]  # 3: searched to the end of the dwell budget
-    return _summary(out)
-
-
-@pytest.mark.parametrize(("scene", "seed"), [(same_seed.SCENE, same_seed.SEED), ("lattice-wall", 1)])
-def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, tmp_path, scene, seed):
+@pytest.mark.parametrize(("scene", "seed"), [
+    (same_seed.SCENE, same_seed.SEED),
+    # flown beside test_run_ports' other run while the default ports are held: never beside another test holding them
+    pytest.param(*side_by_side.RUNS[1][:2], marks=pytest.mark.exclusive("default-ports-7447-14540"))])
+def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, scene, seed):
     if scene == same_seed.SCENE:  # the first of test_lockstep_repro's two runs (recorded, 4 dwells), flown once
-        runs = same_seed.same_seed_runs(tmp_path_factory)
-        out, dwells = runs["outs"][0], same_seed.MAX_DWELLS
-        assert runs["codes"][0] in (0, 3), runs["errs"][0][-3000:]
-        stack = _summary(out)
-    else:
-        out, dwells = tmp_path, MAX_DWELLS
-        stack = _run(scene, seed, out)
+        runs, k, dwells = same_seed.same_seed_runs(tmp_path_factory), 0, same_seed.MAX_DWELLS
+    else:  # the second of test_run_ports' two side-by-side runs (recorded, 3 dwells), flown once
+        runs, k, dwells = side_by_side.side_by_side_on_held_defaults(tmp_path_factory), 1, side_by_side.RUNS[1][2]
+    out = runs["outs"][k]
+    assert runs["codes"][k] in (0, 3), runs["errs"][k][-3000:]  # 3: searched to the end of the dwell budget
+    stack = _summary(out)
     config = SearchConfig(max_dwells=dwells, max_search_dwells=dwells)  # as radseek mission sets them
     r = fly_offline(load_scene(scene), config, seed=seed)
     for key in ("reason", "dwell_points", "search_dwell_points", "mission_time_s", "flight_time_s",
@@ -60,19 +51,12 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, tmp_p
     assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
 
 
-# no port flags: the run takes the first free PX4 instance, the defaults (7447, 14540) when free, so never beside
-# test_run_ports, which holds those two while its runs fly (it took 14540 between this run's port check and its
-# mission's bind once: uav0 "lost", BIND_ERROR on udpin://0.0.0.0:14540)
-@pytest.mark.exclusive("default-ports-7447-14540")
-def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path):
+def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path_factory):
     """``radseek run --vehicles 2`` (four processes taking their frames in turn over zenoh) and
     ``launch.offline_team.fly_team_offline`` (two executives in one process): each vehicle's frames.csv row for
-    row, and the same joint estimate."""
-
-    seed = 3
-    cmd = [sys.executable, "-m", "radseek_cli", "run", "--vehicles", "2", "--out", str(tmp_path), "--quiet",
-           "--speedup", "50", "--seed", str(seed), "--no-mcap", "--timeout", str(RUN_TIMEOUT_S)]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S + 60)
-    assert p.returncode in (0, 3), p.stderr[-3000:]
-    stack = json.loads((tmp_path / "summary.json").read_text())
-    assert_same_team_flight(tmp_path, stack, "default", seed)
+    row, and the same joint estimate. The run is test_team_flood's (default scene, seed 3, flown once per test run),
+    flooded and forged while it flew: test_team_flood holds that the flood changes nothing of it."""
+    run = flooded_team_run(tmp_path_factory)
+    assert run["code"] in (0, 3), run["stderr"][-3000:]
+    stack = json.loads((run["out"] / "summary.json").read_text())
+    assert_same_team_flight(run["out"], stack, flooded.SCENE, flooded.SEED, tmp_path_factory=tmp_path_factory)

@@ -12,6 +12,7 @@ import pytest
 from detector_fw_sim.scene import load_scene
 from estimator.inflight import MIN_SIGMA_M, sigma_m
 from radseek_cli.replay_cli import flown_first_dwell, replay
+from radseek_cli.replay_cli import main as replay_main
 from radseek_io.truth import read_dataset_with_truth
 from tests.support.offline_flights import default_flight
 
@@ -42,8 +43,7 @@ def test_sigma_is_the_xy_semi_major_axis_of_a_trustworthy_estimate():
     assert sigma_m(np.full((2, 2), np.nan)) == math.inf
 
 
-@pytest.mark.io
-def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
+def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path, capsys):
     ds = tmp_path / "flight"
     shutil.copytree(shared_datasets / "lattice-clean", ds)
     assert flown_first_dwell(ds) is None
@@ -52,10 +52,9 @@ def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path):
            {"t": 3.0, "event": "decision", "phase": "search", "estimate": {"dwell": 8, "x": 1.0, "y": 2.0}}]
     (ds / "mission_log.jsonl").write_text("".join(json.dumps(e) + "\n" for e in log))
     assert flown_first_dwell(ds) == 8
-    out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(ds), "--json"],
-                         capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    rows = json.loads(out.stdout)
+    capsys.readouterr()
+    assert replay_main([str(ds), "--json"]) == 0  # the command in this process (its entry point: the test below)
+    rows = json.loads(capsys.readouterr().out)
     assert [r["dwells"] for r in rows] == [8, 9]
     assert all(math.isfinite(r["x"]) and r["sigma_m"] > 0 for r in rows)
 
@@ -70,16 +69,16 @@ def test_replay_converges_on_the_reference_lattice(shared_datasets):
 
 
 @pytest.mark.io
-def test_replay_cli_json_and_bad_input(shared_datasets, tmp_path):
+def test_replay_cli_json_and_bad_input(shared_datasets, tmp_path, capsys):
     out = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(shared_datasets / "lattice-clean"),
                           "--method", "sphere", "--json", "--plot", str(tmp_path / "r.png")],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)
     assert rows[-1]["dwells"] == 9 and (tmp_path / "r.png").stat().st_size > 1000
-    bad = subprocess.run([sys.executable, "-m", "radseek_cli", "replay", str(tmp_path / "nope")],
-                         capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "not a dataset directory" in bad.stderr
+    capsys.readouterr()
+    assert replay_main([str(tmp_path / "nope")]) == 2  # in this process: the entry point ran above
+    assert "not a dataset directory" in capsys.readouterr().err
 
 
 def test_a_team_run_replays_as_the_teams_flight(tmp_path, capsys):

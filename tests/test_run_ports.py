@@ -2,19 +2,17 @@
 PX4-style instance and says which ports on one line, refuses a port given by its flag that is in use with the
 flag that moves it (never the router's --listen), and two stacks fly side by side without cross-talk.
 
-Real processes over real sockets. The flights use a fast honest configuration (default scene, lockstep, 50x,
-2 dwells: tests/test_run_mcap.py flies 4); assertions are on exit codes, the ports line, logs and outputs,
-never on wall-clock time. The two side-by-side runs start while the test occupies the real defaults (7447,
-14540): both must move off them and off each other (a port already held by someone else on this machine is just as
-taken, and a run must move either way). Those two runs are flown once and read by the two tests that check them.
+Real processes over real sockets. The flights use a fast honest configuration (lockstep, 50x, 2-3 dwells:
+tests/support/side_by_side_runs.py); assertions are on exit codes, the ports line, logs and outputs, never on
+wall-clock time. The two side-by-side runs start while the test occupies the real defaults (7447, 14540): both must
+move off them and off each other (a port already held by someone else on this machine is just as taken, and a run
+must move either way). Those two runs are flown once and read by the two tests that check them (and by
+tests/test_one_world.py).
 """
 
 import json
 import re
 import socket
-import subprocess
-import sys
-import threading
 
 import numpy as np
 import pytest
@@ -25,71 +23,10 @@ from radseek import topics
 from radseek_cli.run_cli import main as run_main
 from radseek_io.dataset import read_dataset
 from radseek_io.mcap_frames import read_flight
-from tests.support.once_per_run import once_per_run
+from tests.support.side_by_side_runs import RUN_TIMEOUT_S, Held, side_by_side_on_held_defaults
 
-RUN_TIMEOUT_S = 900
 PORTS_LINE = re.compile(r"^radseek run: ports: (?:instance (\d+): )?zenoh tcp/127\.0\.0\.1:(\d+), "
                         r"MAVLink API udp (\d+) .*GCS udp (\d+), .*system id (\d+)", re.M)
-
-
-class Held:
-    """A socket holding a default port (TCP listening or UDP bound on 127.0.0.1) that notes who reaches it: the
-    owning process of each TCP connection (from ``ss -tnp``, with its parent then: the run's children are gone when
-    the test checks) and the source of each datagram. ``sock`` is None if another program already holds the port
-    (then it is taken all the same)."""
-
-    def __init__(self, kind: int, port: int):
-        self.kind, self.reached = kind, []
-        self.sock = socket.socket(socket.AF_INET, kind)
-        if kind == socket.SOCK_STREAM:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a TIME_WAIT is no holder
-        try:
-            self.sock.bind(("127.0.0.1", port))
-        except OSError:
-            self.sock.close()
-            self.sock = None
-            return
-        if kind == socket.SOCK_STREAM:
-            self.sock.listen()
-        self.sock.settimeout(0.2)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._watch, daemon=True)
-        self._thread.start()
-
-    def _watch(self) -> None:
-        while not self._stop.is_set():
-            try:
-                if self.kind == socket.SOCK_STREAM:
-                    conn, peer = self.sock.accept()
-                    owner = subprocess.run(["ss", "-tnpH", f"sport = :{peer[1]}"], capture_output=True,
-                                           text=True).stdout
-                    pids = [int(x) for x in re.findall(r"pid=(\d+)", owner)]
-                    self.reached.append((peer, [(pid, _ppid(pid)) for pid in pids]))
-                    conn.close()
-                else:
-                    _, peer = self.sock.recvfrom(65535)
-                    self.reached.append((peer, []))
-            except OSError:
-                continue
-
-    def close(self) -> None:
-        if self.sock is not None:
-            self._stop.set()
-            self._thread.join(5)
-            self.sock.close()
-
-
-def _ppid(pid: int) -> int | None:
-    try:
-        return int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[1])
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _run(out, seed: int, *extra: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "radseek_cli", "run", "--out", str(out), "--quiet", "--speedup", "50",
-           "--max-dwells", "2", "--seed", str(seed), "--timeout", str(RUN_TIMEOUT_S), *extra]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def _ports_line(stderr: str) -> dict[str, int | None]:
@@ -137,26 +74,6 @@ def _own_frames_only(out) -> np.ndarray:
     return f.counts
 
 
-def _side_by_side_on_held_defaults(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """Two runs (seeds 0 and 1) started together while this test holds the default zenoh and MAVLink API ports:
-    both must move off the defaults and off each other. Flown once per test run for the two tests that read it
-    (the test that only checked the move flew a third run of its own: the two tests took 36.5 s of CPU, now 23.9)."""
-
-    def fly(folder) -> dict:
-        held = [Held(socket.SOCK_STREAM, P.ZENOH_BASE), Held(socket.SOCK_DGRAM, P.API_BASE)]
-        try:
-            outs = [folder / "a", folder / "b"]
-            procs = [_run(out, seed) for seed, out in enumerate(outs)]  # started together: the lock decides
-            errs = [p.communicate(timeout=RUN_TIMEOUT_S + 120)[1] for p in procs]
-        finally:
-            for h in held:
-                h.close()
-        return {"outs": outs, "codes": [p.returncode for p in procs], "errs": errs, "pids": [p.pid for p in procs],
-                "tcp": held[0].reached, "udp": held[1].reached}
-
-    return once_per_run(tmp_path_factory, "run-ports-side-by-side", fly)
-
-
 @pytest.mark.slow
 @pytest.mark.io
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
@@ -164,7 +81,7 @@ def _side_by_side_on_held_defaults(tmp_path_factory: pytest.TempPathFactory) -> 
 # this run's port check and its mission's bind)
 @pytest.mark.exclusive("default-ports-7447-14540")
 def test_run_moves_off_taken_default_ports_and_says_which(tmp_path_factory):
-    runs = _side_by_side_on_held_defaults(tmp_path_factory)
+    runs = side_by_side_on_held_defaults(tmp_path_factory)
     for out, code, stderr, pid in zip(runs["outs"], runs["codes"], runs["errs"], runs["pids"], strict=True):
         used = _flew(out, code, stderr)
         assert used["zenoh"] != P.ZENOH_BASE and used["api"] != P.API_BASE
@@ -186,12 +103,12 @@ def test_run_moves_off_taken_default_ports_and_says_which(tmp_path_factory):
 @pytest.mark.timeout(RUN_TIMEOUT_S + 300)
 @pytest.mark.exclusive("default-ports-7447-14540")  # the same two runs, flown by whichever of the two comes first
 def test_two_stacks_side_by_side_fly_their_own_flights(tmp_path_factory):
-    runs = _side_by_side_on_held_defaults(tmp_path_factory)
+    runs = side_by_side_on_held_defaults(tmp_path_factory)
     used = [_flew(*run) for run in zip(runs["outs"], runs["codes"], runs["errs"], strict=True)]
     for key in ("zenoh", "api", "gcs"):
         assert used[0][key] != used[1][key], used
     counts = [_own_frames_only(out) for out in runs["outs"]]
-    assert counts[0].shape != counts[1].shape or not np.array_equal(counts[0], counts[1]), "seeds 0 and 1 alike"
+    assert counts[0].shape != counts[1].shape or not np.array_equal(counts[0], counts[1]), "the two flights alike"
 
 
 @pytest.mark.io

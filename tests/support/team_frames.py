@@ -24,14 +24,24 @@ def assert_frames_csv(path: Path, frames, label: str = "") -> list[dict[str, str
     return rows
 
 
-def assert_same_team_flight(out: Path, summary: dict, scene: str, seed: int, vehicles: int = 2) -> None:
+def assert_same_team_flight(out: Path, summary: dict, scene: str, seed: int, vehicles: int = 2,
+                            tmp_path_factory: pytest.TempPathFactory | None = None) -> None:
     """``out``'s per-vehicle frames.csv hold exactly the frames the in-process team flight of ``scene`` and ``seed``
-    records (time, position, all 32 channels), and its error is the same."""
+    records (time, position, all 32 channels), and its error is the same. With ``tmp_path_factory`` that flight is
+    flown once per test run (the tests reading one stack run compare it with the same flight)."""
     from detector_fw_sim.scene import load_scene
     from launch.offline_team import fly_team_offline
 
-    r = fly_team_offline(load_scene(scene), vehicles, seed=seed)
-    assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
-    f = r.dataset.frames
+    def fly(_folder=None):
+        r = fly_team_offline(load_scene(scene), vehicles, seed=seed)
+        return r.error_m, r.dataset.frames
+
+    if tmp_path_factory is None:
+        error_m, f = fly()
+    else:
+        from tests.support.once_per_run import once_per_run
+
+        error_m, f = once_per_run(tmp_path_factory, f"offline-team-{scene}-{vehicles}-{seed}", fly)
+    assert error_m == pytest.approx(summary["error_m"], abs=1e-9)
     for v in range(vehicles):
         assert_frames_csv(out / "dataset" / f"uav{v}" / "frames.csv", f.select(f.vehicle == v), f"uav{v}")
