@@ -204,10 +204,19 @@ def shared_datasets() -> Path:
     return SHARED_DATASETS
 
 
+_HANDED_TCP: set[int] = set()
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback TCP port free now and not handed out before by this worker (the kernel may reuse one it just
+    released, and a test drawing several needs them distinct)."""
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _HANDED_TCP:
+            _HANDED_TCP.add(port)
+            return port
 
 
 @pytest.fixture

@@ -31,8 +31,8 @@ def test_next_best_from_a_dataset_prints_a_valid_plan_payload(dataset, capsys, t
     assert rc == 0
     msg = Plan.from_dict(json.loads(capsys.readouterr().out))
     occ = OccupancyMap.from_scenario(read_scenario(dataset / "scenario.json"), 0.3)
-    path = np.array(msg.path)
-    assert len(msg.dwell_points) == 1 and np.allclose(path[0], [1, 1, 1.5, 0])
+    path = np.array(msg.points("path"))
+    assert len(msg.points("dwell_points")) == 1 and np.allclose(path[0], [1, 1, 1.5, 0])
     assert np.all(occ.segments_valid(path[:-1, :3], path[1:, :3]))
     assert png.stat().st_size > 10_000
 

@@ -21,11 +21,20 @@ from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from vehicle_sim.vehicle import Vehicle, VehicleConfig  # noqa: E402
 
+#: every port free_udp_port handed out in this process: the kernel may give a port it just released again, and a
+#: caller drawing several ports for one stack (API, GCS, the vehicle's two local ports) must get distinct ones
+_HANDED_UDP: set[int] = set()
+
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback UDP port free now and not handed out before by this process."""
+    while True:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _HANDED_UDP:
+            _HANDED_UDP.add(port)
+            return port
 
 
 def thread_config(api_port: int, gcs_port: int, **kw) -> VehicleConfig:
