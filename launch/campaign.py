@@ -532,7 +532,7 @@ def _case_of(row: Mapping[str, Any]) -> tuple:
     return (row["scene"], row["strategy"], row["effect"], _canonical(_params(row)))
 
 
-def _median_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float]:
+def median_ci(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float]:
     """Median with its distribution-free confidence interval: order statistics (x_(r), x_(n+1-r)) with the largest
     r whose exact coverage, P(r <= B <= n - r) for B ~ Binomial(n, 1/2), is at least ``level``. Returns (median,
     lower, upper, coverage). Below the smallest n that reaches ``level`` (6 for 95 %: [min, max] of 5 covers only
@@ -585,9 +585,9 @@ def summarize(rows: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
         bounds = np.array([r.get("bound_m", math.nan) for r in ok], dtype=float)
         rec = {"scene": case[0], "strategy": case[1], "effect": case[2], "params": json.loads(case[3]),
                "flights": len(rs), "failed": len(rs) - len(ok), "estimated": int(len(finite)),
-               "median_error_m": _median_ci(finite)[0] if len(finite) else math.nan,
-               "median_error_ci": _median_ci(finite)[1:3] if len(finite) else (math.nan, math.nan),
-               "median_error_ci_coverage": _median_ci(finite)[3] if len(finite) else math.nan,
+               "median_error_m": median_ci(finite)[0] if len(finite) else math.nan,
+               "median_error_ci": median_ci(finite)[1:3] if len(finite) else (math.nan, math.nan),
+               "median_error_ci_coverage": median_ci(finite)[3] if len(finite) else math.nan,
                "p90_error_m": float(np.percentile(finite, 90)) if len(finite) else math.nan,
                "median_sigma_m": float(np.median([r["sigma_m"] for r in ok])) if ok else math.nan,
                "median_bound_m": float(np.nanmedian(bounds)) if np.isfinite(bounds).any() else math.nan,
@@ -669,7 +669,7 @@ def _plot_error_vs_dwells(rows: list[dict[str, Any]], path: Path) -> None:
         for label, pts in sorted(series.items()):
             a = np.array(pts, dtype=float)
             ks = np.unique(a[:, 0])
-            stats_ = [(k, *_median_ci(a[a[:, 0] == k, 1])[:3], int((a[:, 0] == k).sum())) for k in ks]
+            stats_ = [(k, *median_ci(a[a[:, 0] == k, 1])[:3], int((a[:, 0] == k).sum())) for k in ks]
             st = np.array([s for s in stats_ if s[4] >= 3] or stats_, dtype=float)
             line, = ax.plot(st[:, 0], st[:, 1], "o-", label=f"{label} (n={len(a)})")
             ax.fill_between(st[:, 0], st[:, 2], st[:, 3], color=line.get_color(), alpha=0.2)
