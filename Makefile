@@ -1,8 +1,9 @@
 # The commands a new user needs: `make run` (a search mission against the mock vehicle)
-# and `make test` (the whole test suite, what CI runs: every test, in 3 parallel pytest-xdist workers on 2 cores,
-# as many tests wait on sockets, subprocesses and sped-up clocks: 10.5-11 min idle against 11.4 with 2 workers;
-# handed one test at a time, the slow ones first; tests taking the same fixed port are marked
-# `exclusive` and never overlap).
+# and `make test` (the whole test suite, what CI runs: every test, in 4 parallel pytest-xdist workers on 2 cores,
+# as many tests wait on sockets, subprocesses and sped-up clocks: 8:33 idle against 9:24 with 3 workers, same
+# order; handed one test at a time in the order tests/support/schedule.py plans from tests/durations.json,
+# longest first; tests taking the same fixed port are marked `exclusive` and never overlap; `make durations`
+# re-measures the durations after tests are added or made faster).
 # `make check` is the edit-test loop's unit tier (72 s on 2 idle cores, measured 2026-11-27): lint plus every test
 # that is neither `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
 # All create .venv and install radseek on first use.
@@ -15,7 +16,7 @@ STAMP := $(VENV)/.installed
 GRPC_VENV := .venv-mavsdk-grpc
 GRPC_STAMP := $(GRPC_VENV)/.installed
 
-.PHONY: run test check lint bench clean
+.PHONY: run test durations check lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -35,7 +36,10 @@ run: $(STAMP)
 
 test: $(STAMP) $(GRPC_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q -n 3 --maxschedchunk 1
+	$(BIN)/pytest -q -n 4 --maxschedchunk 1
+
+durations: $(STAMP) $(GRPC_STAMP)
+	$(BIN)/pytest -q -n 4 --maxschedchunk 1 --record-durations tests/durations.json
 
 check: $(STAMP)
 	$(BIN)/ruff check .

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import socket
 import subprocess
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
+
+from tests.support import schedule
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # `make test`/`make check` run a pytest-xdist worker per core or more: a worker's BLAS (OpenBLAS) taking a thread
@@ -43,6 +46,9 @@ IO_REASON = "starts a subprocess, opens a socket or a zenoh session: mark it @py
 def pytest_addoption(parser):
     parser.addoption("--unit", action="store_true",
                      help="the unit tier (make check): fail any test that starts a subprocess or opens a socket")
+    parser.addoption("--record-durations", metavar="FILE",
+                     help="write each test of 0.5 s or more with its wall seconds (make durations: the schedule's "
+                          "tests/durations.json)")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -50,37 +56,38 @@ def pytest_collection_modifyitems(config, items):
         if "router" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.io)
     if os.environ.get("PYTEST_XDIST_WORKER"):
-        # in parallel workers (`make test`: one test at a time, --maxschedchunk 1), the long end-to-end tests are
-        # handed out first: one started last would keep one worker busy while the other has nothing left
-        # (every worker sorts alike, as xdist needs)
-        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
-        items[:] = _spread_exclusive(items)
+        # in parallel workers (`make test`: one test at a time, --maxschedchunk 1) the collection order is the
+        # schedule: planned longest first on the workers, tests of one exclusive lock not overlapping
+        # (tests/support/schedule.py; every worker plans alike, as xdist needs)
+        known = schedule.load_durations()
+
+        def expected(item) -> float:
+            if item.nodeid in known:
+                return known[item.nodeid]
+            marked = item.get_closest_marker("slow") or item.get_closest_marker("io")
+            return schedule.UNKNOWN_SLOW_S if marked else schedule.UNKNOWN_S
+
+        def lock(item) -> str | None:
+            mark = item.get_closest_marker("exclusive")
+            return None if mark is None else str(mark.args[0])
+
+        workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+        items[:] = schedule.plan(items, expected, lock, workers)
 
 
-def _spread_exclusive(items: list) -> list:
-    """Tests holding the same machine-wide lock (``exclusive``) spread evenly over the run instead of back to
-    back: two of them handed to both workers at once leave one worker waiting on the lock (MAVSDK's examples
-    in a row cost a worker 74 s of waiting). Each group's first test stays first."""
-    groups: dict[str, list] = {}
-    for item in items:
-        mark = item.get_closest_marker("exclusive")
-        if mark is not None:
-            groups.setdefault(mark.args[0], []).append(item)
-    if not groups:
-        return items
-    held = {id(i) for g in groups.values() for i in g}
-    rest = [i for i in items if id(i) not in held]
-    slots: list[tuple[float, int, object]] = []
-    for g, tests in enumerate(groups.values()):
-        for k, item in enumerate(tests):
-            slots.append((k * len(rest) / len(tests), g, item))  # k-th of n at k/n of the way through
-    out, j = [], 0
-    for pos, _, item in sorted(slots, key=lambda s: (s[0], s[1])):
-        while j < len(rest) and j < pos:
-            out.append(rest[j])
-            j += 1
-        out.append(item)
-    return out + rest[j:]
+def pytest_runtest_logreport(report):
+    """``--record-durations``: each test's wall seconds (setup, call and teardown) for the schedule."""
+    _DURATIONS[report.nodeid] = _DURATIONS.get(report.nodeid, 0.0) + report.duration
+
+
+def pytest_sessionfinish(session):
+    path = session.config.getoption("record_durations", None)
+    if path and not os.environ.get("PYTEST_XDIST_WORKER") and _DURATIONS:
+        Path(path).write_text(json.dumps({k: round(v, 1) for k, v in sorted(_DURATIONS.items())
+                                          if v >= 0.5}, indent=0) + "\n")
+
+
+_DURATIONS: dict[str, float] = {}
 
 
 _INHERITED = object()
