@@ -179,9 +179,11 @@ def _check_foxglove(by_topic, clock, mission, scenario):
     # zenoh stamp): a wall-clock time would be far past it. At the end the MAVLink (straight over UDP) may run ahead
     # of the zenoh samples (through the router), as the recorder stops both at one wall instant: the router's hop
     # lags by milliseconds of wall, which at 50x on a loaded machine were up to 4.7 simulated seconds (a make test
-    # with 4 workers: MAVLink to 97.55 s, zenoh to 92.9 s), so the two ends are not compared (time_boot_ms: whole
-    # milliseconds).
-    assert min(log_s) <= min(clock) and max(stamped) <= max(log_s) <= max(max(stamped), max(booted)) + 1e-3
+    # with 4 workers: MAVLink to 97.55 s, zenoh to 92.9 s), and in another the other way round (the vehicle's
+    # last time_boot_ms 92.549 s, the clock, poses and histograms to 94.0 s), so the two ends are not compared.
+    # Allowed past the latest of those: two of the vehicle's 50 ms steps (there its truth pose, and the HEARTBEAT
+    # logged at the time it had reached, were one step on: 94.05 s).
+    assert min(log_s) <= min(clock) and max(stamped) <= max(log_s) <= max(max(stamped), max(booted)) + 0.1
     assert max(log_s) - min(log_s) >= mission["flight_time_s"]
     # the map has the walls of the flown scene; the vehicle's scene the plan and the estimate with its ellipses
     scene = json.loads(by_topic["foxglove/uav0/scene"][-1][2].data)
