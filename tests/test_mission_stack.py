@@ -104,7 +104,17 @@ def test_mission_survives_injected_faults(tmp_path):
     with lock:
         during = {s for s, t in seen.items() if t0 <= t <= t1}
     missing = sorted(during - set(recorded))
-    assert not missing, f"{len(missing)} frames seen on zenoh but not recorded, e.g. {missing[:5]}"
+    # save one exception, by design (mission/key_accounts.py): the restarted detector is a new zenoh publisher, and
+    # the histogram key passes to it only once its killed owner has been silent OWNER_SILENT_WALL_S; a restart
+    # quicker than that (a warm byte-code cache: under 3 s of wall) has its first frames dropped as foreign,
+    # counted and named in the mission's log, never silently
+    hist = summary["samples"][topics.key(topics.HISTOGRAM)]
+    after_kill = [s for s in missing if seen[s] >= t_kill]
+    if after_kill:
+        assert hist["foreign"] >= len(after_kill), hist
+        assert "second publisher on " + topics.key(topics.HISTOGRAM) in (out / "logs" / "mission.log").read_text()
+    silent = [s for s in missing if seen[s] < t_kill]
+    assert not silent, f"{len(silent)} frames seen on zenoh but not recorded, e.g. {silent[:5]}"
 
     # the faults really happened: the drop-out and the restart left gaps, the link dropped datagrams
     times = sorted(recorded.values())
