@@ -51,6 +51,7 @@ from .core import (
     check_counts_array,
     make_spectrum,
     open_stream,
+    read_limited,
 )
 
 #: horizontal 1-sigma position error (m) assumed for a fix that states no quality (a phone-grade receiver)
@@ -194,6 +195,19 @@ def _counts(path, where: str, counts) -> np.ndarray:
 
 def _reject_constant(name: str):
     raise ValueError(f"{name} is not a number")
+
+
+def read_json_object(path: str | Path, data: bytes | None = None) -> dict:
+    """A JSON document whose top level is an object (RadiaCode app JSON, NPES): read within the size limit, strict
+    (no NaN or Infinity), a SpectrumFileError naming the file otherwise."""
+    data = read_limited(path) if data is None else data
+    try:
+        doc = json.loads(data.decode("utf-8-sig"), parse_constant=_reject_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise _err(path, "JSON", f"not a JSON document ({str(exc)[:80]})") from None
+    if not isinstance(doc, dict):
+        raise _err(path, "JSON", "the document must be an object")
+    return doc
 
 
 def scan(path: str | Path, serial: str | None = None, on_frame: Callable[[Frame], None] | None = None,

@@ -17,11 +17,10 @@ The schema's default ``measurementTime`` of 1 s is not assumed: a spectrum witho
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from .core import Spectrum, _err, _poly_cal, make_spectrum, read_limited
-from .ndjson import _counts, _reject_constant
+from .core import Spectrum, _err, _poly_cal, make_spectrum
+from .ndjson import _counts, read_json_object
 
 KINDS = (("energySpectrum", "foreground"), ("backgroundEnergySpectrum", "background"))
 
@@ -52,13 +51,7 @@ def _spectrum(path, where: str, d, kind: str, start: str | None, meta: dict) -> 
 
 def read_npes(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """Every spectrum of an NPES document (module docstring), foreground before background in each package."""
-    data = read_limited(path) if data is None else data
-    try:
-        doc = json.loads(data.decode("utf-8-sig"), parse_constant=_reject_constant)
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise _err(path, "JSON", f"not a JSON document ({str(exc)[:80]})") from None
-    if not isinstance(doc, dict):
-        raise _err(path, "JSON", "the document must be an object")
+    doc = read_json_object(path, data)
     version = doc.get("schemaVersion", "NPESv1")
     if version == "NPESv2":
         packages = doc.get("data")

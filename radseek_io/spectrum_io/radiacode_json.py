@@ -16,12 +16,11 @@ found to check a reader against (see docs/real-spectra.md), so none is claimed h
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
-from .core import MAX_TIME_S, Spectrum, _err, _poly_cal, make_spectrum, read_limited
-from .ndjson import _counts, _iso, _reject_constant, _spectrum_fields
+from .core import MAX_TIME_S, Spectrum, _err, _poly_cal, make_spectrum
+from .ndjson import _counts, _iso, _spectrum_fields, read_json_object
 
 
 def _cal(path, where: str, cal, n: int) -> tuple[float, ...]:
@@ -54,13 +53,7 @@ def _layer(path, where: str, d, kind: str) -> Spectrum:
 
 def read_radiacode_json(path: str | Path, data: bytes | None = None) -> list[Spectrum]:
     """The spectra of a RadiaCode JSON document (see the module docstring)."""
-    data = read_limited(path) if data is None else data
-    try:
-        doc = json.loads(data.decode("utf-8-sig"), parse_constant=_reject_constant)
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise _err(path, "JSON", f"not a JSON document ({str(exc)[:80]})") from None
-    if not isinstance(doc, dict):
-        raise _err(path, "JSON", "the document must be an object")
+    doc = read_json_object(path, data)
     if "fg" in doc:
         out = [_layer(path, "fg", doc["fg"], "foreground")]
         if doc.get("bg") is not None:
