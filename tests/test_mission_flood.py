@@ -242,6 +242,16 @@ async def _fly_under_flood(endpoint: str, out, accounts: KeyAccounts, n_flood: i
         finally:
             sub.undeclare()
             flood.join(30)
+            # a callback already running when undeclare returned may still be counting its sample: let the count
+            # settle (unchanged over two polls) before the last flush, so what was accepted is what was recorded
+            last, still = -1, 0
+            for _ in range(100):
+                now = accounts.counts().get(KEY, {}).get("accepted", 0)
+                still = still + 1 if now == last else 0
+                if still >= 2:
+                    break
+                last = now
+                await asyncio.sleep(0.05)
             stream.flush()
             recorder.close()
     return taken, stream, sent[0]
