@@ -48,7 +48,10 @@ FORGED = topics.Histogram(seq=10**7, board_time=1.0, t=1.0, duration=0.1, counts
 FORGED_STATUS = topics.DetectorStatus(t=1e6, frames=10**7, stale_frames=0, crc_errors=0,
                                       last_histogram_t=1e6).to_bytes()
 
-pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive(f"radseek-instance-{INSTANCE}"),
+# its fixed instance is its own; the lock it takes is the default ports' too, so that it never runs beside the
+# side-by-side stacks (tests/support/side_by_side_runs.py): its 100x flood starved them (their missions heard no
+# histogram in 60 s) and itself (the board's copies overtook the originals) on a clean-clone make test
+pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("default-ports-7447-14540"),
               pytest.mark.timeout(RUN_TIMEOUT_S + 300)]
 
 
