@@ -171,7 +171,7 @@ def test_a_damaged_flights_file_is_named_in_one_line_and_left_as_it_is(tmp_path,
     assert "Traceback" not in err and "rerun with --salvage" in err
     assert (out / "flights.parquet").read_bytes() == before and sorted(p.name for p in out.iterdir()) == [
         "campaign.json", "flights.parquet"]
-    # what --salvage does before it flies (run_campaign; flown again end to end in test_embedded_campaign_...):
+    # what --salvage does before it flies (run_campaign; flown again end to end on the token cluster test's cluster):
     # the file moved aside as it was, its readable rows kept, and exactly the other flights left to fly
     with pytest.raises(DamagedStore) as exc:
         load_rows(out)
@@ -248,12 +248,12 @@ ONE_ATTEMPT = {"RAY_gcs_server_port_wait_time_s": "1"}
 @pytest.mark.io
 @RAY_GROUP
 def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path, capsys):
-    """The three runs that fly start an embedded Ray of their own (``radseek campaign`` as a user runs it); the
-    steps that fly nothing (a rerun, another sweep, a damaged file) are the same CLI called in this process: each
-    start-up of the command costs ~3 s of CPU, a Ray of one worker ~6 s more and each further worker ~1.5 s
-    (flights of this size ~0.3 s each once a worker runs): one worker and the in-process steps took this test from
-    58.5 to 40.1 s of CPU, Ray's own processes included. Two workers: test_kill_9_..., a two-CPU cluster:
-    test_campaign_on_an_existing_loopback_token_cluster.
+    """The run that flies starts an embedded Ray of its own (``radseek campaign`` as a user runs it); the steps that
+    fly nothing (a rerun, another sweep, a damaged file) are the same CLI called in this process: each start-up of
+    the command costs ~3 s of CPU, a Ray of one worker ~6 s more and each further worker ~1.5 s (flights of this size
+    ~0.3 s each once a worker runs). Resuming with one more seed and salvaging a damaged file fly again: they do it
+    on test_campaign_on_an_existing_loopback_token_cluster's cluster (two embedded Rays fewer: 40 to 22 s of CPU).
+    Two workers: test_kill_9_..., a two-CPU cluster: test_campaign_on_an_existing_loopback_token_cluster.
     """
     from radseek_cli.campaign_cli import main
 
@@ -289,12 +289,6 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path, ca
     assert "0 flights flown, 8 already recorded" in stdout
     assert {x["key"]: x["finished_at"] for x in _rows(out)} == first
 
-    r = _campaign(*args("3"))  # one more seed: only seed 2 is flown
-    assert r.returncode == 0, r.stderr
-    assert "4 flights flown, 8 already recorded" in r.stdout
-    rows = _rows(out)
-    assert len(rows) == 12 and {x["key"]: x["finished_at"] for x in rows if x["key"] in first} == first
-
     code, _, err = in_process(["--scenes", "default", "--seeds", "1", *FAST, "--out", str(out)])  # another sweep
     assert code == 2 and "--force" in err
 
@@ -304,10 +298,6 @@ def test_embedded_campaign_writes_rows_records_failures_and_resumes(tmp_path, ca
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "flights.parquet is damaged (truncated" in err and "--salvage" in err
     assert (out / "flights.parquet").read_bytes() == damaged
-    r = _campaign(*args("1"), "--salvage")  # seed 0 only: its 4 flights are flown again
-    assert r.returncode == 0, r.stderr
-    assert "4 flights flown, 0 already recorded" in r.stdout and "moved it to" in r.stderr
-    assert (out / "flights.parquet.damaged").read_bytes() == damaged and len(_rows(out)) == 4
 
 
 def _free_port() -> int:
@@ -482,8 +472,9 @@ def _client_env(home: Path, **auth: str) -> dict[str, str]:
 @RAY_GROUP
 def test_campaign_on_an_existing_loopback_token_cluster(tmp_path):
     """One `ray start --head` as Ray 2.60 starts it (token auth on), bound to loopback: a client without its token,
-    or with another, is told in one line what to set; with it, the campaign flies on the cluster's CPUs; stopping
-    the head leaves no Ray process. (One cluster for both: each `ray start` costs a worker 10-15 s.)"""
+    or with another, is told in one line what to set; with it, the campaign flies on the cluster's CPUs, resumes
+    with one more seed (only its flights flown) and salvages a damaged flights file; stopping the head leaves no Ray
+    process. (One cluster for both: each `ray start` costs a worker 10-15 s.)"""
     temp_dir = f"/tmp/rsk-tok-{os.getpid()}-{time.time_ns() % 10**6}"  # short: Ray's socket paths
     port, token = _free_port(), secrets.token_hex(32)
     head = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token, **FAIR)
@@ -495,8 +486,10 @@ def test_campaign_on_an_existing_loopback_token_cluster(tmp_path):
         assert start.returncode == 0, start.stdout + start.stderr
         assert _listening(port) and set(_listening(port)) <= LOOPBACK_HEX, _listening(port)
 
-        def campaign(out: str, env: dict[str, str], *scenes: str) -> subprocess.CompletedProcess:
-            args = ["--address", f"127.0.0.1:{port}", "--scenes", *(scenes or ("default",)), "--seeds", "1", *FAST]
+        def campaign(out: str, env: dict[str, str], *scenes: str, seeds: str = "1") -> subprocess.CompletedProcess:
+            scenes_, extra = [x for x in scenes if not x.startswith("--")], [x for x in scenes if x.startswith("--")]
+            args = ["--address", f"127.0.0.1:{port}", "--scenes", *(scenes_ or ["default"]), "--seeds", seeds, *FAST,
+                    *extra]
             return subprocess.run([str(BIN / "radseek"), "campaign", *args, "--out", str(tmp_path / out)],
                                   capture_output=True, text=True, timeout=500, env=env)
 
@@ -508,12 +501,25 @@ def test_campaign_on_an_existing_loopback_token_cluster(tmp_path):
                                           **ONE_ATTEMPT))
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert "refused this client's token" in r.stderr, r.stderr
-        r = campaign("right", _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token),  # what it said
-                     "default", "outdoor")
+        env = _client_env(tmp_path, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=token)  # what it said
+        r = campaign("right", env, "default", "outdoor")
         assert r.returncode == 0, r.stderr
         rows = _rows(tmp_path / "right")
         assert len(rows) == 2 and all(x["status"] == "ok" for x in rows), rows
         assert "2 flights flown" in r.stdout and "on 2 CPUs" in r.stdout
+        first = {x["key"]: x["finished_at"] for x in rows}
+        r = campaign("right", env, "default", "outdoor", seeds="2")  # one more seed: only seed 1 is flown
+        assert r.returncode == 0, r.stderr
+        assert "2 flights flown, 2 already recorded" in r.stdout, r.stdout
+        rows = _rows(tmp_path / "right")
+        assert len(rows) == 4 and {x["key"]: x["finished_at"] for x in rows if x["key"] in first} == first
+        damaged = (tmp_path / "right" / "flights.parquet").read_bytes()[:-100]  # truncated: no footer
+        (tmp_path / "right" / "flights.parquet").write_bytes(damaged)
+        r = campaign("right", env, "default", "outdoor", "--salvage")  # seed 0 only: its 2 flights flown again
+        assert r.returncode == 0, r.stderr
+        assert "2 flights flown, 0 already recorded" in r.stdout and "moved it to" in r.stderr, r.stdout + r.stderr
+        assert (tmp_path / "right" / "flights.parquet.damaged").read_bytes() == damaged
+        assert len(_rows(tmp_path / "right")) == 2
     finally:
         pids = _pids_of(temp_dir)
         _stop(pids)
