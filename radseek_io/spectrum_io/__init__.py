@@ -7,8 +7,8 @@ error is a :class:`SpectrumFileError` naming the file and the element, section o
 Which library: ``becquerel`` 0.7 (PyPI) was checked on Python 3.11 here. It reads Ortec .spe, Canberra .cnf, .spc
 and IEC 1455, but not N42, RadiaCode XML, .chn or CSV; it pulls numba, pandas, lmfit and black, prints a line per
 file read and rejects an .spe without ``$DATE_MEA``. So the readers here are small and validated, and
-``tests/test_spectrum_files.py`` checks the .spe reader against becquerel and the N42 writer against SpecUtils
-(``sandiaspecutils``, the library InterSpec is built on) when those are installed.
+``tests/test_spectrum_files.py`` checks the .spe and N42 writers against SpecUtils (``sandiaspecutils``, the library
+InterSpec is built on).
 
 Energy calibration convention (the one of N42 and SpecUtils): the lower edge of channel i is
 E(i) = c0 + c1 i + c2 i^2 keV, so channel i spans [E(i), E(i + 1)). All-zero coefficients (an uncalibrated
