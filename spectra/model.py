@@ -330,6 +330,38 @@ def fwhm(params: dict[str, float], e: np.ndarray | float) -> np.ndarray:
     return w
 
 
+#: a Gaussian's terms beyond this many sd from a boundary are taken as 0 or its full weight: Phi(-10) = 7.6e-24, so
+#: what is left out is below the likelihood's 1e-12 floor on expected counts for spectra of up to 1e11 counts
+SMEAR_REACH_SD = 10.0
+
+
+def _smeared_channels(b: np.ndarray, m: np.ndarray, s: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """sum_j w_j [Phi(z_(i+1),j) - Phi(z_i,j)], z = (b - m_j) / s_j: the weights ``w`` at ``m`` smeared by Gaussians
+    of sd ``s``, in the channels between the rising boundaries ``b``.
+
+    Each Gaussian's cdf is taken as Phi(z) below its centre and as 1 - Phi(-z) above it, its step of w_j in the
+    channel that holds m_j: a channel's content is then never the difference of two sums near the total (that
+    difference was rounding noise, ~1e-16 of the total, in the tails: a 1-count channel 7 sd above Cs-137's peak
+    moved the likelihood by 0.09 between parameters 1e-5 apart, and MIGRAD ended invalid with errors of 2e-6).
+    Phi is evaluated only within :data:`SMEAR_REACH_SD` sd of a boundary: a 1,000-channel file and a Cs-137
+    deposit of 283 points take 26,000 evaluations instead of 283,000."""
+    if len(b) > 1 and not np.all(np.diff(b) > 0):
+        return np.diff(ndtr((b[:, None] - m[None, :]) / s[None, :]) @ w)
+    lo = np.searchsorted(b, m - SMEAR_REACH_SD * s, side="left")  # each point's first boundary within reach
+    hi = np.searchsorted(b, m + SMEAR_REACH_SD * s, side="right")  # and the first past it
+    n = hi - lo
+    j = np.repeat(np.arange(len(m)), n)
+    i = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + lo[j]
+    z = (b[i] - m[j]) / s[j]
+    below = z <= 0
+    lower = np.bincount(i[below], weights=ndtr(z[below]) * w[j[below]], minlength=len(b))  # Phi(z), b <= m_j
+    upper = np.bincount(i[~below], weights=ndtr(-z[~below]) * w[j[~below]], minlength=len(b))  # Phi(-z), b > m_j
+    k = np.searchsorted(b, m, side="right") - 1  # the channel holding m_j: b_k <= m_j < b_(k+1)
+    inside = (k >= 0) & (k < len(b) - 1)
+    steps = np.bincount(k[inside], weights=w[inside], minlength=len(b) - 1)
+    return np.diff(lower) - np.diff(upper) + steps
+
+
 def native_shape(params: dict[str, float], nuclides: tuple[str, ...], boundaries_keV: np.ndarray) -> np.ndarray:
     """Expected counts per emitted photon in the native channels with boundaries ``boundaries_keV`` (file energy)."""
     e, w, var = deposited(params, nuclides)
@@ -337,15 +369,7 @@ def native_shape(params: dict[str, float], nuclides: tuple[str, ...], boundaries
     m = file_energy(params, e)
     s = np.sqrt((gain * fwhm(params, e) / FWHM_PER_SIGMA) ** 2 + gain**2 * var)
     b = np.asarray(boundaries_keV, dtype=float)
-    lo, hi = m - 8 * s, m + 8 * s
-    cdf = np.zeros(len(b))
-    # chunk the boundaries to keep memory small; points far from a boundary contribute 0 or w
-    for k in range(0, len(b), 256):
-        bb = b[k:k + 256]
-        z = (bb[:, None] - m[None, :]) / s[None, :]
-        cdf[k:k + 256] = ndtr(z) @ w
-    del lo, hi
-    out = np.diff(cdf)
+    out = _smeared_channels(b, m, s, w)
     if params["threshold_keV"] > 0:
         centre = 0.5 * (b[1:] + b[:-1])
         out = out * ndtr((centre - params["threshold_keV"]) / params["threshold_width_keV"])
