@@ -5,7 +5,6 @@ from __future__ import annotations
 import fcntl
 import json
 import os
-import resource
 import socket
 import subprocess
 import sys
@@ -60,50 +59,35 @@ def pytest_collection_modifyitems(config, items):
         # in parallel workers (`make test`: one test at a time, --maxschedchunk 1) the collection order is the
         # schedule: planned longest first on the workers, tests of one exclusive lock not overlapping
         # (tests/support/schedule.py; every worker plans alike, as xdist needs)
-        known = schedule.load_timings()
-
-        def marked(item) -> bool:
-            return bool(item.get_closest_marker("slow") or item.get_closest_marker("io"))
+        known = schedule.load_durations()
 
         def expected(item) -> float:
             if item.nodeid in known:
-                return known[item.nodeid][0]
-            return schedule.UNKNOWN_SLOW_S if marked(item) else schedule.UNKNOWN_S
-
-        def rate(item) -> float:
-            wall, cpu = known.get(item.nodeid, (0.0, None))
-            if cpu is None or wall <= 0:
-                return schedule.UNKNOWN_SLOW_RATE if marked(item) else schedule.UNKNOWN_RATE
-            return cpu / wall
+                return known[item.nodeid]
+            marked = item.get_closest_marker("slow") or item.get_closest_marker("io")
+            return schedule.UNKNOWN_SLOW_S if marked else schedule.UNKNOWN_S
 
         def lock(item) -> str | None:
             mark = item.get_closest_marker("exclusive")
             return None if mark is None else str(mark.args[0])
 
         workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-        items[:] = schedule.plan(items, expected, lock, workers, rate, float(len(os.sched_getaffinity(0))))
-
-
-def _cpu_s() -> float:
-    """CPU seconds of this process and of its children that have ended (a test's subprocesses, once reaped)."""
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+        items[:] = schedule.plan(items, expected, lock, workers)
 
 
 def pytest_runtest_logreport(report):
-    """``--record-durations``: each test's wall and CPU seconds (setup, call and teardown) for the schedule."""
-    wall, cpu = _DURATIONS.get(report.nodeid, (0.0, 0.0))
-    _DURATIONS[report.nodeid] = (wall + report.duration, cpu + dict(report.user_properties).get("cpu_s", 0.0))
+    """``--record-durations``: each test's wall seconds (setup, call and teardown) for the schedule."""
+    _DURATIONS[report.nodeid] = _DURATIONS.get(report.nodeid, 0.0) + report.duration
 
 
 def pytest_sessionfinish(session):
     path = session.config.getoption("record_durations", None)
     if path and not os.environ.get("PYTEST_XDIST_WORKER") and _DURATIONS:
-        rows = [f"{json.dumps(k)}: [{w:.1f}, {c:.1f}]" for k, (w, c) in sorted(_DURATIONS.items()) if w >= 0.5]
-        Path(path).write_text("{\n" + ",\n".join(rows) + "\n}\n")  # one test a line: [wall s, CPU s]
+        Path(path).write_text(json.dumps({k: round(v, 1) for k, v in sorted(_DURATIONS.items())
+                                          if v >= 0.5}, indent=0) + "\n")
 
 
-_DURATIONS: dict[str, tuple[float, float]] = {}
+_DURATIONS: dict[str, float] = {}
 
 
 _INHERITED = object()
@@ -176,10 +160,6 @@ def pytest_runtest_protocol(item, nextitem):
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(item, call):
     report = yield
-    if item.config.getoption("record_durations", None):  # each phase's CPU seconds, to the controller
-        now = _cpu_s()
-        report.user_properties.append(("cpu_s", now - item.stash.get(_CPU_MARK, now)))
-        item.stash[_CPU_MARK] = now
     guard = item.config.stash.get(_GUARD, None)
     if guard is not None and guard.tried and report.when == "call" and not report.skipped:
         report.outcome = "failed"
@@ -188,13 +168,6 @@ def pytest_runtest_makereport(item, call):
 
 
 _GUARD = pytest.StashKey[_UnitGuard]()
-_CPU_MARK = pytest.StashKey[float]()
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_runtest_setup(item):
-    if item.config.getoption("record_durations", None):
-        item.stash[_CPU_MARK] = _cpu_s()
 
 
 # ---- tests that need a fixed port: one at a time on this machine

@@ -1,13 +1,8 @@
 """The test run's schedule (tests/support/schedule.py): longest first on the workers, an exclusive lock's tests
 never planned to overlap, checked by running the planned order through an independent greedy simulation of xdist's
-one-test-at-a-time hand-out, in which a test whose lock is held waits for it; CPU-bound and waiting tests
-interleaved within the cores."""
+one-test-at-a-time hand-out, in which a test whose lock is held waits for it."""
 
 import heapq
-import json
-import os
-import subprocess
-import sys
 
 import pytest
 
@@ -79,54 +74,6 @@ def test_a_missing_or_damaged_durations_file_is_no_knowledge(tmp_path):
     assert schedule.load_durations(tmp_path / "list.json") == {}
     (tmp_path / "ok.json").write_text('{"tests/x.py::t": 2.5}')
     assert schedule.load_durations(tmp_path / "ok.json") == {"tests/x.py::t": 2.5}
-
-
-def test_timings_read_wall_and_cpu_or_a_bare_wall(tmp_path):
-    (tmp_path / "t.json").write_text('{"a": [4.0, 3.5], "b": 2.0, "c": [1, "x"], "d": true}')
-    assert schedule.load_timings(tmp_path / "t.json") == {"a": (4.0, 3.5), "b": (2.0, None)}
-    assert schedule.load_durations(tmp_path / "t.json") == {"a": 4.0, "b": 2.0}
-
-
-def _peak_rate(order, durations, rates, workers):
-    """The largest sum of CPU rates of tests running at once when ``workers`` take ``order`` as they free up."""
-    free = [(0.0, w) for w in range(workers)]
-    spans = []
-    for name in order:
-        t, w = heapq.heappop(free)
-        spans.append((t, t + durations[name], rates[name]))
-        heapq.heappush(free, (t + durations[name], w))
-    return max(sum(r for s, e, r in spans if s <= t < e) for t, _, _ in spans)
-
-
-def test_cpu_bound_and_waiting_tests_are_interleaved_within_the_cores():
-    # 4 workers, 2 cores: four CPU-bound tests (rate 1) collected before four that mostly wait (rate 0.1), all 10 s.
-    # By duration alone the four CPU-bound ones run together (4 cores' worth on 2); by rate two of each
-    d = {f"cpu{i}": 10.0 for i in range(4)} | {f"wait{i}": 10.0 for i in range(4)}
-    rates = {n: 1.0 if n.startswith("cpu") else 0.1 for n in d}
-    by_duration = plan(d, {}, 4)
-    by_rate = schedule.plan(list(d), d.get, {}.get, 4, rates.get, cores=2.0)
-    assert by_duration[:4] == ["cpu0", "cpu1", "cpu2", "cpu3"] and _peak_rate(by_duration, d, rates, 4) == 4.0
-    assert sorted(by_rate[:4]) == ["cpu0", "cpu1", "wait0", "wait1"]
-    assert _peak_rate(by_rate, d, rates, 4) == pytest.approx(2.2)
-    assert run(by_rate, d, {}, 4)[0] == run(by_duration, d, {}, 4)[0] == 20.0  # the same wall plan
-
-
-@pytest.mark.io
-def test_record_durations_writes_wall_and_cpu_per_test(tmp_path):
-    (tmp_path / "test_two.py").write_text(
-        "import time\n"
-        "def test_burns():\n    t = time.process_time()\n    while time.process_time() - t < 0.8: pass\n"
-        "def test_waits():\n    time.sleep(0.8)\n")
-    out, root = tmp_path / "d.json", str(schedule.DURATIONS.parent.parent)
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "tests.conftest",
-                        str(tmp_path), "--record-durations", str(out)], capture_output=True, text=True, timeout=120,
-                       cwd=tmp_path, env={**os.environ, "PYTHONPATH": root})
-    assert r.returncode == 0, r.stdout + r.stderr
-    got = json.loads(out.read_text())
-    burns, waits = got["test_two.py::test_burns"], got["test_two.py::test_waits"]
-    assert burns[0] >= 0.8 and burns[1] >= 0.7  # CPU as long as its wall
-    assert waits[0] >= 0.8 and waits[1] < 0.3  # a sleep costs next to no CPU
-    assert schedule.load_timings(out)["test_two.py::test_burns"] == tuple(burns)
 
 
 def test_the_shipped_durations_name_tests_that_exist():
