@@ -42,10 +42,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pydecay
 from scipy.special import erf
 
-from detector_fw_sim import electron_escape
+from detector_fw_sim import electron_escape, xcom
 from radseek import machine_cache
 
 # the photon lines of a nuclide and its short-lived progeny are shared with the flight software's nuclide test
@@ -121,7 +120,7 @@ def scattered_energy_keV(E_keV: float | np.ndarray, theta: np.ndarray | float) -
 
 
 def _mu_rho_table(material: str, E_keV: float) -> float:
-    return pydecay.material(material).mu_over_rho(E_keV / 1000.0)
+    return float(xcom.mu_over_rho(material, E_keV / 1000.0))
 
 
 def _photo_per_atom_from_table(material: str, Z: int, A: float, E_keV: float) -> float:
@@ -223,9 +222,8 @@ def mu_per_m(material: str, E_keV: float, density_g_cm3: float | None = None, vo
     ``density_g_cm3`` overrides the library's density (e.g. lighter concrete); ``void_fraction``
     is the hollow share of a cinder-block wall (the slab's average density is (1 - void) * density).
     """
-    mat = pydecay.material(material)
-    rho = mat.density_g_cm3 if density_g_cm3 is None else density_g_cm3
-    return mat.mu_over_rho(E_keV / 1000.0) * rho * (1.0 - void_fraction) * 100.0
+    rho = xcom.density_g_cm3(material) if density_g_cm3 is None else density_g_cm3
+    return float(xcom.mu_over_rho(material, E_keV / 1000.0)) * rho * (1.0 - void_fraction) * 100.0
 
 
 # ------------------------------------------------------------------------------------ deposition
@@ -318,8 +316,7 @@ def absorber_transmission(E_keV: np.ndarray | float, effects: ResponseEffects | 
     E = np.atleast_1d(np.asarray(E_keV, dtype=float))
     if effects is None or effects.absorber_g_cm2 <= 0:
         return np.ones_like(E)
-    mat = pydecay.material(effects.absorber_material)
-    mu = np.array([mat.mu_over_rho(max(float(e), 10.0) / 1000.0) for e in E])
+    mu = xcom.mu_over_rho(effects.absorber_material, np.maximum(E, 10.0) / 1000.0)
     return np.exp(-mu * effects.absorber_g_cm2)
 
 
@@ -511,11 +508,10 @@ def thick_scatter_yield(E_keV: float, theta_lo_deg: float, theta_hi_deg: float, 
     (single-scattering albedo of a semi-infinite medium, normal incidence and exit: the photon is scattered at
     the depth it reaches and must get out again at its scattered energy E'; Chandrasekhar, *Radiative
     Transfer*, 1960, sec. 9; mu/rho of ``SCATTERER_MATERIAL`` from pydecay / NIST XCOM)."""
-    mat = pydecay.material(SCATTERER_MATERIAL)
     theta = np.linspace(math.radians(theta_lo_deg), math.radians(theta_hi_deg), n + 1)
     mid = 0.5 * (theta[1:] + theta[:-1])
-    mu_in = mat.mu_over_rho(max(E_keV, 10.0) / 1000.0)
-    mu_out = np.array([mat.mu_over_rho(max(float(e), 10.0) / 1000.0) for e in scattered_energy_keV(E_keV, mid)])
+    mu_in = float(xcom.mu_over_rho(SCATTERER_MATERIAL, max(E_keV, 10.0) / 1000.0))
+    mu_out = xcom.mu_over_rho(SCATTERER_MATERIAL, np.maximum(scattered_energy_keV(E_keV, mid), 10.0) / 1000.0)
     return float((klein_nishina_dOmega(E_keV, mid) * np.sin(mid) * np.diff(theta) / (mu_in + mu_out)).sum())
 
 

@@ -19,10 +19,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import pydecay
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from detector_fw_sim import response
+from detector_fw_sim import response, xcom
 from detector_fw_sim.ladder import REFERENCE_EDGES_KEV, ComparatorLadder
 from radseek.dataset import EFFECTS, Scenario, Wall
 from radseek.truth import Truth, TruthSource
@@ -107,8 +106,8 @@ class WallSpec(_Model):
     @field_validator("material")
     @classmethod
     def _known_material(cls, v: str) -> str:
-        if v.lower() not in MATERIAL_ALIASES and v.lower() not in pydecay.available_materials():
-            known = sorted(set(pydecay.available_materials()) | set(MATERIAL_ALIASES))
+        if v.lower() not in MATERIAL_ALIASES and v.lower() not in xcom.material_names():
+            known = sorted(set(xcom.material_names()) | set(MATERIAL_ALIASES))
             raise ValueError(f"unknown material {v!r}; known: {', '.join(known)}")
         return v
 

@@ -5,19 +5,23 @@ here): shared by the emulator's detector response (``detector_fw_sim.response``)
 
 from __future__ import annotations
 
+import importlib.metadata
+import importlib.util
 import re
 from collections.abc import Callable
 from functools import cache, lru_cache
 from pathlib import Path
-from typing import Any
-
-import pydecay.data
-from pydecay import Inventory
-from pydecay.data import load_catalog, load_rad_for
-from pydecay.exceptions import NuclideNotFoundError
-from pydecay.nuclide import Nuclide, normalize_nuclide_name
+from typing import TYPE_CHECKING, Any
 
 from radseek import machine_cache
+
+if TYPE_CHECKING:
+    from pydecay import Inventory
+    from pydecay.nuclide import Nuclide
+
+# pydecay is imported where its tables are read, not here: the import costs a process 0.3 s of CPU (pint's unit
+# registry, scipy.linalg), and a process whose nuclides' lines are in this machine's cache (:func:`gamma_lines`:
+# the detector, the vehicle and the launcher of every run) reads none of its tables.
 
 MIN_LINE_KEV = 10.0  # lines below this never reach a 40 keV threshold
 MIN_LINE_YIELD = 1e-3
@@ -28,6 +32,10 @@ def _nuclide(name: str) -> Nuclide:
     """``Nuclide.load(name)`` from pydecay's cached catalog, once per name and process: ``Nuclide.load`` parses the
     whole ICRP-107 table (0.9 MB of JSON, ~45 ms) on every call, and one scene's validation made ~20 such calls.
     Raises pydecay's NuclideNotFoundError / DataFormatError as ``Nuclide.load`` does (errors are not cached)."""
+    from pydecay.data import load_catalog
+    from pydecay.exceptions import NuclideNotFoundError
+    from pydecay.nuclide import Nuclide, normalize_nuclide_name
+
     norm = normalize_nuclide_name(name)
     records = load_catalog()
     if norm not in records:
@@ -48,6 +56,8 @@ def _emissions(name: str) -> tuple[dict[str, Any], ...]:
     cached = _read_rows(norm)
     if cached is not None:
         return cached
+    from pydecay.data import load_rad_for
+
     try:
         rows = tuple(load_rad_for(name))
     except Exception:  # pydecay's own errors: a known nuclide without RAD rows
@@ -65,13 +75,38 @@ def _emissions(name: str) -> tuple[dict[str, Any], ...]:
 CACHE_ENV = machine_cache.CACHE_ENV
 
 
+def _pydecay_data(name: str) -> Path:
+    """pydecay's data file ``name``, found without importing pydecay."""
+    spec = importlib.util.find_spec("pydecay")
+    locations = list(spec.submodule_search_locations or []) if spec is not None else []
+    return Path(locations[0] if locations else ".") / "data" / name
+
+
+def _pydecay_version() -> str:
+    try:
+        return importlib.metadata.version("pydecay")
+    except importlib.metadata.PackageNotFoundError:
+        return "?"
+
+
 def _rad_file() -> Path:
-    return Path(pydecay.data.__file__).with_name("icrp107_rad.json.gz")
+    return _pydecay_data("icrp107_rad.json.gz")
 
 
 def rows_cache() -> Path | None:
     """The folder caching pydecay's RAD rows on this machine (None when pydecay's table cannot be stat'ed)."""
-    return machine_cache.keyed_path("pydecay-rad-rows", getattr(pydecay, "__version__", "?"), _rad_file())
+    return machine_cache.keyed_path("pydecay-rad-rows", _pydecay_version(), _rad_file())
+
+
+def lines_cache() -> Path | None:
+    """The folder caching :func:`gamma_lines` on this machine: keyed by pydecay's version and both tables the lines
+    come from (the ICRP-107 catalog's half-lives and branchings, the RAD rows)."""
+    catalog = _pydecay_data("icrp107.json")
+    rad = machine_cache.keyed_path("pydecay-rad-rows", _pydecay_version(), _rad_file())
+    cat = machine_cache.keyed_path("catalog", _pydecay_version(), catalog)
+    if rad is None or cat is None:
+        return None
+    return rad.parent / f"pydecay-gamma-lines-{rad.name[-16:]}{cat.name[-16:]}"
 
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
@@ -167,8 +202,17 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
     """(energy keV, photons per decay of ``nuclide``) from pydecay's ICRP-107 tables.
 
     Daughters much shorter-lived than the parent (secular equilibrium, e.g. Ba-137m under Cs-137)
-    contribute with their branching ratio. Raises ``ValueError`` naming an unknown nuclide.
+    contribute with their branching ratio. Raises ``ValueError`` naming an unknown nuclide. The lines of a name asked
+    for before on this machine come from :func:`lines_cache` (pydecay's own values, computed by it the first time).
     """
+    path = None
+    folder = lines_cache()
+    if folder is not None and _SAFE_NAME.fullmatch(nuclide):
+        path = folder / f"{nuclide}@{min_yield!r}.json"
+        cached = machine_cache.read_json(path)
+        if isinstance(cached, list) and cached and all(
+                isinstance(r, list) and len(r) == 2 and all(isinstance(x, float) for x in r) for r in cached):
+            return tuple((e, y) for e, y in cached)
     try:
         parent = _nuclide(nuclide)
     except Exception as exc:  # pydecay raises its own NuclideNotFoundError / DataFormatError
@@ -176,9 +220,8 @@ def gamma_lines(nuclide: str, min_yield: float = MIN_LINE_YIELD) -> tuple[tuple[
     out = _kept(member_photon_lines(short_lived_members(parent.name)), min_yield)
     if not out:
         raise ValueError(f"nuclide {nuclide!r} emits no gamma line above {MIN_LINE_KEV} keV in pydecay's tables")
+    machine_cache.write_json(path, [[float(e), float(y)] for e, y in out])
     return out
-
-
 
 
 #: heads of the natural decay series. As a calibration source (``radseek calibrate X=Th-232``) the bare name means the
@@ -292,6 +335,8 @@ def _nuclide_or_value_error(name: str) -> Nuclide:
 @cache
 def _unit_inventory(seed: str) -> Inventory:
     """1 Bq of ``seed`` alone, with its progeny closure (pydecay loads every member once here)."""
+    from pydecay import Inventory
+
     return Inventory({seed: 1.0})
 
 
