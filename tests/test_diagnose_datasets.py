@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 from contextlib import redirect_stdout
+from pathlib import Path
 
 import pytest
 
@@ -16,6 +17,7 @@ from estimator.diagnose.runner import diagnose
 from radseek_cli.diagnose_cli import main
 from radseek_io.truth import read_dataset_with_truth
 from reporting.truth_errors import score_diagnosis
+from tests.support.once_per_run import once_per_run
 
 
 def _run_cli(argv: list[str]) -> tuple[int, str]:
@@ -25,10 +27,19 @@ def _run_cli(argv: list[str]) -> tuple[int, str]:
     return code, buf.getvalue()
 
 
+def _anisotropy_run(shared_datasets, tmp_path_factory) -> tuple[int, str, Path]:
+    """``radseek diagnose spin-anisotropy --json`` once per test run: (exit code, stdout, its output folder)."""
+    def run(folder: Path) -> tuple[int, str, Path]:
+        code, out = _run_cli([str(shared_datasets / "spin-anisotropy"), "--json", "--quiet", "--out", str(folder),
+                              "--starts", "4"])
+        return code, out, folder
+
+    return once_per_run(tmp_path_factory, "diagnose-spin-anisotropy", run)
+
+
 @pytest.mark.io
-def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_datasets, tmp_path):
-    code, out = _run_cli([str(shared_datasets / "spin-anisotropy"), "--json", "--quiet", "--out", str(tmp_path),
-                          "--starts", "4"])
+def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_datasets, tmp_path_factory):
+    code, out, folder = _anisotropy_run(shared_datasets, tmp_path_factory)
     assert code == 0
     rep = json.loads(out)
     for key in ("model", "deviance_per_dof", "p_value", "sources", "candidates", "missing"):
@@ -43,19 +54,24 @@ def test_cli_json_names_the_anisotropy_and_adding_it_brings_the_fit_home(shared_
     assert abs(after["deviance_per_dof"] - after["deviance_per_dof_expected"]) < 4 * after["deviance_per_dof_sd"]
     assert after["deviance_per_dof"] < rep["deviance_per_dof"]
     assert {"x", "y", "z", "cps_at_1m"} <= set(rep["sources"][0])
-    assert all(p.endswith(".png") for p in rep["plots"]) and (tmp_path / "residual_map.png").exists()
+    assert all(p.endswith(".png") for p in rep["plots"]) and (folder / "residual_map.png").exists()
 
 
 @pytest.mark.io
-def test_cli_add_shows_before_and_after(shared_datasets, tmp_path):
-    code, out = _run_cli([str(shared_datasets / "lattice-clean"), "--add", "air_attenuation", "--quiet", "--out",
-                          str(tmp_path), "--starts", "4"])
+def test_cli_add_after_a_run_reuses_its_fits_and_shows_before_and_after(shared_datasets, tmp_path_factory, capsys):
+    """The tutorial's step: the effect a run named, added in that run's folder (its fits.pkl reused: the baseline
+    and the selection are not searched again; a fresh `--add` on lattice-clean cost 16 s of CPU here)."""
+    *_, folder = _anisotropy_run(shared_datasets, tmp_path_factory)
+    capsys.readouterr()
+    code, out = _run_cli([str(shared_datasets / "spin-anisotropy"), "--add", "anisotropy", "--out", str(folder),
+                          "--starts", "4", "--jobs", "1"])
     assert code == 0
-    assert "5. Added: baseline (sources + constant background) + air_attenuation" in out
-    assert "deviance/dof" in out and "->" in out and "air_attenuation.mu_per_m" in out
-    assert "Air itself attenuates" in out  # the physics sentence
+    assert f"reusing the fits and selections saved in {folder / 'fits.pkl'}" in capsys.readouterr().err
+    assert "5. Added: baseline (sources + constant background) + anisotropy" in out
+    assert "deviance/dof" in out and "->" in out and "anisotropy.fraction" in out
+    assert "electronics and mounting behind the crystal" in out  # the physics sentence
     assert "6. Is anything still missing?" in out and "is adequate" in out
-    assert (tmp_path / "before_after.png").exists()
+    assert (folder / "before_after.png").exists()
 
 
 def test_bad_input_exits_2(tmp_path, capsys):
