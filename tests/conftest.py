@@ -10,6 +10,8 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -227,21 +229,36 @@ def free_port() -> int:
 
 
 @pytest.fixture
-def router():
-    """A real `radseek router` on a free loopback port; yields its endpoint."""
+def router(tmp_path_factory):
+    """A real `radseek router` on a free loopback port; yields its endpoint.
+
+    Its output goes to a file, not a pipe nobody reads after the first line: zenoh's threads log there, and one
+    blocked on a full pipe would hold up the session's close. A router that ignores SIGTERM for ROUTER_STOP_S is
+    killed and said in a warning with its log (one clean-clone make test waited the 60 s it used to allow)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "radseek_cli", "router", "--listen", endpoint],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log = tmp_path_factory.mktemp("router") / "router.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "radseek_cli", "router", "--listen", endpoint],
+                                stdout=out, stderr=subprocess.STDOUT, text=True)
     try:
-        assert "listening" in proc.stdout.readline()
+        deadline = time.monotonic() + 120
+        while "listening" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, f"the router did not start: {log.read_text()}"
+            time.sleep(0.02)
         yield endpoint
     finally:
         proc.terminate()
-        try:  # a wait bound only (a loaded host may be slow to shut it down); never leave it running
-            proc.wait(60)
+        try:
+            proc.wait(ROUTER_STOP_S)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+            warnings.warn(f"radseek router ignored SIGTERM for {ROUTER_STOP_S:g} s and was killed; its log: "
+                          f"{log.read_text()[-2000:]}", stacklevel=1)
+
+
+#: wall seconds a router fixture's router has to exit after SIGTERM (it takes ~0.03 s idle)
+ROUTER_STOP_S = 20.0
 
 
 @pytest.fixture
