@@ -1,8 +1,8 @@
 # The commands a new user needs: `make run` (a search mission against the mock vehicle)
 # and `make test` (the whole test suite, what CI runs: every test, in 4 parallel pytest-xdist workers on 2 cores,
-# as many tests wait on sockets, subprocesses and sped-up clocks: 7:32-8:33 over six clean-clone runs on 2 idle cores
-# (2026-12-06; this shared host's speed varied: one diagnose took 21.7 s of CPU alone, 23.7 s an hour later, and
-# 23-31 s inside the runs), 8:02 at the previous session's end with 4 workers in the planned order
+# as many tests wait on sockets, subprocesses and sped-up clocks: 7:32-8:50 over eight clean-clone runs on 2 idle cores
+# (2026-12-06; this shared host slowed down through them: one diagnose took 21.7 s of CPU alone, 24.8 s two hours
+# later, and 23-31 s inside the runs), 8:02 at the previous session's end with 4 workers in the planned order
 # (8:33 and 9:24 with 4 and 3 in the old order). 5 workers took 7:38 once, but starved the security tests' runs:
 # a compromised board's copies of the detector's frames overtook the originals (the documented copy race) and a
 # run failed; not kept); handed one test at a time in the order tests/support/schedule.py plans from tests/durations.json,
