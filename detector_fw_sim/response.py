@@ -182,18 +182,8 @@ def _mu_elam_photo(element: str, energy_eV: float) -> float:
 
 
 def _elam_file() -> Path | None:
-    import importlib.metadata
-    import importlib.util
-
-    spec = importlib.util.find_spec("xraydb")  # without importing it
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    try:
-        version = importlib.metadata.version("xraydb")
-    except importlib.metadata.PackageNotFoundError:
-        version = "?"
-    db = Path(next(iter(spec.submodule_search_locations))) / "xraydb.sqlite"
-    return machine_cache.keyed_path("xraydb-mu-elam-photo", version, db, ".json")
+    db = machine_cache.package_file("xraydb", "xraydb.sqlite")  # without importing xraydb
+    return machine_cache.keyed_path("xraydb-mu-elam-photo", machine_cache.package_version("xraydb"), db, ".json")
 
 
 def _elam_read(path: Path | None) -> dict[str, float]:

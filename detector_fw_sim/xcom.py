@@ -9,28 +9,11 @@ log E and log mu/rho, an energy outside the table an error), vectorised; tests/t
 
 from __future__ import annotations
 
-import importlib.metadata
-import importlib.util
 from functools import cache
-from pathlib import Path
 
 import numpy as np
 
 from radseek import machine_cache
-
-
-def _table_file() -> Path:
-    """pydecay's bundled XCOM payload, found without importing pydecay."""
-    spec = importlib.util.find_spec("pydecay")
-    locations = list(spec.submodule_search_locations or []) if spec is not None else []
-    return Path(locations[0] if locations else ".") / "data" / "nist_mu.json.gz"
-
-
-def _version() -> str:
-    try:
-        return importlib.metadata.version("pydecay")
-    except importlib.metadata.PackageNotFoundError:
-        return "?"
 
 
 def _valid(table: object) -> bool:
@@ -48,7 +31,8 @@ def _valid(table: object) -> bool:
 def table() -> dict[str, dict]:
     """Material (lower case) -> {"density_g_cm3", "E_MeV", "mu_over_rho"}: pydecay's payload, as its registry reads
     it (``pydecay.available_materials`` names, ``pydecay.material`` values)."""
-    path = machine_cache.keyed_path("pydecay-xcom", _version(), _table_file(), ".json")
+    path = machine_cache.keyed_path("pydecay-xcom", machine_cache.package_version("pydecay"),
+                                    machine_cache.package_file("pydecay", "data", "nist_mu.json.gz"), ".json")
     cached = machine_cache.read_json(path)
     if _valid(cached):
         return cached
@@ -88,7 +72,8 @@ def mu_over_rho(material: str, energy_MeV: float | np.ndarray) -> np.ndarray:
     outside it is a ValueError, as pydecay's MaterialError is."""
     log_e, log_mu = _logs(material.lower())
     e = np.asarray(energy_MeV, dtype=float)
-    lo, hi = _entry(material)["E_MeV"][0], _entry(material)["E_MeV"][-1]
+    nodes = _entry(material)["E_MeV"]
+    lo, hi = nodes[0], nodes[-1]
     if not np.all(np.isfinite(e)) or np.any(e < lo) or np.any(e > hi):
         raise ValueError(f"{material}: energy {energy_MeV!r} MeV outside the table range [{lo}, {hi}] MeV")
     return np.exp(np.interp(np.log(e), log_e, log_mu))

@@ -15,6 +15,7 @@ import hashlib
 import json
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,14 +29,41 @@ def cache_root() -> Path:
     return Path(root)
 
 
-def keyed_path(kind: str, version: str, data_file: Path, suffix: str = "") -> Path | None:
-    """``ROOT/KIND-HASH[SUFFIX]``, HASH of the library's version and its data file's path, size and modification
-    time; None when the data file cannot be stat'ed."""
+def package_version(package: str) -> str:
+    """The installed version of ``package`` (its distribution's metadata: no import), "?" when unknown."""
+    import importlib.metadata
+
     try:
-        st = data_file.stat()
-    except OSError:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return "?"
+
+
+def package_file(package: str, *parts: str) -> Path | None:
+    """The file ``parts`` inside the installed package ``package``, found without importing it; None when the
+    package is not installed."""
+    import importlib.util
+
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
         return None
-    key = json.dumps([version, str(data_file), st.st_size, st.st_mtime_ns])
+    return Path(next(iter(spec.submodule_search_locations))).joinpath(*parts)
+
+
+def keyed_path(kind: str, version: str, data_file: Path | Sequence[Path] | None, suffix: str = "") -> Path | None:
+    """``ROOT/KIND-HASH[SUFFIX]``, HASH of the library's version and its data file's (or files') path, size and
+    modification time; None when a data file is unknown or cannot be stat'ed."""
+    files = [data_file] if data_file is None or isinstance(data_file, Path) else list(data_file)
+    stamps: list[Any] = []
+    for f in files:
+        if f is None:
+            return None
+        try:
+            st = f.stat()
+        except OSError:
+            return None
+        stamps += [str(f), st.st_size, st.st_mtime_ns]
+    key = json.dumps([version, *stamps])
     return cache_root() / f"{kind}-{hashlib.sha256(key.encode()).hexdigest()[:16]}{suffix}"
 
 

@@ -5,8 +5,6 @@ here): shared by the emulator's detector response (``detector_fw_sim.response``)
 
 from __future__ import annotations
 
-import importlib.metadata
-import importlib.util
 import re
 from collections.abc import Callable
 from functools import cache, lru_cache
@@ -75,22 +73,12 @@ def _emissions(name: str) -> tuple[dict[str, Any], ...]:
 CACHE_ENV = machine_cache.CACHE_ENV
 
 
-def _pydecay_data(name: str) -> Path:
-    """pydecay's data file ``name``, found without importing pydecay."""
-    spec = importlib.util.find_spec("pydecay")
-    locations = list(spec.submodule_search_locations or []) if spec is not None else []
-    return Path(locations[0] if locations else ".") / "data" / name
-
-
 def _pydecay_version() -> str:
-    try:
-        return importlib.metadata.version("pydecay")
-    except importlib.metadata.PackageNotFoundError:
-        return "?"
+    return machine_cache.package_version("pydecay")
 
 
-def _rad_file() -> Path:
-    return _pydecay_data("icrp107_rad.json.gz")
+def _rad_file() -> Path | None:
+    return machine_cache.package_file("pydecay", "data", "icrp107_rad.json.gz")
 
 
 def rows_cache() -> Path | None:
@@ -101,12 +89,8 @@ def rows_cache() -> Path | None:
 def lines_cache() -> Path | None:
     """The folder caching :func:`gamma_lines` on this machine: keyed by pydecay's version and both tables the lines
     come from (the ICRP-107 catalog's half-lives and branchings, the RAD rows)."""
-    catalog = _pydecay_data("icrp107.json")
-    rad = machine_cache.keyed_path("pydecay-rad-rows", _pydecay_version(), _rad_file())
-    cat = machine_cache.keyed_path("catalog", _pydecay_version(), catalog)
-    if rad is None or cat is None:
-        return None
-    return rad.parent / f"pydecay-gamma-lines-{rad.name[-16:]}{cat.name[-16:]}"
+    return machine_cache.keyed_path("pydecay-gamma-lines", _pydecay_version(),
+                                    (machine_cache.package_file("pydecay", "data", "icrp107.json"), _rad_file()))
 
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9-]*")
