@@ -10,7 +10,6 @@ identification never saw these shapes, it knows only pydecay's line energies and
 from __future__ import annotations
 
 import json
-import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -97,15 +96,9 @@ def flight(primary: str, second: str, second_cps: float, seed: int, primary_cps:
     return frames, e
 
 
-def identify(frames: Frames, e: dict[str, np.ndarray], primary: str) -> NuclideChoice:
-    return identify_second_nuclide(frames, EDGES, primary, e["primary"], e["second"], e["background"])
-
-
-def identify_timed(frames: Frames, e: dict[str, np.ndarray], primary: str, **kw) -> NuclideChoice:
-    t0 = time.process_time()
-    choice = identify_second_nuclide(frames, EDGES, primary, e["primary"], e["second"], e["background"], **kw)
-    assert time.process_time() - t0 < 10.0, "one identification should take seconds, not more"
-    return choice
+def identify(frames: Frames, e: dict[str, np.ndarray], primary: str, **kw) -> NuclideChoice:
+    """The identification of the second source's nuclide (its CPU per call: benchmarks/nuclide_identify.py)."""
+    return identify_second_nuclide(frames, EDGES, primary, e["primary"], e["second"], e["background"], **kw)
 
 
 # ------------------------------------------------------------------------------------------------ the pieces
@@ -138,6 +131,26 @@ def test_group_labels_split_dwells_and_chunk_transit():
     assert len(np.unique(lab[:20])) == 2  # 2 s of transit in 1 s chunks
 
 
+def test_the_response_is_linear_in_the_photons_and_keeps_every_decays_photons():
+    # the crystal only mixes what the energies fix (cached once per set of energies): each path's photons are
+    # the line's yield, and the deposits of two weightings add
+    from estimator.diagnose.nuclide import Crystal, _deposits, _incident
+
+    lines = photon_lines("Eu-152")
+    for back, down in ((0.0, 0.0), (0.3, 0.2), (0.6, 0.4)):
+        e, w = _incident(lines, Crystal(back=back, down=down))
+        assert w.sum() == pytest.approx(sum(y for _, y in lines), rel=1e-12)
+    e, w = _incident(lines, Crystal())
+    rng = np.random.default_rng(0)
+    w2 = rng.uniform(0, 1, len(w))
+    for escape, fill in ((0.33, 0.3), (1.5, 0.9)):
+        one, two, both = (_deposits(e, x, escape, fill) for x in (w, w2, w + w2))
+        assert np.allclose(one[1] + two[1], both[1], rtol=1e-12, atol=0)
+        assert np.allclose(one[2] + two[2], both[2], rtol=1e-12, atol=1e-12 * both[2].max())  # cumsum rounding
+    # a longer path out of the crystal (escape_cm) means more second interactions: more in the photopeak
+    assert _deposits(e, w, 2.0, 0.5)[1].sum() > _deposits(e, w, 0.1, 0.5)[1].sum()
+
+
 @needs_spectra
 def test_shapes_carried_from_the_primary_match_the_measured_spectra():
     # the crystal fitted on the MEASURED Cs-137 spectrum alone predicts Co-60, Ba-133 and Eu-152 (measured on
@@ -162,7 +175,7 @@ def test_second_nuclide_named_under_a_cs137_primary(second):
     weak = 60.0 if second == "Eu-152" else 100.0
     for seed, cps in ((0, 1300.0), (1, 1300.0), (2, weak), (3, weak), (4, weak)):
         f, e = flight("Cs-137", second, cps, seed)
-        choice = identify_timed(f, e, "Cs-137")
+        choice = identify(f, e, "Cs-137")
         assert choice.nuclide == second, (seed, cps, choice.note, choice.log_likelihood)
         assert choice.gap >= 5.0
         assert set(choice.log_likelihood) == set(CANDIDATES)
@@ -172,7 +185,7 @@ def test_second_nuclide_named_under_a_cs137_primary(second):
 def test_cs137_second_under_a_co60_primary():
     for seed, cps in ((0, 1300.0), (1, 300.0), (2, 100.0)):
         f, e = flight("Co-60", "Cs-137", cps, seed)
-        choice = identify_timed(f, e, "Co-60")
+        choice = identify(f, e, "Co-60")
         assert choice.nuclide == "Cs-137", (seed, cps, choice.note)
         assert "Co-60" in choice.log_likelihood and choice.log_likelihood["Co-60"] < choice.log_likelihood["Cs-137"]
 
@@ -185,7 +198,7 @@ def test_a_very_weak_second_source_is_not_given_a_wrong_nuclide(second):
     outcomes = []
     for seed in range(3):
         f, e = flight("Cs-137", second, 2.0, seed)
-        choice = identify_timed(f, e, "Cs-137")
+        choice = identify(f, e, "Cs-137")
         assert choice.nuclide in (None, second), (seed, choice.note)
         outcomes.append(choice.nuclide)
         if choice.nuclide is None:
@@ -198,7 +211,7 @@ def test_a_second_source_that_is_not_in_the_data_gets_no_nuclide():
     # the count model believes in a 1300 cps second source, the spectra hold none: every hypothesis fits alike
     for seed in range(2):
         f, e = flight("Cs-137", "Co-60", 1300.0, seed, data_second_cps=0.0)
-        choice = identify_timed(f, e, "Cs-137")
+        choice = identify(f, e, "Cs-137")
         assert choice.nuclide is None, choice.note
 
 
@@ -208,10 +221,10 @@ def test_a_nuclide_missing_from_the_candidates_is_not_replaced_by_a_neighbour():
     # nearest, but leaves a misfit beyond the shapes' own error, so no nuclide is named
     f, e = flight("Cs-137", "Co-60", 1300.0, 0)
     cands = tuple(c for c in CANDIDATES if c != "Co-60")
-    choice = identify_timed(f, e, "Cs-137", candidates=cands)
+    choice = identify(f, e, "Cs-137", candidates=cands)
     assert choice.nuclide is None and "none of" in choice.note, choice.note
     f, e = flight("Cs-137", "Eu-152", 1300.0, 1)
-    choice = identify_timed(f, e, "Cs-137", candidates=tuple(c for c in CANDIDATES if c != "Eu-152"))
+    choice = identify(f, e, "Cs-137", candidates=tuple(c for c in CANDIDATES if c != "Eu-152"))
     assert choice.nuclide is None, choice.note
 
 
@@ -220,9 +233,9 @@ def test_a_primary_whose_shape_changes_with_distance_does_not_make_a_nuclide_up(
     # scattered photons grow with distance (10 % per m, up to 50 %): the primary's shape is not one shape;
     # a phantom second source must still get no nuclide, a real Cs-137 one is still Cs-137
     f, e = flight("Cs-137", "Cs-137", 1300.0, 0, scatter_per_m=0.1, data_second_cps=0.0)
-    assert identify_timed(f, e, "Cs-137").nuclide is None
+    assert identify(f, e, "Cs-137").nuclide is None
     f, e = flight("Cs-137", "Cs-137", 1300.0, 1, scatter_per_m=0.1)
-    assert identify_timed(f, e, "Cs-137").nuclide == "Cs-137"
+    assert identify(f, e, "Cs-137").nuclide == "Cs-137"
 
 
 def test_inputs_are_checked():
@@ -253,10 +266,8 @@ def test_two_cs137_sources_dataset_calls_the_second_cs137():
     d2 = ((pos - np.array([s2["x"], s2["y"], s2["z"]])) ** 2).sum(1)
     e = {"primary": s1["cps_at_1m"] / d1 * f.duration, "second": s2["cps_at_1m"] / d2 * f.duration,
          "background": ds.scenario.background_cps * f.duration}
-    t0 = time.process_time()
     choice = identify_second_nuclide(f, np.asarray(ds.scenario.channel_edges_keV), ds.scenario.nuclide,
                                      e["primary"], e["second"], e["background"])
-    assert time.process_time() - t0 < 10.0
     assert choice.nuclide == "Cs-137", choice.note
     assert choice.gap / choice.dispersion > 100  # ~20k second-source counts: not a close call
 
@@ -266,7 +277,7 @@ def test_a_misplaced_count_fit_still_names_the_nuclide():
     # the count fit put the second source 1 m off and half as strong as it is: the expected counts per dwell
     # are wrong, the scales and the over-dispersion take it, the nuclide is still named
     f, e = flight("Cs-137", "Eu-152", 50.0, 7, model_offset_m=1.0, data_second_cps=100.0)
-    choice = identify_timed(f, e, "Cs-137")
+    choice = identify(f, e, "Cs-137")
     assert choice.nuclide == "Eu-152", choice.note
 
 

@@ -184,16 +184,27 @@ def _grid() -> np.ndarray:
     return np.arange(0.0, GRID_MAX_KEV + GRID_STEP_KEV, GRID_STEP_KEV)
 
 
-def _deposits(energies: np.ndarray, weights: np.ndarray, escape_cm: float, fill: float
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Deposited energy per incident photon of ``energies`` (weights): (peak energies, peak weights, continuum
-    on the fine grid). The photon interacts within the crystal's length with 1 - exp(-mu L); a photo-absorption
-    deposits everything; a Compton scatter gives the electron T (Klein-Nishina), and the scattered photon E' =
-    E - T escapes with exp(-mu(E') escape_cm) or interacts again: photo-absorbed (all of E deposited) or
-    scattered a second time, depositing T + T2 with T2 up to E''s Compton edge (spread evenly), after which
-    a share ``fill`` is absorbed at last (photopeak) and the rest escapes."""
-    e = np.asarray(energies, dtype=float)
-    w = np.asarray(weights, dtype=float)
+@dataclass(frozen=True)
+class _Scatter:
+    """What the response of :func:`_deposits` owes to the photon energies alone (cross-sections, Klein-Nishina
+    samples, grid cells): the same for every crystal a calibration tries, so computed once per set of energies."""
+
+    ph: np.ndarray  # (n,) photoelectric and Compton attenuation at the photon energies (1/cm)
+    co: np.ndarray
+    mu: np.ndarray
+    p_int: np.ndarray  # (n,) interaction within the crystal's length
+    kn: np.ndarray  # (n, N_KN) Klein-Nishina weights of the electron energies T (each row sums to 1)
+    ph1: np.ndarray  # (n, N_KN) the scattered photon's photoelectric, Compton and total attenuation
+    co1: np.ndarray
+    mu1: np.ndarray
+    lo: np.ndarray  # (n * N_KN,) grid cell of T
+    hi1: np.ndarray  # (n * N_KN,) one past the cell of the second scatter's highest deposit
+    width: np.ndarray  # (n, N_KN) cells from T to that deposit
+
+
+@lru_cache(maxsize=16)
+def _scatter(key: bytes) -> _Scatter:
+    e = np.frombuffer(key, dtype=float)
     ph, co = mu_crystal(e)
     mu = ph + co
     p_int = 1.0 - np.exp(-mu * CRYSTAL_CM)
@@ -203,45 +214,64 @@ def _deposits(energies: np.ndarray, weights: np.ndarray, escape_cm: float, fill:
     T = tmax[:, None] * u[None, :]
     kn = _kn_dT(e[:, None], T / e[:, None])
     kn = kn / kn.sum(1, keepdims=True)
-    w1 = (w * p_int * co / mu)[:, None] * kn
     e1 = e[:, None] - T
     ph1, co1 = mu_crystal(e1)
-    mu1 = ph1 + co1
-    esc = np.exp(-mu1 * escape_cm)
-    grid = _grid()
-    nb = len(grid) - 1
+    nb = len(_grid()) - 1
     lo_i = np.minimum((T / GRID_STEP_KEV).astype(int), nb - 1)
-    cont = np.bincount(lo_i.ravel(), weights=(w1 * esc).ravel(), minlength=nb)
-    again = w1 * (1 - esc)
-    photo2 = again * ph1 / mu1
-    comp2 = again * co1 / mu1
     k1 = e1 / MEC2_KEV
     top = np.minimum(T + e1 * 2 * k1 / (1 + 2 * k1), e[:, None])
     hi_i = np.minimum((top / GRID_STEP_KEV).astype(int), nb - 1)
-    dens = (1 - fill) * comp2 / np.maximum(hi_i - lo_i + 1, 1)
-    step = (np.bincount(lo_i.ravel(), weights=dens.ravel(), minlength=nb + 1)
-            - np.bincount(hi_i.ravel() + 1, weights=dens.ravel(), minlength=nb + 1))
+    return _Scatter(ph, co, mu, p_int, kn, ph1, co1, ph1 + co1, lo_i.ravel(), hi_i.ravel() + 1,
+                    np.maximum(hi_i - lo_i + 1, 1))
+
+
+def _deposits(energies: np.ndarray, weights: np.ndarray, escape_cm: float, fill: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Deposited energy per incident photon of ``energies`` (weights): (peak energies, peak weights, continuum
+    on the fine grid). The photon interacts within the crystal's length with 1 - exp(-mu L); a photo-absorption
+    deposits everything; a Compton scatter gives the electron T (Klein-Nishina), and the scattered photon E' =
+    E - T escapes with exp(-mu(E') escape_cm) or interacts again: photo-absorbed (all of E deposited) or
+    scattered a second time, depositing T + T2 with T2 up to E''s Compton edge (spread evenly), after which
+    a share ``fill`` is absorbed at last (photopeak) and the rest escapes. The energies' own part
+    (:func:`_scatter`) is computed once: a calibration changes only the weights, ``escape_cm`` and ``fill``."""
+    e = np.ascontiguousarray(energies, dtype=float)
+    w = np.asarray(weights, dtype=float)
+    sc = _scatter(e.tobytes())
+    w1 = (w * sc.p_int * sc.co / sc.mu)[:, None] * sc.kn
+    esc = np.exp(-sc.mu1 * escape_cm)
+    nb = len(_grid()) - 1
+    cont = np.bincount(sc.lo, weights=(w1 * esc).ravel(), minlength=nb)
+    again = w1 * (1 - esc)
+    photo2 = again * sc.ph1 / sc.mu1
+    comp2 = again * sc.co1 / sc.mu1
+    dens = ((1 - fill) * comp2 / sc.width).ravel()
+    step = np.bincount(sc.lo, weights=dens, minlength=nb + 1) - np.bincount(sc.hi1, weights=dens, minlength=nb + 1)
     cont = cont + np.cumsum(step)[:nb]
-    peak_w = w * p_int * ph / mu + photo2.sum(1) + fill * comp2.sum(1)
+    peak_w = w * sc.p_int * sc.ph / sc.mu + photo2.sum(1) + fill * comp2.sum(1)
     return e, peak_w, cont
 
 
 def _incident(lines: tuple[tuple[float, float], ...], crystal: Crystal
               ) -> tuple[np.ndarray, np.ndarray]:
     """Photon energies reaching the crystal per decay: direct, backscattered and down-scattered."""
-    ee, ww = [], []
+    e, direct, back, down = _incident_parts(lines)
+    return e, (1.0 - crystal.back - crystal.down) * direct + crystal.back * back + crystal.down * down
+
+
+@lru_cache(maxsize=32)
+def _incident_parts(lines: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, ...]:
+    """The energies of :func:`_incident` and their weights per unit share of each path (direct, backscattered,
+    down-scattered): the crystal only mixes the three."""
+    ee, parts = [], []
     for e, y in lines:
-        ee.append(e)
-        ww.append(y * (1.0 - crystal.back - crystal.down))
         eb, wb = _kn_angles(e, *BACK_DEG, N_BACK)
-        ee.extend(eb)
-        ww.extend(y * crystal.back * wb)
         lo = min(40.0, e)
         ed = np.geomspace(lo, e, N_DOWN + 1)
-        ed = np.sqrt(ed[1:] * ed[:-1])
-        ee.extend(ed)
-        ww.extend(np.full(N_DOWN, y * crystal.down / N_DOWN))
-    return np.asarray(ee), np.asarray(ww)
+        ee.extend([e, *eb, *np.sqrt(ed[1:] * ed[:-1])])
+        zb, zd = np.zeros(N_BACK), np.zeros(N_DOWN)
+        parts.append(np.array([np.r_[y, zb, zd], np.r_[0.0, y * wb, zd], np.r_[0.0, zb, np.full(N_DOWN, y / N_DOWN)]]))
+    w = np.concatenate(parts, axis=1)
+    return np.asarray(ee), w[0], w[1], w[2]
 
 
 def channel_shape(nuclide: str, edges_keV: np.ndarray, crystal: Crystal) -> np.ndarray:
@@ -355,10 +385,15 @@ def _fit(n: np.ndarray, E: np.ndarray, q_shape: np.ndarray | None, same: bool, c
         a = a / max(float(p.sum()), 1e-300)
         q = a * p
     sEp, sEb, sEs = Ep.sum(), Eb.sum(), Es.sum()
+    # the three components as rows: every expected count is one product E @ P, every update's sums one Et @ R
+    P = np.array([p, b, q])
+    E = np.asarray(E, dtype=float)
+    Et = np.ascontiguousarray(E.T)
+    norm = 1.0 / np.maximum(np.array([sEp, sEb, sEs]), 1e-300)[:, None]
     prev = -np.inf
     ll = -np.inf
     for it in range(iters):
-        mu = np.outer(Ep, p) + np.outer(Eb, b) + np.outer(Es, q)
+        mu = E @ P
         R = n / np.maximum(mu, 1e-300)
         if it % 20 == 0:
             ll = _ll(n, mu, const)
@@ -367,24 +402,24 @@ def _fit(n: np.ndarray, E: np.ndarray, q_shape: np.ndarray | None, same: bool, c
             prev = ll
         if same:
             # p carries both the primary and the second source (activation Ep + a Es); then the scale a
+            p, b = P[0], P[1]
             act = Ep + a * Es
             p = p * (act @ R) / max(act.sum(), 1e-300)
             mu = np.outer(act, p) + np.outer(Eb, b)
             R = n / np.maximum(mu, 1e-300)
             a = a * float(Es @ R @ p) / max(sEs * p.sum(), 1e-300)
             b = b * (Eb @ R) / max(sEb, 1e-300)
-            q = a * p
+            P = np.array([p, b, a * p])
             continue
-        p_new = p * (Ep @ R) / max(sEp, 1e-300)
-        b_new = b * (Eb @ R) / max(sEb, 1e-300)
+        ER = Et @ R  # (3, K): each component's activation summed against the ratios
         if q_shape is None:
-            q = q * (Es @ R) / max(sEs, 1e-300)
+            P = P * ER * norm
         else:
-            a = a * float(Es @ R @ qs) / max(sEs, 1e-300)
-            q = a * qs
-        p, b = p_new, b_new
-    mu = np.outer(Ep, p) + np.outer(Eb, b) + np.outer(Es, q)
-    return _Fit(_ll(n, mu, const), p, b, q, mu)
+            P[:2] = P[:2] * ER[:2] * norm[:2]
+            a = a * float(ER[2] @ qs) / max(sEs, 1e-300)
+            P[2] = a * qs
+    mu = E @ P
+    return _Fit(_ll(n, mu, const), P[0], P[1], P[2], mu)
 
 
 # --------------------------------------------------------------------------------------------- the verdict
