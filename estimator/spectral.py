@@ -541,37 +541,73 @@ class _Scorer:
         (its log masses and the amplitudes trade a common factor), and so is c there (a constant c only
         rescales the amplitudes)."""
         G, K = self.n.shape
+        before, u, after, names = self._columns(p, z, gamma_free)
+        blk = np.zeros((G, K, G))
+        blk[np.arange(G), :, np.arange(G)] = u
+        return np.hstack([*before, blk.reshape(G * K, G), *after]), names
+
+    def normal_equations(self, p: dict, z: np.ndarray | None, gamma_free: bool, m: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """The scoring step's Fisher matrix J^T diag(1/m) J and gradient J^T (1 - n/m) at the expected counts
+        ``m`` (cells), with J = :meth:`jacobian`, and the blocks' names. The group amplitudes' block of J is
+        diagonal by group, so its products are sums over each group's channels: the dense (cells, groups) block
+        is never built (it was most of J, and of the product's cost)."""
+        G, K = self.n.shape
+        before, u, after, names = self._columns(p, z, gamma_free)
+        D = np.hstack([*before, *after])  # (cells, dense parameters)
+        w = 1.0 / m
+        r = 1.0 - self.n.ravel() / m
+        Dw = D * w[:, None]
+        uw = u * w.reshape(G, K)
+        nb = sum(c.shape[1] for c in before)
+        nd = D.shape[1]
+        idx = np.r_[np.arange(nb), nb + G + np.arange(nd - nb)]  # the dense columns' places among all
+        F = np.zeros((nd + G, nd + G))
+        F[np.ix_(idx, idx)] = Dw.T @ D
+        cross = np.einsum("gkd,gk->dg", D.reshape(G, K, nd), uw)  # (dense, groups)
+        F[idx, nb:nb + G] = cross
+        F[nb:nb + G, idx] = cross.T
+        F[np.arange(nb, nb + G), np.arange(nb, nb + G)] = (uw * u).sum(1)
+        grad = np.zeros(nd + G)
+        grad[idx] = D.T @ r
+        grad[nb:nb + G] = (u * r.reshape(G, K)).sum(1)
+        return F, grad, names
+
+    def _columns(self, p: dict, z: np.ndarray | None, gamma_free: bool
+                 ) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray], list[str]]:
+        """The Jacobian's blocks: the dense columns before the group amplitudes (masses, nuisance), the
+        amplitudes' values (G, K) (d mu_gk / d log A_g, zero off group g), the dense columns after them
+        (background, drift), and the blocks' names in column order."""
+        G, K = self.n.shape
         Ms, Mb = (M[:, self.used, :] for M in self.mats(p["gamma"])[:2])
         us, ub = self.parts(p, z)
-        cols, names = [], []
+        before, after, names = [], [], []
 
         def drop_max(blk: np.ndarray, q: np.ndarray) -> np.ndarray:
             return np.delete(blk, int(np.argmax(q)), axis=1)
 
         if not self.fix_s:
-            cols.append(drop_max((p["a_s"][:, None, None] * Ms * p["qs"][None, None, :]).reshape(G * K, -1), p["qs"]))
+            before.append(drop_max((p["a_s"][:, None, None] * Ms * p["qs"][None, None, :]).reshape(G * K, -1),
+                                   p["qs"]))
             names.append("qs")
         if z is not None and p["c"] is not None:
             Mf = self.mats(p["gamma"])[2][:, self.used, :]
-            cols.append(((p["a_s"] * z)[:, None, None] * Mf * p["c"][None, None, :]).reshape(G * K, -1))
+            before.append(((p["a_s"] * z)[:, None, None] * Mf * p["c"][None, None, :]).reshape(G * K, -1))
             names.append("c")
-        cols.append(drop_max((p["a_b"][:, None, None] * Mb * p["qb"][None, None, :]).reshape(G * K, -1), p["qb"]))
+        before.append(drop_max((p["a_b"][:, None, None] * Mb * p["qb"][None, None, :]).reshape(G * K, -1), p["qb"]))
         names.append("qb")
-        blk = np.zeros((G, K, G))
-        blk[np.arange(G), :, np.arange(G)] = us * p["a_s"][:, None]
-        cols.append(blk.reshape(G * K, G))
         names.append("a_s")
         # the background rate: log-linear in time, not free per group (free, it would follow a drift: a
         # drifting spectrum is to first order the source plus a second spectrum growing with time)
         jb = p["a_b"][:, None] * ub
-        cols.append(np.column_stack([jb.ravel(), (jb * self.tt[:, None]).ravel()]))
+        after.append(np.column_stack([jb.ravel(), (jb * self.tt[:, None]).ravel()]))
         names.append("bb")
         if gamma_free:
             h = 1e-3
             d = (self.mu(p, z, p["gamma"] + h) - self.mu(p, z, p["gamma"] - h)) / (2 * h)
-            cols.append(d.reshape(G * K, 1))
+            after.append(d.reshape(G * K, 1))
             names.append("gamma")
-        return np.hstack(cols), names
+        return before, us * p["a_s"][:, None], after, names
 
     def at_bounds(self, p: dict, names: list[str]) -> np.ndarray:
         """(parameters,) -1 where a parameter sits on its lower bound (a mass or amplitude at its floor, c at
@@ -616,7 +652,6 @@ class _Scorer:
             tol: float = 1e-6) -> tuple[float, dict]:
         """Levenberg-Marquardt damped Fisher scoring from ``p``; stops when the Newton decrement (the
         decrease a full step would bring) is below ``tol``."""
-        y = self.n.ravel()
         nll = self.nll(p, z)
         lam = 1e-3
         hist = [nll]
@@ -626,15 +661,13 @@ class _Scorer:
                 if lam <= 1e-3 or restarts >= 3:
                     break
                 lam, hist, restarts = 1e-4, hist[-1:], restarts + 1
-            J, names = self.jacobian(p, z, gamma_free)
             m = np.maximum(self.mu(p, z).ravel(), 1e-12)
-            grad = J.T @ (1.0 - y / m)
+            F_all, grad, names = self.normal_equations(p, z, gamma_free, m)
             # active set: a parameter on its bound that the gradient pushes further out stays where it is
             b = self.at_bounds(p, names)
             free = ~(((b < 0) & (grad > 0)) | ((b > 0) & (grad < 0)))
-            Jf = J[:, free]
             gf = grad[free]
-            F = (Jf / m[:, None]).T @ Jf
+            F = F_all[np.ix_(free, free)]
             dg = np.diag(F).copy()
             reg = 1e-9 * dg.max() * np.eye(len(dg))
             try:
