@@ -13,6 +13,7 @@ import argparse
 import inspect
 import json
 import re
+import sys
 import threading
 import time
 from dataclasses import MISSING, dataclass, fields
@@ -348,6 +349,8 @@ def main(argv: list[str] | None = None) -> int:
                 pass
 
     sub = session.declare_subscriber(args.key, on_sample)
+    print(f"radseek topics: listening to {args.key} for {args.duration:g} s (Ctrl-C stops it early)", file=sys.stderr,
+          flush=True)
     serve_until_stopped(args.duration)
     sub.undeclare()
     session.close()

@@ -8,15 +8,14 @@ vehicle, mission), any other name only reads (radseek/zenoh_auth.py, docs/topics
 from __future__ import annotations
 
 import argparse
-import signal
 import socket
 import sys
-import threading
 
 import zenoh
 
 from radseek.zenoh_auth import CredentialsError, credentials_file, read_credentials
 from radseek.zenoh_session import DEFAULT_ENDPOINT, router_config, tcp_address
+from radseek_cli.serve import StopSignals
 
 
 def _in_use(endpoint: str) -> bool:
@@ -47,24 +46,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"radseek router: {exc}", file=sys.stderr)
         return 2
     zenoh.init_log_from_env_or("error")  # zenoh's own errors (a transport it closes) in the router's log
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        if args.zenoh_config is None and _in_use(args.listen):
-            print(f"radseek router: {args.listen} is already in use (another router?): stop it, or listen "
-                  "elsewhere with --listen tcp/127.0.0.1:PORT and give the others --connect tcp/127.0.0.1:PORT",
-                  file=sys.stderr)
-        else:
-            print(f"radseek router: cannot listen on {args.listen}: {exc}", file=sys.stderr)
-        return 1
-    with session:
-        auth = "open to any session" if users is None else \
-            f"admitting {len(users)} users of {credentials} (each puts only its own keys)"
-        print(f"radseek router {session.zid()} listening on {args.listen}, {auth}", flush=True)
+    with StopSignals() as stop:  # a SIGTERM from the moment the router starts stops it
         try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            if args.zenoh_config is None and _in_use(args.listen):
+                print(f"radseek router: {args.listen} is already in use (another router?): stop it, or listen "
+                      "elsewhere with --listen tcp/127.0.0.1:PORT and give the others --connect tcp/127.0.0.1:PORT",
+                      file=sys.stderr)
+            else:
+                print(f"radseek router: cannot listen on {args.listen}: {exc}", file=sys.stderr)
+            return 1
+        with session:
+            auth = "open to any session" if users is None else \
+                f"admitting {len(users)} users of {credentials} (each puts only its own keys)"
+            print(f"radseek router {session.zid()} listening on {args.listen}, {auth}", flush=True)
             stop.wait()
-        except KeyboardInterrupt:
-            pass
     return 0

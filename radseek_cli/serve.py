@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+import select
 import signal
 import sys
 import threading
@@ -14,6 +16,8 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
+#: the signals that stop a long-running tool (SIGTERM from a launcher, SIGINT from Ctrl-C)
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 ROUTER_WAIT_S = 3.0  # s: an inspection tool says at once that no router answers, instead of waiting silently
 
 
@@ -60,12 +64,42 @@ def serve_on_session(prog: str, args: argparse.Namespace, start: Callable[[zenoh
     return 0
 
 
+class StopSignals:
+    """SIGTERM and Ctrl-C (SIGINT), noted from the moment this is entered (in the main thread) until it exits.
+
+    They are noted on a pipe that Python's C-level signal handler writes to (``signal.set_wakeup_fd``), not by an
+    event a Python handler sets: the kernel hands a process's signal to any thread that does not block it, often
+    one of zenoh's, and then only that thread notes it; the main thread, asleep in a lock's wait, was never woken
+    (a router ignored SIGTERM for over a minute under load; sent to one of zenoh's threads it never stopped)."""
+
+    def __enter__(self) -> StopSignals:
+        self._main = threading.current_thread() is threading.main_thread()
+        if self._main:  # signals reach only the main thread's handlers: elsewhere this waits for the time alone
+            self._r, self._w = os.pipe()
+            os.set_blocking(self._w, False)
+            self._previous = {sig: signal.signal(sig, lambda *_: None) for sig in STOP_SIGNALS}
+            self._old_fd = signal.set_wakeup_fd(self._w, warn_on_full_buffer=False)
+        return self
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """True once a stop signal has come (at once if one came since entering), False after ``timeout_s``
+        seconds without one (None: no limit)."""
+        if not self._main:
+            threading.Event().wait(timeout_s)
+            return False
+        ready, _, _ = select.select([self._r], [], [], timeout_s)  # retried after a signal (PEP 475)
+        return bool(ready)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._main:
+            signal.set_wakeup_fd(self._old_fd)
+            for sig, handler in self._previous.items():
+                signal.signal(sig, handler)
+            os.close(self._r)
+            os.close(self._w)
+
+
 def serve_until_stopped(duration_s: float | None = None) -> None:
     """Block until SIGTERM, Ctrl-C or ``duration_s`` wall seconds (None: no limit), whichever comes first."""
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
+    with StopSignals() as stop:
         stop.wait(duration_s)
-    except KeyboardInterrupt:
-        pass
