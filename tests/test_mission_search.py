@@ -157,15 +157,18 @@ def test_the_drift_limited_stop_can_be_switched_off(at_floor):
 
 @pytest.mark.slow  # one whole outdoor search: ~5 s of CPU
 def test_an_outdoor_search_begun_far_from_the_source_is_not_ended_by_its_unlocalised_dwells():
-    """Issue 36 item 2, outdoor seed 49: exploration ends 10-20 m from the 60000 cps source, so the first search
+    """Issue 36 item 2, outdoor seed 5: exploration ends 10-20 m from the 60000 cps source, so the first search
     estimates have a 1-sigma of metres and the dwells planned from them aim at nothing yet. Counted against
-    ``max_search_dwells`` they ended this flight "dwell budget spent" with its estimate at the drift floor
-    (before d33f0fc: 1-sigma 0.182 m, error 0.113 m, 9 dwells); the search must fly on until a stop rule holds."""
+    ``max_search_dwells`` they end this flight "dwell budget spent" after 6 (1-sigma 0.159 m, error 0.105 m: the
+    rule before d33f0fc, checked by counting every search dwell); the search must fly on until a stop rule holds.
+    (Seed 49 was this case until the fits stopped polishing minima within NEAR_MINIMUM_EDM; it now reaches the
+    drift floor in 5 search dwells. Seed 5 is the first of outdoor seeds 0-119 with two or more wide estimates that
+    flies past the budget.)"""
     from launch.campaign import coverage
     from mission.search import LOCALISED_M
 
     cfg = SearchConfig(strategy="active")
-    r = fly_offline(load_scene("outdoor"), cfg, seed=49)
+    r = fly_offline(load_scene("outdoor"), cfg, seed=5)
     wide = sum(not e.sigma_m < LOCALISED_M for e in r.brain.estimates[:-1])
     # what makes this flight the case: search dwells planned from unlocalised beliefs
     assert wide >= 2, [e.sigma_m for e in r.brain.estimates]
