@@ -31,7 +31,8 @@ MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 
 
-#: tries of a whole-list transfer that times out (MissionControl.transfer). Over a link losing 10 % of datagrams each
+#: tries of a whole-list transfer, or of starting the mission or setting its item, that times out
+#: (MissionControl.transfer). Over a link losing 10 % of datagrams each
 #: way (--drop-rate 0.1, speed-up 20) 2 of 60 ten-item uploads' first tries timed out on an idle machine and 7 of 60
 #: with four CPU hogs beside it (MAVSDK's 0.5 s wall timeouts): with 3 tries a loaded flight of ~10 uploads failed
 #: about once in 50 (a clean-clone make test's injected-faults run: three timeouts in a row, "upload_mission:
@@ -103,9 +104,11 @@ class MissionControl:
             raise MissionFailed(call, exc.result.name) from None
 
     async def transfer(self, call: str, start) -> object:
-        """A whole-list transfer (``start()`` makes the MAVSDK call), tried again when it times out, up to
-        ``TRANSFER_ATTEMPTS`` times: uploads, downloads and clears are idempotent, and a lost final
-        MISSION_ACK is a timeout in MAVSDK (it never resends the last item), as with PX4."""
+        """An idempotent call (``start()`` makes the MAVSDK call), tried again when it times out, up to
+        ``TRANSFER_ATTEMPTS`` times: whole-list uploads, downloads and clears, and starting the mission or setting
+        its current item (a lost COMMAND_ACK or final MISSION_ACK is a timeout in MAVSDK; it never resends the
+        last item, as with PX4). On the injected-faults run's lossy link a start_mission timed out as an upload
+        had."""
         for attempt in range(1, TRANSFER_ATTEMPTS + 1):
             try:
                 return await start()
@@ -125,10 +128,10 @@ class MissionControl:
         self.items = []
 
     async def start(self) -> None:
-        await self._do("start_mission", self._mr.start_mission())
+        await self.transfer("start_mission", self._mr.start_mission)
 
     async def set_current(self, seq: int) -> None:
-        await self._do("set_current_mission_item", self._mr.set_current_mission_item(seq))
+        await self.transfer("set_current_mission_item", lambda: self._mr.set_current_mission_item(seq))
 
     async def progress(self) -> tuple[int, int]:
         p = await self._do("mission_progress", self._mr.mission_progress())
