@@ -1,7 +1,7 @@
 # The commands a new user needs: `make run` (a search mission against the mock vehicle)
 # and `make test` (the whole test suite, what CI runs: every test, in 4 parallel pytest-xdist workers on 2 cores,
-# as many tests wait on sockets, subprocesses and sped-up clocks: 4:48-5:42 over three clean-clone runs on 2 idle cores
-# of 2026-12-07's host (414-435 s of user CPU; lattice-wall's diagnose 9.2 s there), 7:32-8:50 over eight on 2026-12-06's
+# as many tests wait on sockets, subprocesses and sped-up clocks: 4:48-5:42 over six clean-clone runs on 2 idle cores
+# of 2026-12-07's host (414-492 s of user CPU; lattice-wall's diagnose 9.2 s there), 7:32-8:50 over eight on 2026-12-06's
 # slower host (the same diagnose 15.1 s; that shared host slowed down through them: one diagnose took 21.7 s of CPU
 # alone, 24.8 s two hours later, and 23-31 s inside the runs), 8:02 at the previous session's end with 4 workers in the planned order
 # (8:33 and 9:24 with 4 and 3 in the old order). 5 workers took 7:38 once, but starved the security tests' runs:
@@ -9,7 +9,7 @@
 # run failed; not kept); handed one test at a time in the order tests/support/schedule.py plans from tests/durations.json,
 # longest first; tests taking the same fixed port are marked `exclusive` and never overlap; `make durations`
 # re-measures the durations after tests are added or made faster).
-# `make check` is the edit-test loop's unit tier (39 s on 2 idle cores, 2026-12-07; 64-77 s on 2026-12-06's host): lint plus every test
+# `make check` is the edit-test loop's unit tier (39-45 s on 2 idle cores, 2026-12-07; 64-77 s on 2026-12-06's host): lint plus every test
 # that is neither `slow` nor `io` (no subprocess, socket, zenoh session or router; --unit fails a test that opens one).
 # All create .venv and install radseek on first use.
 # The tests run with Python's byte-code cache on (PYTHONDONTWRITEBYTECODE unset, where a machine sets it, as this
