@@ -31,12 +31,11 @@ MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 
 
-#: tries of a whole-list transfer, or of starting the mission or setting its item, that times out
-#: (MissionControl.transfer). Over a link losing 10 % of datagrams each
-#: way (--drop-rate 0.1, speed-up 20) 2 of 60 ten-item uploads' first tries timed out on an idle machine and 7 of 60
-#: with four CPU hogs beside it (MAVSDK's 0.5 s wall timeouts): with 3 tries a loaded flight of ~10 uploads failed
-#: about once in 50 (a clean-clone make test's injected-faults run: three timeouts in a row, "upload_mission:
-#: TIMEOUT"); with 6, about 0.12^6 = 3e-6 an upload
+#: tries of an idempotent call that times out (MissionControl.retried): a whole-list transfer, starting the mission,
+#: setting its item. Over a link losing 10 % of datagrams each way (--drop-rate 0.1, speed-up 20) 2 of 60 ten-item
+#: uploads' first tries timed out on an idle machine and 7 of 60 with four CPU hogs beside it (MAVSDK's 0.5 s wall
+#: timeouts): with 3 tries a loaded flight of ~10 uploads failed about once in 50 (a clean-clone make test's
+#: injected-faults run: three timeouts in a row, "upload_mission: TIMEOUT"); with 6, about 0.12^6 = 3e-6 an upload
 TRANSFER_ATTEMPTS = 6
 
 
@@ -103,7 +102,7 @@ class MissionControl:
         except MissionRawError as exc:
             raise MissionFailed(call, exc.result.name) from None
 
-    async def transfer(self, call: str, start) -> object:
+    async def retried(self, call: str, start) -> object:
         """An idempotent call (``start()`` makes the MAVSDK call), tried again when it times out, up to
         ``TRANSFER_ATTEMPTS`` times: whole-list uploads, downloads and clears, and starting the mission or setting
         its current item (a lost COMMAND_ACK or final MISSION_ACK is a timeout in MAVSDK; it never resends the
@@ -117,21 +116,21 @@ class MissionControl:
                     raise MissionFailed(call, exc.result.name) from None
 
     async def upload(self, items: list[MissionItem]) -> None:
-        await self.transfer("upload_mission", lambda: self._mr.upload_mission(items))
+        await self.retried("upload_mission", lambda: self._mr.upload_mission(items))
         self.items = list(items)
 
     async def download(self) -> list[MissionItem]:
-        return list(await self.transfer("download_mission", self._mr.download_mission))
+        return list(await self.retried("download_mission", self._mr.download_mission))
 
     async def clear(self) -> None:
-        await self.transfer("clear_mission", self._mr.clear_mission)
+        await self.retried("clear_mission", self._mr.clear_mission)
         self.items = []
 
     async def start(self) -> None:
-        await self.transfer("start_mission", self._mr.start_mission)
+        await self.retried("start_mission", self._mr.start_mission)
 
     async def set_current(self, seq: int) -> None:
-        await self.transfer("set_current_mission_item", lambda: self._mr.set_current_mission_item(seq))
+        await self.retried("set_current_mission_item", lambda: self._mr.set_current_mission_item(seq))
 
     async def progress(self) -> tuple[int, int]:
         p = await self._do("mission_progress", self._mr.mission_progress())
