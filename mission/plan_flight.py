@@ -20,9 +20,9 @@ async def fly_plan(path: Path, url: str, timeout_s: float = 3600.0, log=print) -
         mission, fence, rally = list(data.mission_items), list(data.geofence_items), list(data.rally_items)
         log(f"{path}: {len(mission)} mission items, {len(fence)} fence items, {len(rally)} rally points")
         if fence:
-            await mc.transfer("upload_geofence", lambda: mc._mr.upload_geofence(fence))
+            await mc.retried("upload_geofence", lambda: mc._mr.upload_geofence(fence))
         if rally:
-            await mc.transfer("upload_rally_points", lambda: mc._mr.upload_rally_points(rally))
+            await mc.retried("upload_rally_points", lambda: mc._mr.upload_rally_points(rally))
         await mc.upload(mission)
         tel = telemetry.TelemetryWatch(conn)
         await action.Actions(conn).arm()
