@@ -48,3 +48,29 @@ def test_parallel_candidate_fits_equal_serial_ones(shared_datasets):
     for x, y in zip(a, b, strict=True):
         assert x.nll == y.nll and x.values == y.values
     assert par._cache[("dead_time",)].nll == b[0].nll  # parallel results are cached in the parent
+
+
+@pytest.mark.io
+def test_a_batch_fit_does_not_depend_on_its_siblings(shared_datasets):
+    """Two unmapped-wall candidates from different starts each fit their own inner model (without the wall) from
+    their own start, whether the batch runs here or in workers: with --jobs 1 the second once took the first's
+    cached inner fit, and the two settings named different effects on one flight."""
+    ds = read_dataset(shared_datasets / "lattice-clean")
+    serial = CountFitter(ds.scenario, ds.frames, n_starts=1, quiet=True)
+    base = serial.fit(())
+    far = {**base.values, "x": base.values["x"] + 1.5, "y": base.values["y"] - 1.0}
+    tasks = [FitTask(("dead_time", "unmapped_wall"), dict(base.values), 1),
+             FitTask(("dead_time", "unmapped_wall"), far, 1)]
+    a, _ = serial.fit_many(tasks)
+    alone = CountFitter(ds.scenario, ds.frames, n_starts=1, quiet=True)
+    alone._cache = {(): base}
+    second, _ = alone.fit_many(tasks[1:])
+    assert a[1].nll == second[0].nll and a[1].values == second[0].values
+    par = CountFitter(ds.scenario, ds.frames, n_starts=1, quiet=True, jobs=2)
+    par._cache = {(): base}
+    b, _ = par.fit_many(tasks)
+    for x, y in zip(a, b, strict=True):
+        assert x.nll == y.nll and x.values == y.values
+    # the inner fits the tasks made are kept, the better of the two
+    inner = serial._cache[("dead_time",)]
+    assert inner.nll == par._cache[("dead_time",)].nll

@@ -138,12 +138,11 @@ def _worker_init(fitter: CountFitter, extra: dict[str, Any]) -> None:
     _WORKER.update(extra)
 
 
-def _worker_fit(task: FitTask) -> Any:
+def _worker_fit(task: FitTask) -> tuple[Any, dict[tuple[str, ...], Any]]:
     from estimator.diagnose.threads import blas_threads
 
     with blas_threads(1):
-        return _WORKER["fitter"].fit(task.effects, init=task.init, n_starts=task.n_starts, label=task.label,
-                                     cache=False)
+        return _WORKER["fitter"].isolated_fit(task, _WORKER["cache"])
 
 
 def _worker_call(name: str) -> Any:
@@ -245,6 +244,12 @@ class CountFitter:
             self._cache[key] = res
         return res
 
+    def isolated_fit(self, task: FitTask, start: dict[tuple[str, ...], Any]) -> tuple[Any, dict[tuple[str, ...], Any]]:
+        """Fit ``task`` (uncached) from the cache ``start`` alone; returns the fit and the fits it added on the way."""
+        self._cache = dict(start)
+        res = self.fit(task.effects, init=task.init, n_starts=task.n_starts, label=task.label, cache=False)
+        return res, {k: v for k, v in self._cache.items() if start.get(k) is not v}
+
     def _fit_wall(self, key: tuple[str, ...], wall: str, init: dict[str, float] | None, label: str, cache: bool
                   ) -> Any:
         """Fit a model with an unmapped wall from the best placements of its shadow screen
@@ -306,6 +311,11 @@ class CountFitter:
         out: list[Any] = [None] * len(tasks)
         side_out: dict[str, Any] = {}
         todo = []
+        # every task sees the cache as it was when the batch began, in a worker or here, so that a task's fit does not
+        # depend on which tasks ran before it (with --jobs 1 a wall candidate's inner fit came from its siblings'
+        # cache, in a worker from the empty one: the two named different effects on the same flight)
+        start = self._cache
+        found: dict[int, dict[tuple[str, ...], Any]] = {}
         for i, task in enumerate(tasks):
             key = count_key(task.effects)
             if task.cache and key in self._cache and not getattr(self._cache[key], "screened_only", False):
@@ -326,7 +336,8 @@ class CountFitter:
             try:
                 with ProcessPoolExecutor(min(self.jobs, len(todo) + len(side)), mp_context=ctx,
                                          initializer=_worker_init,
-                                         initargs=(replace(self, quiet=True, jobs=1), side)) as ex:
+                                         initargs=(replace(self, quiet=True, jobs=1), {**side, "cache": start})
+                                         ) as ex:
                     futs = {ex.submit(_worker_call, name): ("side", name) for name in side}
                     futs.update({ex.submit(_worker_fit, tasks[i]): ("fit", i) for i in todo})
                     for fut in as_completed(futs):
@@ -334,7 +345,7 @@ class CountFitter:
                         if kind == "side":
                             side_out[ref] = fut.result()
                         else:
-                            out[ref] = fut.result()
+                            out[ref], found[ref] = fut.result()
                         done += 1
                         progress_bar(label, done, total, t0, self.quiet)
             finally:
@@ -345,10 +356,14 @@ class CountFitter:
                 done += 1
                 progress_bar(label, done, total, t0, self.quiet)
             for i in todo:
-                t = tasks[i]
-                out[i] = self.fit(t.effects, init=t.init, n_starts=t.n_starts, label=t.label, cache=False)
+                out[i], found[i] = self.isolated_fit(tasks[i], start)
                 done += 1
                 progress_bar(label, done, total, t0, self.quiet)
+            self._cache = start
+        for i in todo:  # the fits the tasks made on the way (an unmapped wall's inner fit), in task order
+            for key, res in found[i].items():
+                if key not in self._cache or res.nll < self._cache[key].nll:
+                    self._cache[key] = res
         for i in todo:
             key = count_key(tasks[i].effects)
             if tasks[i].cache and not getattr(out[i], "screened_only", False) and not getattr(out[i], "held", ()) and \
