@@ -120,6 +120,10 @@ class Effect:
         """(background, its gradient in the position) from ``b`` and its gradient ``db``, or None."""
         return (b, db) if type(self).background is Effect.background else None
 
+    def prepare_grad(self, th: dict[str, np.ndarray], srcs: list[np.ndarray], ctx: Context) -> None:
+        """Called once before :meth:`source_factor_grad` is asked for each of the sources ``srcs`` ((3,) each):
+        an effect may compute what they share in one go."""
+
     def recorded_rate_grad(self, th: dict[str, np.ndarray], n: np.ndarray, dn: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray] | None:
         """(recorded rate, its gradient) from the true rate ``n`` and its gradient ``dn``, or None."""
@@ -332,8 +336,8 @@ class _SlabFrame:
         return d, dz, entries, exits, enter, exit_, seg
 
     def lengths_grad(self, pos: np.ndarray, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """pos (N, 3), src (3,): the soft lengths (N,) of :meth:`lengths` (``edge_m`` > 0) and their analytic
-        gradient in ``pos`` (N, 3).
+        """pos (N, 3), src (3,) or one per segment (N, 3): the soft lengths (N,) of :meth:`lengths` (``edge_m``
+        > 0) and their analytic gradient in ``pos`` (N, 3).
 
         Each slab-method parameter t = (c - a) / d along an axis (a the detector's local coordinate, d = s - a
         the segment's) moves as dt/da = (t - 1) / d; the soft max and min are log-sum-exps, whose derivatives are
@@ -532,6 +536,21 @@ class UnmappedWall(Effect):
                 del self._memo[next(iter(self._memo))]
             self._memo[key] = hit
         return hit
+
+    def prepare_grad(self, th, srcs, ctx):
+        """The slab lengths and their gradients for every source's lines of sight from one slab-method pass over
+        all of them (a second source's lines of sight are the same poses to another point: half the numpy calls
+        of two passes, which is what a two-source walled fit pays for), memoised for :meth:`source_factor_grad`."""
+        wall = self.wall_of(th, self.name)
+        pos = np.ascontiguousarray(ctx.pos)
+        n = len(pos)
+        if all(b"grad" + wall.tobytes() + np.asarray(s, dtype=float).reshape(3).tobytes() + pos.tobytes() in self._memo
+               for s in srcs):
+            return
+        lengths, grad = self._slab(wall).lengths_grad(np.tile(pos, (len(srcs), 1)), np.repeat(np.asarray(srcs), n, 0))
+        for k, s in enumerate(srcs):
+            self._memoised(b"grad", wall, np.asarray(s, dtype=float).reshape(3), pos,
+                           lambda k=k: (lengths[k * n:(k + 1) * n], grad[k * n:(k + 1) * n]))
 
     def source_factor_grad(self, th, src, ctx, dist):
         p = self.name
@@ -888,8 +907,12 @@ class MeasurementModel:
         ctx = self._context(th, frames, offsets)
         total: Any = 0.0
         dtotal: Any = 0.0
-        for sx, sy, sz, s in self._sources(th):
-            src = np.stack(np.broadcast_arrays(sx, sy, sz), axis=-1).reshape(3)
+        sources = [(np.stack(np.broadcast_arrays(sx, sy, sz), axis=-1).reshape(3), s)
+                   for sx, sy, sz, s in self._sources(th)]
+        if len(sources) > 1:
+            for part in self._parts:
+                part.prepare_grad(th, [src for src, _ in sources], ctx)
+        for src, s in sources:
             diff = ctx.pos - src
             d2 = (diff**2).sum(-1)
             dist = np.maximum(np.sqrt(d2), MIN_DISTANCE_M)
