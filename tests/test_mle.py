@@ -227,3 +227,17 @@ def test_a_wall_free_converged_profile_is_stationary():
 
     delta, _, _ = converged_profile(m, truth, f, groups)
     assert np.abs(score(delta)[:, :2]).max() < 1e-2 * np.abs(score(np.zeros_like(delta))[:, :2]).max()
+
+
+def test_soft_limit_is_the_identity_inside_and_bends_smoothly_to_twice_the_limit():
+    from estimator.mle import soft_limit
+
+    lim = np.array([0.2, 0.2, 0.0])
+    x = np.linspace(-1.0, 1.0, 2001)[:, None] * np.ones(3)
+    y = soft_limit(x, lim)
+    inside = np.abs(x[:, 0]) <= 0.2
+    np.testing.assert_array_equal(y[inside, 0], x[inside, 0])
+    assert np.all(np.abs(y[:, :2]) < 0.4) and np.all(y[:, 2] == 0.0)
+    slope = np.diff(y[:, 0]) / np.diff(x[:, 0])
+    assert np.all(slope > 0) and np.abs(np.diff(slope)).max() < 0.01  # monotone, no kink at the limit
+
