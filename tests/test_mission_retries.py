@@ -63,3 +63,48 @@ def test_a_refusal_is_not_tried_again():
     with pytest.raises(MissionFailed) as err:
         asyncio.run(mc.start())
     assert mr.calls == ["start_mission"] and "DENIED" in str(err.value)
+
+
+class FlakyAction:
+    """MAVSDK's Action plugin stand-in: each call fails with the next of ``faults`` (an ActionResult name)."""
+
+    def __init__(self, faults: list[str]):
+        self.faults = list(faults)
+        self.calls: list[str] = []
+
+    def __getattr__(self, name: str):
+        from mavsdk.plugins.action import ActionError, ActionResult
+
+        async def call(*args):
+            self.calls.append(name)
+            if self.faults:
+                raise ActionError(getattr(ActionResult, self.faults.pop(0)), name)
+        return call
+
+
+def _actions(faults: list[str]):
+    from mission.client.action import Actions
+
+    acts = Actions.__new__(Actions)  # no vehicle: the plugin is the stand-in
+    acts._action = FlakyAction(faults)
+    return acts, acts._action
+
+
+@pytest.mark.parametrize("call", ["arm", "takeoff", "land", "return_to_launch", "hold", "disarm"])
+def test_a_timed_out_action_is_tried_again_until_it_succeeds(call):
+    acts, plugin = _actions(["TIMEOUT"] * (TRANSFER_ATTEMPTS - 1))
+    asyncio.run(getattr(acts, call)())
+    assert len(plugin.calls) == TRANSFER_ATTEMPTS and len(set(plugin.calls)) == 1
+
+
+def test_an_action_that_keeps_timing_out_or_is_refused_fails_with_its_result():
+    from mission.client.action import ActionFailed
+
+    acts, plugin = _actions(["TIMEOUT"] * TRANSFER_ATTEMPTS)
+    with pytest.raises(ActionFailed, match="arm: TIMEOUT"):
+        asyncio.run(acts.arm())
+    assert len(plugin.calls) == TRANSFER_ATTEMPTS
+    acts, plugin = _actions(["COMMAND_DENIED"])
+    with pytest.raises(ActionFailed, match="takeoff: COMMAND_DENIED"):
+        asyncio.run(acts.takeoff())
+    assert plugin.calls == ["takeoff"]

@@ -8,6 +8,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.plugins.action import ActionError
 
 from mission.client.connection import Connection
+from mission.client.mission_upload import TRANSFER_ATTEMPTS
 from radseek.coordinates import enu_to_geodetic, yaw_enu_to_ned
 
 
@@ -24,31 +25,39 @@ class Actions:
         self._conn = conn
         self._action = ActionAsync(conn.system)
 
-    async def _do(self, call: str, coro) -> None:
-        try:
-            await coro
-        except ActionError as exc:
-            raise ActionFailed(call, exc.result.name) from None
+    async def _do(self, call: str, start) -> None:
+        """Make the call (``start()`` makes the MAVSDK call); tried again when it times out, up to
+        ``TRANSFER_ATTEMPTS`` times, as mission transfers are: every action here is idempotent on the vehicle (arming
+        an armed vehicle, a second takeoff, land, RTL or hold to the same target), and a lost COMMAND_ACK is a
+        timeout in MAVSDK after its own resends, as starting a mission was on the injected-faults run's lossy link.
+        A refusal is final."""
+        for attempt in range(1, TRANSFER_ATTEMPTS + 1):
+            try:
+                await start()
+                return
+            except ActionError as exc:
+                if exc.result.name != "TIMEOUT" or attempt == TRANSFER_ATTEMPTS:
+                    raise ActionFailed(call, exc.result.name) from None
 
     async def arm(self) -> None:
-        await self._do("arm", self._action.arm())
+        await self._do("arm", self._action.arm)
 
     async def disarm(self) -> None:
-        await self._do("disarm", self._action.disarm())
+        await self._do("disarm", self._action.disarm)
 
     async def takeoff(self, altitude_m: float | None = None) -> None:
         if altitude_m is not None:
-            await self._do("set_takeoff_altitude", self._action.set_takeoff_altitude(altitude_m))
-        await self._do("takeoff", self._action.takeoff())
+            await self._do("set_takeoff_altitude", lambda: self._action.set_takeoff_altitude(altitude_m))
+        await self._do("takeoff", self._action.takeoff)
 
     async def land(self) -> None:
-        await self._do("land", self._action.land())
+        await self._do("land", self._action.land)
 
     async def return_to_launch(self) -> None:
-        await self._do("return_to_launch", self._action.return_to_launch())
+        await self._do("return_to_launch", self._action.return_to_launch)
 
     async def hold(self) -> None:
-        await self._do("hold", self._action.hold())
+        await self._do("hold", self._action.hold)
 
     async def goto(self, x: float, y: float, z: float, yaw: float | None = None) -> None:
         """Fly to local ENU (x, y, z) m above home, facing ``yaw`` (rad CCW from east; None = keep)."""
@@ -56,4 +65,4 @@ class Actions:
             raise ActionFailed("goto", "home unknown: call connection.wait_healthy first")
         lat, lon, alt = enu_to_geodetic(self._conn.home, (x, y, z))
         yaw_deg = math.nan if yaw is None else math.degrees(yaw_enu_to_ned(yaw))
-        await self._do("goto", self._action.goto_location(lat, lon, alt, yaw_deg))
+        await self._do("goto", lambda: self._action.goto_location(lat, lon, alt, yaw_deg))
