@@ -526,9 +526,13 @@ class UnmappedWall(Effect):
         lengths = self._memoised(b"", wall, s, ctx.pos, lambda: self._slab(wall).lengths(ctx.pos, s))
         return np.exp(-th[f"{p}.mu_per_m"] * lengths)
 
+    @staticmethod
+    def _memo_key(kind: bytes, wall: np.ndarray, s: np.ndarray, pos: np.ndarray) -> bytes:
+        return kind + wall.tobytes() + s.tobytes() + np.ascontiguousarray(pos).tobytes()
+
     def _memoised(self, kind: bytes, wall: np.ndarray, s: np.ndarray, pos: np.ndarray, compute: Any) -> Any:
         """``compute()`` for this wall, source and poses, kept in the bounded memo (oldest out first)."""
-        key = kind + wall.tobytes() + s.tobytes() + np.ascontiguousarray(pos).tobytes()
+        key = self._memo_key(kind, wall, s, pos)
         hit = self._memo.get(key)
         if hit is None:
             hit = compute()
@@ -543,14 +547,13 @@ class UnmappedWall(Effect):
         of two passes, which is what a two-source walled fit pays for), memoised for :meth:`source_factor_grad`."""
         wall = self.wall_of(th, self.name)
         pos = np.ascontiguousarray(ctx.pos)
-        n = len(pos)
-        if all(b"grad" + wall.tobytes() + np.asarray(s, dtype=float).reshape(3).tobytes() + pos.tobytes() in self._memo
-               for s in srcs):
+        srcs = [np.asarray(s, dtype=float).reshape(3) for s in srcs]
+        if all(self._memo_key(b"grad", wall, s, pos) in self._memo for s in srcs):
             return
+        n = len(pos)
         lengths, grad = self._slab(wall).lengths_grad(np.tile(pos, (len(srcs), 1)), np.repeat(np.asarray(srcs), n, 0))
         for k, s in enumerate(srcs):
-            self._memoised(b"grad", wall, np.asarray(s, dtype=float).reshape(3), pos,
-                           lambda k=k: (lengths[k * n:(k + 1) * n], grad[k * n:(k + 1) * n]))
+            self._memoised(b"grad", wall, s, pos, lambda k=k: (lengths[k * n:(k + 1) * n], grad[k * n:(k + 1) * n]))
 
     def source_factor_grad(self, th, src, ctx, dist):
         p = self.name

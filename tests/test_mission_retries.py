@@ -11,7 +11,8 @@ import asyncio
 import pytest
 from mavsdk.plugins.mission_raw import MissionRawError, MissionRawResult
 
-from mission.client.mission_upload import TRANSFER_ATTEMPTS, MissionControl, MissionFailed
+from mission.client.mission_upload import MissionControl, MissionFailed
+from mission.client.retry import TRANSFER_ATTEMPTS
 
 
 class FlakyMissionRaw:

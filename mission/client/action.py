@@ -8,7 +8,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.plugins.action import ActionError
 
 from mission.client.connection import Connection
-from mission.client.mission_upload import TRANSFER_ATTEMPTS
+from mission.client.retry import retry_on_timeout
 from radseek.coordinates import enu_to_geodetic, yaw_enu_to_ned
 
 
@@ -26,18 +26,10 @@ class Actions:
         self._action = ActionAsync(conn.system)
 
     async def _do(self, call: str, start) -> None:
-        """Make the call (``start()`` makes the MAVSDK call); tried again when it times out, up to
-        ``TRANSFER_ATTEMPTS`` times, as mission transfers are: every action here is idempotent on the vehicle (arming
-        an armed vehicle, a second takeoff, land, RTL or hold to the same target), and a lost COMMAND_ACK is a
-        timeout in MAVSDK after its own resends, as starting a mission was on the injected-faults run's lossy link.
-        A refusal is final."""
-        for attempt in range(1, TRANSFER_ATTEMPTS + 1):
-            try:
-                await start()
-                return
-            except ActionError as exc:
-                if exc.result.name != "TIMEOUT" or attempt == TRANSFER_ATTEMPTS:
-                    raise ActionFailed(call, exc.result.name) from None
+        """Make the call (``start()`` makes the MAVSDK call), tried again when it times out, as mission transfers are
+        (``mission.client.retry``): every action here is idempotent on the vehicle (arming an armed vehicle, a second
+        takeoff, land, RTL or hold to the same target). A refusal is final."""
+        await retry_on_timeout(call, start, ActionError, ActionFailed)
 
     async def arm(self) -> None:
         await self._do("arm", self._action.arm)

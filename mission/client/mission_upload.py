@@ -21,6 +21,7 @@ from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 from mavsdk.plugins.mission_raw import MissionItem, MissionRawError
 
 from mission.client.connection import Connection
+from mission.client.retry import retry_on_timeout
 from radseek.coordinates import Home, enu_to_geodetic, yaw_enu_to_ned
 
 MAV_FRAME_MISSION = 2
@@ -31,12 +32,6 @@ MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 
 
-#: tries of an idempotent call that times out (MissionControl.retried): a whole-list transfer, starting the mission,
-#: setting its item. Over a link losing 10 % of datagrams each way (--drop-rate 0.1, speed-up 20) 2 of 60 ten-item
-#: uploads' first tries timed out on an idle machine and 7 of 60 with four CPU hogs beside it (MAVSDK's 0.5 s wall
-#: timeouts): with 3 tries a loaded flight of ~10 uploads failed about once in 50 (a clean-clone make test's
-#: injected-faults run: three timeouts in a row, "upload_mission: TIMEOUT"); with 6, about 0.12^6 = 3e-6 an upload
-TRANSFER_ATTEMPTS = 6
 
 
 class MissionFailed(Exception):
@@ -107,13 +102,8 @@ class MissionControl:
         ``TRANSFER_ATTEMPTS`` times: whole-list uploads, downloads and clears, and starting the mission or setting
         its current item (a lost COMMAND_ACK or final MISSION_ACK is a timeout in MAVSDK; it never resends the
         last item, as with PX4). On the injected-faults run's lossy link a start_mission timed out as an upload
-        had."""
-        for attempt in range(1, TRANSFER_ATTEMPTS + 1):
-            try:
-                return await start()
-            except MissionRawError as exc:
-                if exc.result.name != "TIMEOUT" or attempt == TRANSFER_ATTEMPTS:
-                    raise MissionFailed(call, exc.result.name) from None
+        had (``mission.client.retry``)."""
+        return await retry_on_timeout(call, start, MissionRawError, MissionFailed)
 
     async def upload(self, items: list[MissionItem]) -> None:
         await self.retried("upload_mission", lambda: self._mr.upload_mission(items))
