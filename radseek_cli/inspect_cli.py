@@ -349,9 +349,9 @@ def main(argv: list[str] | None = None) -> int:
                 pass
 
     sub = session.declare_subscriber(args.key, on_sample)
-    print(f"radseek topics: listening to {args.key} for {args.duration:g} s (Ctrl-C stops it early)", file=sys.stderr,
-          flush=True)
-    serve_until_stopped(args.duration)
+    serve_until_stopped(args.duration, ready=lambda: print(
+        f"radseek topics: listening to {args.key} for {args.duration:g} s (Ctrl-C stops it early)", file=sys.stderr,
+        flush=True))
     sub.undeclare()
     session.close()
     with lock:

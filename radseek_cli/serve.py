@@ -55,8 +55,7 @@ def serve_on_session(prog: str, args: argparse.Namespace, start: Callable[[zenoh
         session.close()
         print(f"{prog}: {explain(exc)}", file=sys.stderr)
         return 1
-    print(started(server), flush=True)
-    serve_until_stopped(args.duration)
+    serve_until_stopped(args.duration, ready=lambda: print(started(server), flush=True))
     summary = stop(server)
     session.close()
     if summary is not None:
@@ -99,7 +98,12 @@ class StopSignals:
             os.close(self._w)
 
 
-def serve_until_stopped(duration_s: float | None = None) -> None:
-    """Block until SIGTERM, Ctrl-C or ``duration_s`` wall seconds (None: no limit), whichever comes first."""
+def serve_until_stopped(duration_s: float | None = None, ready: Callable[[], None] | None = None) -> None:
+    """Block until SIGTERM, Ctrl-C or ``duration_s`` wall seconds (None: no limit), whichever comes first.
+
+    ``ready()`` (a tool's "listening" line) is called once the signals are caught, never before: a launcher that
+    sends SIGTERM as soon as it reads that line must get a clean stop, not Python's default death by the signal."""
     with StopSignals() as stop:
+        if ready is not None:
+            ready()
         stop.wait(duration_s)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from radseek_cli.serve import serve_until_stopped
 from tests.conftest import free_port
 
 pytestmark = pytest.mark.io
@@ -64,3 +65,13 @@ def test_topics_stops_on_a_sigterm_a_zenoh_thread_took(tmp_path, router):
     proc = _start(["topics", "--duration", "600", "--connect", router], "listening to", tmp_path / "topics.log")
     assert _stop_via_another_thread(proc, signal.SIGTERM) == 0, (tmp_path / "topics.log").read_text()
     assert "no messages on" in (tmp_path / "topics.log").read_text()
+
+
+def test_a_signal_sent_as_soon_as_the_ready_line_is_out_stops_the_wait_cleanly():
+    """A launcher may send SIGTERM the instant it reads the "listening" line: the handler must already be in place
+    (topics once printed that line first and died by the signal, exit -15, under load)."""
+    previous = signal.getsignal(signal.SIGTERM)
+    served = []
+    serve_until_stopped(600.0, ready=lambda: (served.append(True), os.kill(os.getpid(), signal.SIGTERM)))
+    assert served == [True]
+    assert signal.getsignal(signal.SIGTERM) is previous  # the tool's handler is gone once it stops waiting
