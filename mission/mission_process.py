@@ -42,7 +42,7 @@ import zenoh
 from mission.client.connection import DEFAULT_URL, connect, wait_healthy
 from mission.client.vehicle_link import MavsdkVehicle
 from mission.executive import FRAME_S, FlightStopped, MissionExecutive
-from mission.key_accounts import KeyAccounts
+from mission.key_accounts import DROP_KINDS, KeyAccounts
 from mission.lockstep import LockstepAck
 from mission.recorder import FlightRecorder, PoseHistory
 from mission.search import Phase, SearchBrain, SearchConfig, reproducible
@@ -414,6 +414,19 @@ class _Team(TeamLinkBase):
         self._subs = []
 
 
+def heard(accounts: KeyAccounts) -> str:
+    """What this mission has heard so far, per key: ``pose 12 (3 dropped)``, or that it heard nothing at all (its
+    session routes nothing: the router is gone or never learned its subscriptions)."""
+    rows = accounts.counts()
+    if not rows:
+        return "heard nothing on any key"
+    parts = []
+    for key, row in rows.items():
+        dropped = sum(row[kind] for kind in DROP_KINDS)
+        parts.append(f"{topics.topic_of(key)} {row['accepted']}" + (f" ({dropped} dropped)" if dropped else ""))
+    return "heard: " + ", ".join(parts)
+
+
 class ZenohFrames:
     """The executive's ``FrameSource`` over zenoh: the histograms of ``stream`` taken one at a time under lockstep
     (``mission.lockstep``), with the lost-frame rule (``tick``)."""
@@ -489,7 +502,7 @@ class ZenohFrames:
             if first_timeout_wall_s is not None:
                 if now - start > first_timeout_wall_s:
                     raise FlightStopped(f"no detector histograms after {first_timeout_wall_s:g} s on "
-                                       f"{topics.key(topics.HISTOGRAM, self.vehicle)}")
+                                       f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(stream.drops)})")
                 continue
             p = stream.pose()
             if p is not None and p.t > self._pose_t:

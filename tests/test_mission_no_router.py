@@ -41,5 +41,6 @@ def test_no_detector_is_one_line_after_the_connect_timeout(router, tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 1, r.stderr[-3000:]
     assert lines[-1].startswith("radseek mission: no detector histograms after 3 s"), r.stderr[-3000:]
+    assert "heard: " in lines[-1] and "pose " in lines[-1], lines[-1]  # what it did hear: the vehicle's poses
     assert "Traceback" not in r.stderr
     assert (tmp_path / "m" / "frames.csv").is_file()  # what was recorded (nothing yet) stays a dataset's frames
