@@ -109,6 +109,9 @@ class Effect:
     #: ``positions`` shifts the recorded positions by an amount that does not depend on them (d true / d recorded
     #: is the identity)
     shifts_positions = False
+    #: the rate depends on the detector's heading (``ctx.yaw``): frames turning in a spin dwell are not one
+    #: hover block (``estimator.mle.hover_blocks``)
+    uses_heading = False
 
     def source_factor_grad(self, th: dict[str, np.ndarray], src: np.ndarray, ctx: Context, dist: np.ndarray
                            ) -> tuple[Any, Any] | None:
@@ -577,6 +580,7 @@ class Anisotropy(Effect):
     back direction (-axis, horizontal) and the 3-D direction to the source."""
 
     name = "anisotropy"
+    uses_heading = True
 
     def params(self, scenario: Scenario) -> list[Param]:
         return [
@@ -795,6 +799,11 @@ class MeasurementModel:
         if known_air:
             self.params = [replace(p, value=scenario.air_mu_per_m, fixed=True) if p.name == "air_attenuation.mu_per_m"
                            else p for p in self.params]
+
+    @property
+    def uses_heading(self) -> bool:
+        """Some effect's rate depends on the detector's heading (anisotropy)."""
+        return any(part.uses_heading for part in self._parts)
 
     def __repr__(self) -> str:
         window = "" if self.channels is None else f", channels={list(self.channels)}"

@@ -235,7 +235,7 @@ class CountFitter:
         if held:
             model = model.with_params(**{k: {"value": v, "fixed": True} for k, v in held.items()})
         res = fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
-                        pose_uncertainty=True, init=init or None, more_inits=more)
+                        pose_uncertainty=True, init=init or None, more_inits=more, hover=True)
         progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
                  f"({time.perf_counter() - t0:.1f} s)", self.quiet)
         if held:
