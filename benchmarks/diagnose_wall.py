@@ -4,8 +4,10 @@ time on 2 idle cores for flights up to 5,000 frames).
 Each flight is diagnosed by the command in a process of its own, with its defaults (``--jobs 2``: candidate fits
 side by side): wall seconds from start to exit, and the CPU seconds of the call with its worker processes. The
 flights are the slowest of the evaluation (``benchmarks.diagnose_evaluate``: forward2 flights with two or three
-unmapped slabs, a 3,116-frame outdoor survey) and the shared datasets of up to 5,000 frames; forward2 flights are
-written as dataset folders first. Run it on an idle machine: the load average before each call is printed with it.
+unmapped slabs, a 3,116-frame outdoor survey), long flights of the size the target names (``LONG_FLIGHTS``: 45-55 s
+dwells, 4,000-5,100 frames, one to three slabs, and a null) and the shared datasets of up to 5,000 frames; forward2
+flights are written as dataset folders first. Run it on an idle machine: the load average before each call is
+printed with it.
 
     python benchmarks/diagnose_wall.py [--flights NAME ...] [--shared NAME ...] [--jsonl FILE]
 """
@@ -28,6 +30,15 @@ SHARED = REPO.parent / "shared" / "datasets"
 #: the evaluation's slowest calls (docs/diagnose-evaluation.md): two and three slabs, a long outdoor survey
 FLIGHTS = ("uwall-1-spin-n2-s0", "uwall-0.5-spin-n3-s1", "uwall-1-lattice-n3-s2", "uwall-0.5-lattice-n1-s0",
            "conull-Cs-137-outdoor-19")
+#: flights of the size the target names, 4,000-5,100 frames (the evaluation's are ~1,000): long dwells (45-55 s)
+#: with one to three unmapped slabs, and a long null; (geometry, dwell s, slabs, mu x t, pose error, seed)
+LONG_FLIGHTS = {
+    "long-uwall-0.5-lattice-n2": ("lattice", 45.0, 2, 0.5, "independent", 81234),
+    "long-uwall-0.5-spin-n1": ("spin", 50.0, 1, 0.5, "independent", 81235),
+    "long-uwall-1-lattice-n3": ("lattice", 50.0, 3, 1.0, "random_walk", 81236),
+    "long-null-lattice": ("lattice", 50.0, 0, 0.0, "independent", 81237),
+    "long-uwall-0.5-spin-n2": ("spin", 55.0, 2, 0.5, "independent", 81238),
+}
 #: the shared datasets of at most 5,000 frames (outdoor-air has 6,463)
 SHARED_NAMES = ("lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "two-sources")
 
@@ -41,15 +52,31 @@ def write_flights(names: list[str], out: Path) -> list[Path]:
 
     every = {j["name"]: j for j in ev.jobs(["null", "pairs", "walls", "nuclides", "conull"], 4, 12, 60)
              + ev.offlist_jobs(2)}
+    every.update({n: None for n in LONG_FLIGHTS})
     missing = [n for n in names if n not in every]
     if missing:
         raise SystemExit(f"no such flight: {', '.join(missing)} (names as in benchmarks.diagnose_evaluate)")
     paths = []
     for name in names:
-        job = every[name]
+        job = every[name] or long_flight_job(name)
         ds = simulate(FlightSpec(**job["spec"]), seed=job["seed"])
         paths.append(write_dataset(out / name, ds.frames, ds.scenario, ds.truth))
     return paths
+
+
+def long_flight_job(name: str) -> dict:
+    """The spec and seed of one of ``LONG_FLIGHTS`` (the forward2 random slabs, as the evaluation places them)."""
+    import numpy as np
+
+    from benchmarks.forward2 import FlightSpec, random_unmapped_wall
+
+    geometry, dwell_s, slabs, mu_t, pose_error, seed = LONG_FLIGHTS[name]
+    spec = {"geometry": geometry, "effects": {}, "crystal": "real", "pose_error": pose_error, "scatter": 0.02,
+            "dwell_s": dwell_s}
+    if slabs:
+        spec["effects"] = {"unmapped_wall": random_unmapped_wall(FlightSpec(**spec), seed, mu_t,
+                                                                 np.random.default_rng(seed), slabs)}
+    return {"spec": spec, "seed": seed}
 
 
 def diagnose_call(dataset: Path, out: Path) -> dict:
@@ -76,8 +103,8 @@ def diagnose_call(dataset: Path, out: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--flights", nargs="*", default=list(FLIGHTS), help="forward2 flights (names as in "
-                   "benchmarks.diagnose_evaluate)")
+    p.add_argument("--flights", nargs="*", default=list(FLIGHTS) + list(LONG_FLIGHTS),
+                   help="forward2 flights (names as in benchmarks.diagnose_evaluate, or LONG_FLIGHTS' names)")
     p.add_argument("--shared", nargs="*", default=list(SHARED_NAMES), help="shared datasets")
     p.add_argument("--jsonl", type=Path, default=None, help="append one JSON row per call here")
     args = p.parse_args(argv)
