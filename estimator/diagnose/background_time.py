@@ -90,7 +90,7 @@ def background_time_check(start: MeasurementModel, frames: Frames, named: Any, s
     base = {k: v for k, v in named.values.items() if k in m.param_names}
     inits = [{**base, f"{NAME}.period_s": float(p), f"{NAME}.phase": ph, f"{NAME}.amplitude": START_AMPLITUDE}
              for p in periods for ph in (0.0, math.pi / 2)]
-    res = fit(m, frames, n_starts=len(inits), seed=seed, init=inits[0], more_inits=inits[1:])
+    res = fit(m, frames, n_starts=len(inits), seed=seed, init=inits[0], more_inits=inits[1:], hover=True)
     gap = aic_gap(named, res)
     v, e = res.values, res.errors
     return BackgroundTimeCheck(float(v[f"{NAME}.period_s"]), float(v[f"{NAME}.amplitude"]),

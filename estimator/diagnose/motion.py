@@ -101,7 +101,8 @@ class MotionSearch:
             m = m.with_params(**{f"{NAME}.t0": {"value": t0, "fixed": True}})
             base = {k: v for k, v in self.named.values.items() if k in m.param_names}
             inits = [{**base, **v, f"{NAME}.t0": t0} for v in velocity_starts()]
-            return fit(m, self.frames, n_starts=len(inits), seed=self.seed, init=inits[0], more_inits=inits[1:])
+            return fit(m, self.frames, n_starts=len(inits), seed=self.seed, init=inits[0], more_inits=inits[1:],
+                       hover=True)
 
         return fit_look
 
