@@ -54,3 +54,19 @@ def test_nothing_is_dropped_when_every_named_effect_is_needed(flight):
     fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
     sel = _selection(fitter, ["background_gradient"])
     assert _backward(fitter, sel, (), 0.01, True) == ([], None)  # one named effect: nothing to check
+
+
+def test_a_variance_effect_named_between_count_effects_does_not_stop_the_check(flight):
+    """over_dispersion's candidate carries a DispersionFit, not a count fit: the check starts from the count effects'
+    fits alone (it raised AttributeError on a three-slab flight whose step 4 named over_dispersion)."""
+    from estimator.diagnose.dispersion import fit_dispersion
+
+    fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
+    sel = _selection(fitter, ["dead_time", "background_gradient"])
+    disp = fit_dispersion(fitter.fit_frames, sel.steps[-1].candidates[0].fit.expected)
+    sel.steps.append(Step(("dead_time", "background_gradient"),
+                          [Candidate("over_dispersion", 20.0, 1, -18.0, -5.0, "chi2_1", {}, {}, True, 1e-3, fit=disp)],
+                          "over_dispersion"))
+    sel.missing.append("over_dispersion")
+    dropped, reduced = _backward(fitter, sel, (), 0.01, True)
+    assert dropped == ["dead_time"] and reduced.model.effects == ("background_gradient",)

@@ -342,7 +342,7 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     count = split_effects((*start, *sel.missing))[0]
     init: dict[str, float] = {}
     for st in sel.steps:
-        if st.chosen:
+        if st.chosen and st.chosen not in NON_COUNT_EFFECTS:  # (over_dispersion's or a spectral fit has no values)
             init.update(st.candidates[0].fit.values)
     full = fitter.fit(count, init=init)
     thr = math.log10(alpha / len(named))
