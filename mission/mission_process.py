@@ -462,6 +462,21 @@ class ZenohFrames:
     def frames(self) -> Frames:
         return self.stream.frames()
 
+    async def _detector_ready(self, timeout_wall_s: float) -> float:
+        """Before the first ack: wait until the detector has spoken (its ``detector/status``, sent every 0.25 s
+        wall while lockstep holds the clock at 0, or a histogram). Acked before it runs, the vehicle steps to the
+        first frame's end, and a detector starting after that begins a frame late: under load, one of two same-seed
+        runs recorded every histogram 0.1 s later than the other, and the flights differed. Returns the wall time
+        left of ``timeout_wall_s``; FlightStopped when it runs out (saying what was heard)."""
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        while self.stream.detector_wall is None and self.stream.queue.empty():
+            if loop.time() - start > timeout_wall_s:
+                raise FlightStopped(f"no detector histograms after {timeout_wall_s:g} s on "
+                                    f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(self.stream.drops)})")
+            await asyncio.sleep(0.02)
+        return max(timeout_wall_s - (loop.time() - start), 0.0)
+
     async def tick(self, *, first_timeout_wall_s: float | None = None) -> topics.Histogram | None:
         """Ack the frame handled last (its commands are already sent), then take the next one: its
         histogram, or None when it was lost. ``self.t`` is then the sim time of that frame's end.
@@ -479,6 +494,7 @@ class ZenohFrames:
         stack is gone: FlightStopped.
         ``first_timeout_wall_s``: a histogram is required (no loss), RuntimeError after that long."""
         stream = self.stream
+        left = None if first_timeout_wall_s is None else await self._detector_ready(first_timeout_wall_s)
         self.lockstep.ack(self.t, self.frame_s)
         t_next = self.t + self.frame_s
         loop = asyncio.get_running_loop()
@@ -499,8 +515,8 @@ class ZenohFrames:
                 return hist  # (a frame older than self.t arrived after it was declared lost: handled late)
             stream.release_overdue()  # a histogram whose end pose was lost: recorded and queued without it
             now = loop.time()
-            if first_timeout_wall_s is not None:
-                if now - start > first_timeout_wall_s:
+            if left is not None:
+                if now - start > left:
                     raise FlightStopped(f"no detector histograms after {first_timeout_wall_s:g} s on "
                                        f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(stream.drops)})")
                 continue
