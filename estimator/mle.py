@@ -516,19 +516,7 @@ def _pool(frames: Frames, size: int, salt: np.ndarray) -> Frames:
     within = np.arange(len(frames)) - np.r_[0, np.flatnonzero(np.diff(run)) + 1].repeat(np.diff(
         np.r_[0, np.flatnonzero(np.diff(run)) + 1, len(frames)]))
     key = np.cumsum(np.r_[True, (run[1:] != run[:-1]) | (within[1:] // size != within[:-1] // size)]) - 1
-    n = key[-1] + 1
-    cnt = np.bincount(key, minlength=n)
-
-    def mean(v: np.ndarray) -> np.ndarray:
-        return np.bincount(key, weights=v, minlength=n) / cnt
-
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])  # key is a run index: pooled runs are slices
-    counts = np.add.reduceat(frames.counts, starts, axis=0)  # summed in COUNT_DTYPE: no float copy of counts
-    return Frames(
-        t=mean(frames.t), duration=np.bincount(key, weights=frames.duration, minlength=n), x=mean(frames.x),
-        y=mean(frames.y), z=mean(frames.z), yaw=mean(frames.yaw), var_x=mean(frames.var_x), var_y=mean(frames.var_y),
-        var_z=mean(frames.var_z), dwell=mean(frames.dwell).astype(int), counts=counts.astype(COUNT_DTYPE, copy=False),
-    )
+    return block_frames(frames, key)
 
 
 #: a hover block: at most this many consecutive frames of one dwell (1 s at 10 Hz)
@@ -570,6 +558,24 @@ def hover_blocks(frames: Frames, size: int = HOVER_FRAMES, radius_m: float = HOV
         b, first = b + 1, i
         block[i] = b
     return block
+
+
+_HOVER: dict[tuple[int, float], tuple[weakref.ref, np.ndarray, Frames]] = {}
+
+
+def _hover(frames: Frames, turn_deg: float) -> tuple[np.ndarray, Frames]:
+    """(first frame of each hover block, the blocks as frames) of ``frames``, built once per frame set and turn
+    limit: every fit of a diagnose call searches the same flight's blocks (and keeps the model's caches keyed by
+    them)."""
+    hit = _HOVER.get((id(frames), turn_deg))
+    if hit is not None and hit[0]() is frames:
+        return hit[1], hit[2]
+    if len(_HOVER) >= 8:
+        _HOVER.clear()
+    block = hover_blocks(frames, turn_deg=turn_deg)
+    first = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
+    _HOVER[(id(frames), turn_deg)] = (weakref.ref(frames), first, block_frames(frames, block))
+    return first, _HOVER[(id(frames), turn_deg)][2]
 
 
 def block_frames(frames: Frames, block: np.ndarray) -> Frames:
@@ -885,14 +891,13 @@ def fit(
     if frame_groups is not None and not frame_groups.active.any():
         frame_groups = None
     all_frames, groups = frames, frame_groups
-    block = hover_blocks(frames, turn_deg=HOVER_TURN_DEG if model.uses_heading else 180.0) if hover else None
-    if block is not None and block[-1] + 1 < len(frames):
-        first = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
-        frames = block_frames(frames, block)
+    if hover:
+        first, blocks = _hover(frames, HOVER_TURN_DEG if model.uses_heading else 180.0)
+        hover = len(first) < len(frames)
+    if hover:
+        frames = blocks
         if frame_groups is not None:
             groups = replace(frame_groups, index=frame_groups.index[first])
-    else:
-        hover = False
     defaults = model.defaults()
     base_starts: list[dict[str, float]] = []
     if init:

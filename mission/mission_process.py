@@ -462,6 +462,11 @@ class ZenohFrames:
     def frames(self) -> Frames:
         return self.stream.frames()
 
+    def _no_histograms(self, timeout_wall_s: float) -> FlightStopped:
+        """The first frame never came: the error says where it was awaited and what this mission heard instead."""
+        return FlightStopped(f"no detector histograms after {timeout_wall_s:g} s on "
+                             f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(self.stream.drops)})")
+
     async def _detector_ready(self, timeout_wall_s: float) -> float:
         """Before the first ack: wait until the detector has spoken (its ``detector/status``, sent every 0.25 s
         wall while lockstep holds the clock at 0, or a histogram). Acked before it runs, the vehicle steps to the
@@ -472,8 +477,7 @@ class ZenohFrames:
         start = loop.time()
         while self.stream.detector_wall is None and self.stream.queue.empty():
             if loop.time() - start > timeout_wall_s:
-                raise FlightStopped(f"no detector histograms after {timeout_wall_s:g} s on "
-                                    f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(self.stream.drops)})")
+                raise self._no_histograms(timeout_wall_s)
             await asyncio.sleep(0.02)
         return max(timeout_wall_s - (loop.time() - start), 0.0)
 
@@ -517,8 +521,7 @@ class ZenohFrames:
             now = loop.time()
             if left is not None:
                 if now - start > left:
-                    raise FlightStopped(f"no detector histograms after {first_timeout_wall_s:g} s on "
-                                       f"{topics.key(topics.HISTOGRAM, self.vehicle)} ({heard(stream.drops)})")
+                    raise self._no_histograms(first_timeout_wall_s)
                 continue
             p = stream.pose()
             if p is not None and p.t > self._pose_t:
