@@ -128,6 +128,8 @@ class FitTask:
     n_starts: int | None = None
     label: str = ""
     cache: bool = True
+    #: also start from the second source's best grid cell (``estimator.mle.fit(second_grid=True)``)
+    second_grid: bool = False
 
 
 _WORKER: dict[str, Any] = {}
@@ -217,9 +219,11 @@ class CountFitter:
         return MeasurementModel(self.scenario, effects=tuple(effects))
 
     def fit(self, effects: tuple[str, ...], init: dict[str, float] | None = None, n_starts: int | None = None,
-            label: str = "", cache: bool = True, more_inits: list[dict[str, float]] | None = None) -> Any:
+            label: str = "", cache: bool = True, more_inits: list[dict[str, float]] | None = None,
+            second_grid: bool = False) -> Any:
         """Fit the model with ``effects``; the best fit per effect set is kept and returned next time.
-        ``more_inits``: further starts beside ``init`` (``estimator.mle.fit``)."""
+        ``more_inits``: further starts beside ``init``; ``second_grid``: the second source's best grid cell is
+        one of them (``estimator.mle.fit``)."""
         key = count_key(effects)
         if cache and key in self._cache and not getattr(self._cache[key], "screened_only", False):
             return self._cache[key]
@@ -235,7 +239,8 @@ class CountFitter:
         if held:
             model = model.with_params(**{k: {"value": v, "fixed": True} for k, v in held.items()})
         res = fit(model, self.fit_frames, n_starts=n_starts or self.n_starts, seed=self.seed,
-                        pose_uncertainty=True, init=init or None, more_inits=more, hover=True)
+                        pose_uncertainty=True, init=init or None, more_inits=more, hover=True,
+                        second_grid=second_grid)
         progress(f"fitted {label or describe(key)}: nll {res.nll:.1f}, deviance/dof {res.deviance_per_dof:.3f} "
                  f"({time.perf_counter() - t0:.1f} s)", self.quiet)
         if held:
@@ -247,7 +252,8 @@ class CountFitter:
     def isolated_fit(self, task: FitTask, start: dict[tuple[str, ...], Any]) -> tuple[Any, dict[tuple[str, ...], Any]]:
         """Fit ``task`` (uncached) from the cache ``start`` alone; returns the fit and the fits it added on the way."""
         self._cache = dict(start)
-        res = self.fit(task.effects, init=task.init, n_starts=task.n_starts, label=task.label, cache=False)
+        res = self.fit(task.effects, init=task.init, n_starts=task.n_starts, label=task.label, cache=False,
+                       second_grid=task.second_grid)
         return res, {k: v for k, v in self._cache.items() if start.get(k) is not v}
 
     def _fit_wall(self, key: tuple[str, ...], wall: str, init: dict[str, float] | None, label: str, cache: bool

@@ -245,18 +245,17 @@ def _forward_select(fitter: CountFitter, spectral_fit: Callable[[], Any], start:
         for e in todo:
             if e in NON_COUNT_EFFECTS:
                 continue
-            # start from the current optimum (the effect at its default); a second source also gets a start at
-            # the largest residual excess (the grid start is estimator.mle.second_source_starts), since its
-            # location is not identified by the current fit; the anisotropy also starts from a wide cone
+            # start from the current optimum (the effect at its default); a second source starts at the largest
+            # residual excess and at its best grid cell (estimator.mle.second_source_starts), since its location
+            # is not identified by the current fit: one fit, whose screen searches only the better basin in full;
+            # the anisotropy also starts from a wide cone
             init = dict(cur.values)
             label = f"{'+'.join(count) or 'baseline'} + {e}"
             if e == "second_source":
                 seed = dict(init, **excess_seed(frames, cur.expected, scenario,
                                                 np.array([cur.values["x"], cur.values["y"]])))
-                tasks.append(FitTask((*count, e), seed, 1, f"{label} (start at the excess)"))
-                tasks.append(FitTask((*count, e), {k: v for k, v in init.items() if not k.startswith("second")}, 1,
-                                     f"{label} (grid start)", cache=False))
-                owner += [e, e]
+                tasks.append(FitTask((*count, e), seed, 2, f"{label} (excess and grid starts)", second_grid=True))
+                owner.append(e)
             else:
                 tasks.append(FitTask((*count, e), init, 1, label))
                 owner.append(e)
