@@ -9,7 +9,7 @@ from typing import Any
 from estimator.diagnose.explain import physics
 from estimator.diagnose.features import unit_of
 from estimator.diagnose.residuals import describe_trend
-from estimator.diagnose.runner import Diagnosis, ModelReport
+from estimator.diagnose.runner import BELOW_FULL_NOTE, Diagnosis, ModelReport
 from estimator.diagnose.selection import Selection
 from estimator.diagnose.verdict import misfit_text, source_reading, unmapped_walls
 
@@ -139,6 +139,12 @@ def text_report(d: Diagnosis, plots: list[str] | None = None) -> str:
     if d.dropped:
         lines += ["", f"Named by the forward selection but not needed once the others are in (dropped): "
                       f"{', '.join(d.dropped)}"]
+        short = [r for r in d.backward if r["below_full"] > BELOW_FULL_NOTE]
+        if short:
+            by = ", ".join(format(r["below_full"], ".1f") for r in short)
+            lines += [f"  The fit without {', '.join(r['effect'] for r in short)} reached a lower -log L (by {by}) "
+                      "than the fit with every effect: that fit had stopped in a worse minimum, so with several "
+                      "minima the answer can depend on the search."]
     if d.nuclide is not None:
         nu = d.nuclide
         lines += ["", f"Second source's nuclide (from the flight's spectra): {nu.nuclide or 'undetermined'}"
@@ -201,6 +207,7 @@ def json_report(d: Diagnosis, plots: list[str] | None = None) -> dict[str, Any]:
     out["background_time"] = d.background_time.to_json() if d.background_time is not None else None
     out["unmapped_walls"] = unmapped_walls(d.final.fit, d.dataset.frames)
     out["dropped"] = list(d.dropped)
+    out["backward_check"] = [dict(r) for r in d.backward]
     out["physics"] = {e: physics(e) for e in (*d.missing, *d.partial)}
     out["trends"] = [{"feature": t.feature, "chi2": t.chi2, "dof": t.dof, "p_value": t.p_value,
                       "summary": describe_trend(t, unit_of(t.feature), d.alpha)} for t in final.trends.values()]

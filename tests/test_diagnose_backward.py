@@ -36,8 +36,9 @@ def _run(flight, jobs: int):
 
 
 def test_a_needless_effect_is_dropped_and_the_worlds_effect_kept(flight):
-    dropped, reduced = _run(flight, 1)
+    dropped, reduced, records = _run(flight, 1)
     assert dropped == ["dead_time"]
+    assert [r["effect"] for r in records] == ["dead_time"] and records[0]["p_value"] > 0.01 / 2
     assert reduced.model.effects == ("background_gradient",)
     assert reduced.values["background_gradient.gx"] > 0 > reduced.values["background_gradient.gy"]
 
@@ -53,7 +54,7 @@ def test_the_drop_fits_give_the_same_answer_in_two_processes(flight):
 def test_nothing_is_dropped_when_every_named_effect_is_needed(flight):
     fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
     sel = _selection(fitter, ["background_gradient"])
-    assert _backward(fitter, sel, (), 0.01, True) == ([], None)  # one named effect: nothing to check
+    assert _backward(fitter, sel, (), 0.01, True) == ([], None, [])  # one named effect: nothing to check
 
 
 def test_a_variance_effect_named_between_count_effects_does_not_stop_the_check(flight):
@@ -68,5 +69,49 @@ def test_a_variance_effect_named_between_count_effects_does_not_stop_the_check(f
                           [Candidate("over_dispersion", 20.0, 1, -18.0, -5.0, "chi2_1", {}, {}, True, 1e-3, fit=disp)],
                           "over_dispersion"))
     sel.missing.append("over_dispersion")
-    dropped, reduced = _backward(fitter, sel, (), 0.01, True)
+    dropped, reduced, _ = _backward(fitter, sel, (), 0.01, True)
     assert dropped == ["dead_time"] and reduced.model.effects == ("background_gradient",)
+
+
+def test_a_drop_fit_below_the_full_fit_is_dropped_and_says_the_full_fit_stopped_short(flight, monkeypatch, capsys):
+    """The model with every effect nests each drop's, so a drop fit below it shows the full fit stopped in a worse
+    minimum (a three-slab flight: the fit without its second source 11.5 lower). Injected here: the full fit
+    returned 5 above where it was found. The drop's LR is 0, the effect goes, and the message and the record say by
+    how much the full fit fell short; with the true full fit the record says 0."""
+    fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
+    sel = _selection(fitter, ["dead_time", "background_gradient"])
+    dropped, _, honest = _backward(fitter, sel, (), 0.01, True)
+    fit = fitter.fit
+    full_key = ("dead_time", "background_gradient")
+
+    def stopped_short(effects, *a, **k):
+        res = fit(effects, *a, **k)
+        return replace(res, nll=res.nll + 5.0) if tuple(effects) == full_key and "init" in k else res
+
+    from dataclasses import replace
+
+    monkeypatch.setattr(fitter, "fit", stopped_short)
+    dropped2, _, records = _backward(fitter, sel, (), 0.01, False)
+    assert dropped2 == dropped == ["dead_time"]
+    assert records[0]["lr"] == 0.0 and records[0]["below_full"] == pytest.approx(5.0 - honest[0]["lr"] / 2, abs=2e-3)
+    assert honest[0]["below_full"] == 0.0
+    assert "stopped in a worse minimum" in capsys.readouterr().err
+
+
+def test_the_reports_carry_each_drop(flight):
+    """``--json``'s ``backward_check`` lists each drop ``_backward`` made, with its test, beside ``dropped``; the text
+    report says when a drop fit was below the fit with every effect."""
+    import json
+
+    from estimator.diagnose.runner import diagnose
+    from reporting.diagnose_report import json_report, text_report
+
+    fitter = CountFitter(flight.scenario, flight.frames, n_starts=2, quiet=True)
+    dropped, _, records = _backward(fitter, _selection(fitter, ["dead_time", "background_gradient"]), (), 0.01, True)
+    d = diagnose(flight, quiet=True, n_starts=2, jobs=1)
+    d.dropped, d.backward = dropped, records
+    j = json.loads(json.dumps(json_report(d)))
+    assert j["dropped"] == ["dead_time"] and j["backward_check"] == records
+    assert "stopped in a worse minimum" not in text_report(d)
+    d.backward = [{**records[0], "below_full": 3.2}]
+    assert "(by 3.2) than the fit with every effect" in text_report(d)

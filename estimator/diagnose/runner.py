@@ -196,6 +196,8 @@ class Diagnosis:
     hotspots: list[dict[str, Any]] = field(default_factory=list)
     #: effects the forward selection named that the final model no longer needs (``_backward``)
     dropped: list[str] = field(default_factory=list)
+    #: each drop, with its test (``_backward``'s records: effect, lr, p_value, below_full)
+    backward: list[dict[str, Any]] = field(default_factory=list)
     #: the model the verdict judged (``final``, or with the effects still missing after --add)
     final_report: ModelReport | None = None
     #: the second source's nuclide, when the final model has one (``estimator.diagnose.nuclide``)
@@ -260,9 +262,10 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     after_sel = None
     target = list(dict.fromkeys((*count, *spec, *add_count, *add_spec))) if add else [*count, *spec, *sel.missing]
     dropped: list[str] = []
+    backward: list[dict[str, Any]] = []
     reduced = None
     if not add and len(sel.missing) >= 2:
-        dropped, reduced = _backward(fitter, sel, (*count, *spec), alpha, quiet)
+        dropped, reduced, backward = _backward(fitter, sel, (*count, *spec), alpha, quiet)
         target = [e for e in target if e not in dropped]
     if add or sel.missing:
         tc, ts = split_effects(target)
@@ -280,6 +283,7 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     fitter.spectral = spectral_fit.value
     d = Diagnosis(ds, alpha, current, sel, added, after, after_sel, spectral)
     d.dropped = dropped
+    d.backward = backward
     named = [e for e in (after_sel.missing if add and after_sel is not None else sel.missing) if e not in dropped]
     final = d.final
     if named and final is not after:  # --add with more still missing: judge the model with those in too
@@ -326,8 +330,13 @@ def _diagnose(ds: Dataset, fitter: CountFitter, model: tuple[str, ...], add: tup
     return d
 
 
+#: -log L by which a drop fit may beat the fit with every effect before the message says that fit stopped short (a
+#: tenth of the 0.5 of a 1-sigma step is MIGRAD's own tolerance scale; 0.5 is well beyond it)
+BELOW_FULL_NOTE = 0.5
+
+
 def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha: float, quiet: bool
-              ) -> tuple[list[str], Any]:
+              ) -> tuple[list[str], Any, list[dict[str, Any]]]:
     """Effects the forward selection named that the final model no longer needs, and the fit of the model left.
 
     Each named count effect is dropped in turn from the model with all of them (every placement free), and kept
@@ -335,10 +344,17 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     taken over by one named later: a distance trend left by one wall, explained by a second). The least needed
     goes, and the test is repeated on the model left (a second source named before the wall whose shadow it
     stood in for, and a second wall, both went on a one-wall flight: the second source kept 33 of its 2,900
-    counts once the free wall moved). Returns (the effects to drop, the fit without them; None if none)."""
+    counts once the free wall moved). Returns (the effects to drop, the fit without them (None if none), a record
+    of each drop: ``effect``, ``lr``, ``p_value`` and ``below_full``).
+
+    The model with every effect nests each drop's, so at its optimum no drop fits better; a drop fit that does (by
+    ``below_full`` in -log L) shows that the fit with every effect stopped in a worse minimum (three walls' shadows
+    fitted with two, a second source and anisotropy make several), and its LR is 0. The effect is dropped, as the
+    best fit found does without it, and the message says why: with several minima the answer can depend on the
+    search."""
     named = [e for e in sel.missing if e not in NON_COUNT_EFFECTS]
     if len(named) < 2:
-        return [], None
+        return [], None, []
     count = split_effects((*start, *sel.missing))[0]
     init: dict[str, float] = {}
     for st in sel.steps:
@@ -347,8 +363,9 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     full = fitter.fit(count, init=init)
     thr = math.log10(alpha / len(named))
     dropped: list[str] = []
+    records: list[dict[str, Any]] = []
     while len(named) >= 2:
-        worst: tuple[float, str, Any] | None = None
+        worst: tuple[float, str, Any, float] | None = None
         # the second wall goes first
         drops = [e for e in named if not (e == "unmapped_wall" and "unmapped_wall_2" in count)]
         # from the full model's optimum (the other effects' placements as they are there): a reduced fit that
@@ -365,16 +382,21 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
             k = len(set(full.free_names) - set(red.free_names))
             lp, _ = null_log10_p(e, lr, k, fitter.scenario, fitter.frames, looks)
             if lp > thr and (worst is None or lp > worst[0]):
-                worst = (lp, e, red)
+                worst = (lp, e, red, lr)
         if worst is None:
             break
+        below = max(full.nll - worst[2].nll, 0.0)
         progress(f"{worst[1]} is no longer needed once the other effects are in (p = {10 ** worst[0]:.2g}): "
-                 "dropped", quiet)
+                 "dropped" + (f" (the fit without it is {below:.1f} lower in -log L than the fit with every effect, "
+                              "which had stopped in a worse minimum: with several minima the answer can depend on "
+                              "the search)" if below > BELOW_FULL_NOTE else ""), quiet)
+        records.append({"effect": worst[1], "lr": round(worst[3], 3), "p_value": float(10 ** worst[0]),
+                        "below_full": round(below, 3)})
         dropped.append(worst[1])
         named.remove(worst[1])
         count = tuple(x for x in count if x != worst[1])
         full = worst[2]
-    return dropped, (full if dropped else None)
+    return dropped, (full if dropped else None), records
 
 
 def _source_counts(ds: Dataset, rep: ModelReport) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
