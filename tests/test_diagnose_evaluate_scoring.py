@@ -69,14 +69,15 @@ def test_walls_table_rates_per_mu_t_and_the_target():
     text, s = E.walls_table(rows)
     # the shaded part's centre stands in for the centre where a row has none
     assert s[0.3] == {"n": 2, "detected": 0.5, "located_segment": 1 / 3, "located_centre": 1 / 3,
-                      "located_shaded": 2 / 3, "every_located": 0.0, "flights_located": 0.5}
+                      "located_shaded": 2 / 3, "located_seen": 0.0, "every_located": 0.0, "flights_located": 0.5}
     assert s[1.0] == {"n": 1, "detected": 1.0, "located_segment": 1.0, "located_centre": 1.0,
-                      "located_shaded": 1.0, "every_located": 1.0, "flights_located": 1.0}
-    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 / 1/1 | 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another
+                      "located_shaded": 1.0, "located_seen": 0.0, "every_located": 1.0, "flights_located": 1.0}
+    assert "| 1 | 1 | 1/1 (100%) | 1/1 / 1/1 / 1/1 / 0/1 | 1/1 | 1/1 | 1 (1) | 1 | 0 |" in text  # dead_time: another
     assert "NOT met" in text
     good = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.4}], 1, 1) for mt in (0.3, 0.5, 1.0)]
     text, _ = E.walls_table(good + [_wall_row(0.1, [], [], 1, 0)])  # weak walls do not count for the target
-    assert "lowest detection 100%, lowest located (centre) 100%, (shaded part's centre) 100%: met per true" in text
+    assert "lowest located (centre) 100%, (shaded part's centre) 100%, (that centre by a named wall's seen part) 0%: " \
+        "met per true" in text
     # one of two true walls located on every flight: met per flight, not per wall
     half = [_wall_row(mt, ["unmapped_wall"], [{"segment": 0.1, "centre": 0.4}, {"segment": 0.9, "centre": 1.2}], 2, 1)
             for mt in (0.3, 0.5, 1.0)]
@@ -102,6 +103,22 @@ def test_a_slab_scaled_about_the_source_casts_the_same_shadow_until_a_frame_chan
     assert E.shaded_part(src, wall, np.array([[1.0, 0.0]])) is None  # in the sector, but before the slab
     errs = E.wall_errors([{**wall, "shaded": part}], [{"start": [2.0, 0.2], "end": [2.0, 0.3]}])
     assert errs == [{"segment": 0.0, "centre": 0.25, "shaded_centre": 0.0}]
+    # a named wall twice as long as its seen part: its centre is 0.5 m off, its seen part's centre on the true one's
+    named = {"start": [2.1, -0.25], "end": [2.1, 1.75], "seen_part": {"start": [2.1, 0.0], "end": [2.1, 0.5]}}
+    errs = E.wall_errors([{**wall, "shaded": part}], [named])
+    assert errs == [{"segment": 0.1, "centre": round(math.hypot(0.1, 0.75), 3),
+                     "shaded_centre": round(math.hypot(0.1, 0.5), 3), "seen_shaded": 0.1}]
+
+
+def test_the_seen_part_of_a_slab_is_where_the_lines_of_sight_cross_it():
+    """``shadow.seen_part`` (diagnose's ``unmapped_walls[].seen_part``): a 4 m slab 2 m east of the source, frames
+    4 m east at y = -0.5 and 0.5 and one between the source and the slab: the lines of sight cross it over its
+    middle half metre, the part the counts locate."""
+    from estimator.diagnose.shadow import seen_part
+
+    frames = np.array([[4.0, -0.5], [4.0, 0.5], [1.0, 0.0]])
+    assert seen_part(np.zeros(2), [2.0, -2.0], [2.0, 2.0], frames) == {"start": [2.0, -0.25], "end": [2.0, 0.25]}
+    assert seen_part(np.zeros(2), [2.0, 1.0], [2.0, 2.0], frames) is None  # above every line of sight
 
 
 def test_nuclides_table_right_rate_per_true_nuclide():

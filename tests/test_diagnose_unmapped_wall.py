@@ -153,10 +153,25 @@ def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
     assert d.after.source_error_m < d.current.source_error_m
     # the distance the shadow allows along the wall's bearing holds the true centre's distance from the source
     w = j["unmapped_walls"][int(np.argmin(dists))]
+    # the part of it the flight's lines of sight cross lies on it, and near the part of the true slab they cross
+    from benchmarks.diagnose_evaluate import shaded_part
+
+    seen = {k: np.array(v) for k, v in w["seen_part"].items()}
+    assert segment_distance_to(seen["start"], w) < 2e-3 and segment_distance_to(seen["end"], w) < 2e-3  # rounded
+    true_src = np.array([ds.truth.sources[0].x, ds.truth.sources[0].y])
+    shaded = shaded_part(true_src, truth, np.c_[ds.frames.x, ds.frames.y])
+    mid = (np.array(shaded["start"]) + np.array(shaded["end"])) / 2
+    assert np.hypot(*((seen["start"] + seen["end"]) / 2 - mid)) < 0.5
     src = np.array([d.final.fit.values["x"], d.final.fit.values["y"]])
     lo, hi = w["distance_range_95_m"]
     assert lo <= w["distance_from_source_m"] <= hi
     assert lo <= float(np.hypot(*((a + b) / 2 - src))) <= hi
+
+
+def segment_distance_to(p: np.ndarray, wall: dict) -> float:
+    a, b = np.array(wall["start"], float), np.array(wall["end"], float)
+    t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0, 1)
+    return float(np.hypot(*(p - (a + t * (b - a)))))
 
 
 def test_vectorised_placeable_agrees_with_the_effects_placement():

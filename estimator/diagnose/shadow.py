@@ -166,3 +166,28 @@ def screen(frames: Frames, expected: np.ndarray, background: np.ndarray, source_
             near |= np.hypot(*(centres - c).T) < max(np.hypot(*(e[2:4] - e[0:2])) / 2, 0.5)
         walls = walls[~near]
     return score_placements(frames, expected, background, source_xyz, walls)
+
+
+def crossings(source_xy: np.ndarray, start: np.ndarray, end: np.ndarray, frames_xy: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Where each frame's line of sight from the source meets the slab's line (``start`` -> ``end``): (s, u), s the
+    fraction of the way from the source to the frame, u the fraction along the slab from its start (nan: parallel)."""
+    a, b = np.asarray(start, float)[:2], np.asarray(end, float)[:2]
+    d = np.asarray(frames_xy, float) - np.asarray(source_xy, float)[:2]
+    ab, sa = b - a, a - np.asarray(source_xy, float)[:2]
+    cross = d[:, 0] * ab[1] - d[:, 1] * ab[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = np.where(np.abs(cross) > 1e-12, cross, np.nan)
+        return (sa[0] * ab[1] - sa[1] * ab[0]) / cross, (sa[0] * d[:, 1] - sa[1] * d[:, 0]) / cross
+
+
+def seen_part(source_xy: np.ndarray, start: np.ndarray, end: np.ndarray, frames_xy: np.ndarray
+              ) -> dict[str, list[float]] | None:
+    """The part of a slab that some frame's line of sight from the source crosses (``start``/``end``): the only part
+    the counts can locate, since the rest of the slab shades no frame. None if it shades none."""
+    s, u = crossings(source_xy, start, end, frames_xy)
+    hit = (s > 0) & (s <= 1) & (u >= 0) & (u <= 1)
+    if not hit.any():
+        return None
+    a, b = np.asarray(start, float)[:2], np.asarray(end, float)[:2]
+    return {"start": (a + (b - a) * u[hit].min()).tolist(), "end": (a + (b - a) * u[hit].max()).tolist()}

@@ -31,6 +31,7 @@ from estimator.diagnose.residuals import (
     pose_penalty,
     unit_deviance,
 )
+from estimator.diagnose.shadow import seen_part
 from estimator.model import UnmappedWall
 from radseek.dataset import Frames
 
@@ -237,7 +238,9 @@ def distance_range(fit: Any, frames: Frames, wall: str, n: int = 40) -> tuple[fl
 
 def unmapped_walls(fit: Any, frames: Frames | None = None) -> list[dict[str, Any]]:
     """The fit's unmapped walls in the scenario's ``walls`` form, with mu_per_m and uncertainties; with ``frames``,
-    also the range of distances along the wall's bearing that the shadow allows (:func:`distance_range`)."""
+    also the range of distances along the wall's bearing that the shadow allows (:func:`distance_range`) and the
+    ``seen_part`` of the slab, the part the flight's lines of sight to the fitted source cross
+    (``shadow.seen_part``): the counts locate that part, and the slab's length beyond it is the fit's guess."""
     out = []
     for wall in WALLS:
         if f"{wall}.r" not in fit.values:
@@ -249,9 +252,11 @@ def unmapped_walls(fit: Any, frames: Frames | None = None) -> list[dict[str, Any
         extra: dict[str, Any] = {}
         if frames is not None:
             lo, hi = distance_range(fit, frames, wall)
+            seen = seen_part(np.array([fit.values["x"], fit.values["y"]]), w[0:2], w[2:4], np.c_[frames.x, frames.y])
             extra = {"distance_from_source_m": round(float(fit.values[f"{wall}.r"]), 3),
                      "distance_range_95_m": [round(lo, 3), round(hi, 3)],
-                     "bearing_deg": round(float(fit.values[f"{wall}.phi_deg"]) % 360.0, 1)}
+                     "bearing_deg": round(float(fit.values[f"{wall}.phi_deg"]) % 360.0, 1),
+                     "seen_part": None if seen is None else {k: [round(c, 3) for c in v] for k, v in seen.items()}}
         out.append({"start": [round(float(w[0]), 3), round(float(w[1]), 3)],
                     "end": [round(float(w[2]), 3), round(float(w[3]), 3)],
                     "thickness": float(w[4]), "height": float(w[5]), "material": "unmapped",
