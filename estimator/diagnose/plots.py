@@ -77,11 +77,19 @@ def plot_map(rep: ModelReport, path: Path, scenario=None, title: str = "") -> Pa
     if scenario is not None:
         for w in scenario.walls:
             ax.plot([w.start[0], w.end[0]], [w.start[1], w.end[1]], color="0.3", lw=4, alpha=0.6)
+    from estimator.diagnose.shadow import seen_part
     from estimator.diagnose.verdict import unmapped_walls
 
+    src = np.array([rep.fit.values.get("x", np.nan), rep.fit.values.get("y", np.nan)])
     for i, w in enumerate(unmapped_walls(rep.fit)):
-        ax.plot([w["start"][0], w["end"][0]], [w["start"][1], w["end"][1]], color="C2", lw=4, alpha=0.8,
-                label=f"unmapped wall (mu x t {w['mu_x_thickness']:.2f})" if i == 0 else None)
+        # the slab as fitted, thin and dashed; the part the lines of sight cross (what the counts locate), thick
+        ax.plot([w["start"][0], w["end"][0]], [w["start"][1], w["end"][1]], color="C2", lw=1.5, ls="--", alpha=0.8,
+                label="unmapped wall as fitted" if i == 0 else None)
+        seen = seen_part(src, w["start"], w["end"], np.c_[f.x, f.y])
+        if seen is not None:
+            ax.plot([seen["start"][0], seen["end"][0]], [seen["start"][1], seen["end"][1]], color="C2", lw=5,
+                    alpha=0.9, label=f"its part the lines of sight cross (mu x t {w['mu_x_thickness']:.2f})"
+                    if i == 0 else None)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")
