@@ -128,7 +128,7 @@ def test_screen_finds_the_placement_of_a_known_shadow():
 
 
 @pytest.mark.slow
-def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
+def test_diagnose_names_an_unmapped_wall_on_an_independent_flight(tmp_path):
     """forward2's straight wall, removed from the scenario (mu x t = 0.5): diagnose names unmapped_wall, its fit is
     adequate, its centre is within 0.5 m of the true slab, and the source error falls."""
     from benchmarks.forward2 import FlightSpec, simulate
@@ -162,6 +162,10 @@ def test_diagnose_names_an_unmapped_wall_on_an_independent_flight():
     shaded = shaded_part(true_src, truth, np.c_[ds.frames.x, ds.frames.y])
     mid = (np.array(shaded["start"]) + np.array(shaded["end"])) / 2
     assert np.hypot(*((seen["start"] + seen["end"]) / 2 - mid)) < 0.5
+    # the residual map draws it (as fitted, and its seen part)
+    from estimator.diagnose.plots import plot_map
+
+    assert plot_map(d.final, tmp_path / "map.png", ds.scenario).stat().st_size > 10_000
     src = np.array([d.final.fit.values["x"], d.final.fit.values["y"]])
     lo, hi = w["distance_range_95_m"]
     assert lo <= w["distance_from_source_m"] <= hi
