@@ -347,11 +347,12 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     counts once the free wall moved). Returns (the effects to drop, the fit without them (None if none), a record
     of each drop: ``effect``, ``lr``, ``p_value`` and ``below_full``).
 
-    The model with every effect nests each drop's, so at its optimum no drop fits better; a drop fit that does (by
-    ``below_full`` in -log L) shows that the fit with every effect stopped in a worse minimum (three walls' shadows
-    fitted with two, a second source and anisotropy make several), and its LR is 0. The effect is dropped, as the
-    best fit found does without it, and the message says why: with several minima the answer can depend on the
-    search."""
+    The model with every effect nests each drop's, so at its optimum no drop fits better; a drop fit that does
+    shows that the fit with every effect stopped in a worse minimum (three walls' shadows fitted with two, a second
+    source and anisotropy make several). That fit is then fitted once more from the drop's basin, the dropped effect
+    as the full fit had it, and the drops again from there if it went lower. A drop still below it (by
+    ``below_full`` in -log L) has LR 0: the effect is dropped, as the best fit found does without it, and the
+    message says why: with several minima the answer can depend on the search."""
     named = [e for e in sel.missing if e not in NON_COUNT_EFFECTS]
     if len(named) < 2:
         return [], None, []
@@ -364,6 +365,7 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     thr = math.log10(alpha / len(named))
     dropped: list[str] = []
     records: list[dict[str, Any]] = []
+    refitted = False
     while len(named) >= 2:
         worst: tuple[float, str, Any, float] | None = None
         # the second wall goes first
@@ -375,6 +377,18 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
         reds, _ = fitter.fit_many([FitTask(tuple(x for x in count if x != e), dict(full.values),
                                            label=f"{describe(count)} without {e}", cache=False) for e in drops],
                                   label="backward check: drop fits")
+        below_e, below_red = min(zip(drops, reds, strict=True), key=lambda t: t[1].nll)
+        if not refitted and below_red.nll < full.nll - BELOW_FULL_NOTE:
+            # the fit with every effect stopped in a worse minimum than a drop's: fitted once more from that drop's
+            # basin (the dropped effect as the full fit had it), and the drops again from there if it went lower
+            refitted = True
+            again = fitter.fit(count, init={**full.values, **below_red.values}, n_starts=1, cache=False,
+                               label=f"{describe(count)} again, from the fit without {below_e}")
+            progress(f"the fit with every effect was {full.nll - below_red.nll:.1f} above the fit without {below_e} "
+                     f"in -log L; fitted again from there: {full.nll - again.nll:+.1f}", quiet)
+            if again.nll < full.nll:
+                full = again
+                continue
         for e, red in zip(drops, reds, strict=True):
             lr = max(2.0 * (red.nll - full.nll), 0.0)
             looks = next((getattr(c.fit, "wall_looks", None) for st in sel.steps for c in st.candidates
