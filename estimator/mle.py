@@ -335,20 +335,28 @@ def _counts_and_jacobian(model: MeasurementModel, theta: dict[str, float], frame
     return mu[0], ((mu[1:] - base) / OFFSET_STEP_M).T
 
 
+def _per_frame_set(cache: dict[tuple[int, Any], tuple[weakref.ref, Any]], frames: Frames, key: Any,
+                   build: Callable[[], Any]) -> Any:
+    """``build()`` for the frame set ``frames`` and ``key``, built once and kept for the last few frame sets (a fit
+    asks thousands of times; every fit of a diagnose call asks for the same flight's): keyed by the frames' id,
+    checked against a weak reference so that a new set at a reused address is built anew."""
+    hit = cache.get((id(frames), key))
+    if hit is not None and hit[0]() is frames:
+        return hit[1]
+    if len(cache) >= 8:
+        cache.clear()
+    value = build()
+    cache[(id(frames), key)] = (weakref.ref(frames), value)
+    return value
+
+
 #: the last few frame sets tiled for the Jacobian's shifted copies: (id, k) -> (weak reference, tiled frames)
-_TILED: dict[tuple[int, int], tuple[weakref.ref, Frames]] = {}
+_TILED: dict[tuple[int, Any], tuple[weakref.ref, Any]] = {}
 
 
 def _tiled(frames: Frames, k: int) -> Frames:
     """``k`` copies of ``frames`` one after the other (built once per frame set: a fit asks thousands of times)."""
-    hit = _TILED.get((id(frames), k))
-    if hit is not None and hit[0]() is frames:
-        return hit[1]
-    if len(_TILED) >= 8:
-        _TILED.clear()
-    tiled = frames.select(np.tile(np.arange(len(frames)), k))
-    _TILED[(id(frames), k)] = (weakref.ref(frames), tiled)
-    return tiled
+    return _per_frame_set(_TILED, frames, k, lambda: frames.select(np.tile(np.arange(len(frames)), k)))
 
 
 def profile_offsets(
@@ -560,22 +568,18 @@ def hover_blocks(frames: Frames, size: int = HOVER_FRAMES, radius_m: float = HOV
     return block
 
 
-_HOVER: dict[tuple[int, float], tuple[weakref.ref, np.ndarray, Frames]] = {}
+_HOVER: dict[tuple[int, Any], tuple[weakref.ref, Any]] = {}
 
 
 def _hover(frames: Frames, turn_deg: float) -> tuple[np.ndarray, Frames]:
     """(first frame of each hover block, the blocks as frames) of ``frames``, built once per frame set and turn
     limit: every fit of a diagnose call searches the same flight's blocks (and keeps the model's caches keyed by
     them)."""
-    hit = _HOVER.get((id(frames), turn_deg))
-    if hit is not None and hit[0]() is frames:
-        return hit[1], hit[2]
-    if len(_HOVER) >= 8:
-        _HOVER.clear()
-    block = hover_blocks(frames, turn_deg=turn_deg)
-    first = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
-    _HOVER[(id(frames), turn_deg)] = (weakref.ref(frames), first, block_frames(frames, block))
-    return first, _HOVER[(id(frames), turn_deg)][2]
+    def build() -> tuple[np.ndarray, Frames]:
+        block = hover_blocks(frames, turn_deg=turn_deg)
+        return np.flatnonzero(np.r_[True, block[1:] != block[:-1]]), block_frames(frames, block)
+
+    return _per_frame_set(_HOVER, frames, turn_deg, build)
 
 
 def block_frames(frames: Frames, block: np.ndarray) -> Frames:
