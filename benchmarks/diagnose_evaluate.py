@@ -49,12 +49,13 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.shared_data import shared_path
 from estimator.diagnose.shadow import crossings, seen_part
 from estimator.diagnose.verdict import STRONG_AIC
 
 SECTIONS = ("shared", "power", "null", "pairs", "walls", "nuclides", "conull", "offlist")
 SHARED = ["lattice-clean", "lattice-wall", "close-pass-deadtime", "spin-anisotropy", "outdoor-air", "two-sources"]
-SHARED_DIR = Path(__file__).resolve().parents[2] / "shared" / "datasets"
+SHARED_DIR = shared_path("datasets")
 
 #: effect -> (geometries, strengths, the strength of the shared dataset / issue example, params(strength, rng))
 POWER: dict[str, tuple[tuple[str, ...], tuple[float, ...], float | None, Callable[[float, Any], dict]]] = {

@@ -24,9 +24,12 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.shared_data import shared_path  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
-SHARED = REPO.parent / "shared" / "datasets"
+SHARED = shared_path("datasets")
 #: the evaluation's slowest calls (docs/diagnose-evaluation.md): two and three slabs, a long outdoor survey
 FLIGHTS = ("uwall-1-spin-n2-s0", "uwall-0.5-spin-n3-s1", "uwall-1-lattice-n3-s2", "uwall-0.5-lattice-n1-s0",
            "conull-Cs-137-outdoor-19")

@@ -33,11 +33,12 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from benchmarks.shared_data import shared_path  # noqa: E402
 from estimator.localizers import make_localizer  # noqa: E402
 from radseek_io.truth import read_dataset_with_truth  # noqa: E402
 from reporting.truth_errors import match_errors  # noqa: E402
 
-SHARED = REPO.parent / "shared" / "datasets"
+SHARED = shared_path("datasets")
 METHODS = ["sphere", "pf", "multi-pf", "gp", "mle"]
 DATASET_EFFECT = {
     "lattice-clean": (),

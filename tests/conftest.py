@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
+from benchmarks.shared_data import shared_path
 from tests.support import schedule
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
@@ -197,7 +198,7 @@ def _exclusive(request):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATASETS = REPO.parent / "shared" / "datasets"
+SHARED_DATASETS = shared_path("datasets")
 
 
 def shared_dataset_names() -> list[str]:

@@ -3,10 +3,11 @@
 import json
 import math
 
+from benchmarks.shared_data import shared_path
 from radseek_cli.calibrate_cli import main
 from tests.conftest import REPO
 
-AM241 = REPO.parent / "shared" / "real-spectra" / "data_am241.n42"
+AM241 = shared_path("real-spectra", "data_am241.n42")
 #: the RC-102's joint response (benchmarks/real_spectra.py), evaluated with no refit: the windows are the test
 DETECTOR = REPO / "docs" / "img" / "rc102-001272.joint.detector.json"
 

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from benchmarks.forward2.spectra import EDGES, Response
+from benchmarks.shared_data import shared_path
 from estimator.spectral import SpectralModel
 
 THRESHOLD = 0.01 / 9
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real-spectra"
+REAL = shared_path("real-spectra")
 #: other units' public spectra (tests/data, licences there): a RadiaCode-103 and another RadiaCode-102
 UNITS = Path(__file__).resolve().parent / "data"
 OTHER_UNITS = ["real-spectra-rc103-006489/Ra-226_energy_calibrated.csv",

@@ -34,13 +34,14 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as M
 
+from benchmarks.shared_data import shared_path
 from tests.conftest import free_port
 from tests.support.example_ports import GRPC_ENV, MAVLINK_ENV
 from vehicle_sim.harness import Gcs, VehicleProcess, free_udp_port
 
 pytestmark = [pytest.mark.slow, pytest.mark.io]
 REPO = Path(__file__).resolve().parents[1]
-EXAMPLES = REPO.parent / "shared" / "mavsdk-python-examples"
+EXAMPLES = shared_path("mavsdk-python-examples")
 VENV = Path(os.environ.get("RADSEEK_MAVSDK_GRPC_VENV", REPO / ".venv-mavsdk-grpc"))
 WAIT_S = 240.0  # bounds waiting only
 HOME = (47.397742, 8.545594, 488.0)

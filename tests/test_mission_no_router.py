@@ -5,13 +5,14 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO, free_port
+from benchmarks.shared_data import shared_path
+from tests.conftest import free_port
 
 pytestmark = pytest.mark.io
 
 
 def test_no_router_is_one_line_after_the_connect_timeout(tmp_path):
-    scenario = REPO.parent / "shared" / "datasets" / "lattice-clean" / "scenario.json"
+    scenario = shared_path("datasets", "lattice-clean", "scenario.json")
     r = subprocess.run([sys.executable, "-m", "radseek_cli", "mission", "--scenario", str(scenario),
                         "--out", str(tmp_path / "m"), "--connect", f"tcp/127.0.0.1:{free_port()}",
                         "--connect-timeout", "2"], capture_output=True, text=True, timeout=120)
@@ -31,7 +32,7 @@ def test_no_detector_is_one_line_after_the_connect_timeout(router, tmp_path):
                                 "--api-local-port", "0", "--gcs-local-port", "0"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        scenario = REPO.parent / "shared" / "datasets" / "lattice-clean" / "scenario.json"
+        scenario = shared_path("datasets", "lattice-clean", "scenario.json")
         r = subprocess.run([sys.executable, "-m", "radseek_cli", "mission", "--scenario", str(scenario),
                             "--out", str(tmp_path / "m"), "--connect", router, "--url", f"udpin://0.0.0.0:{api}",
                             "--connect-timeout", "3"], capture_output=True, text=True, timeout=300)

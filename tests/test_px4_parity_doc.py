@@ -10,10 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.shared_data import shared_path
+
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "px4-parity.md"
 VENDORED = REPO / "tests" / "mavsdk_upstream"
-SHARED = REPO.parent / "shared" / "mavsdk-python-examples"
+SHARED = shared_path("mavsdk-python-examples")
 
 
 def rows() -> list[dict[str, str]]:

@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.shared_data import shared_path
 from radseek_io.spectrum_io import read_spectrum
 
-REAL_SPECTRA = Path(__file__).resolve().parents[3] / "shared" / "real-spectra"
+REAL_SPECTRA = shared_path("real-spectra")
 #: comparator edges of the shared datasets (keV), channel 31 is the overflow
 EDGES = np.array([40.0, 83.0, 126.5, 170.5, 215.0, 260.0, 305.4, 351.4, 397.8, 444.7, 492.1, 540.0, 588.4, 637.2,
                   686.6, 736.4, 786.7, 837.5, 888.8, 940.6, 992.9, 1045.6, 1098.9, 1152.6, 1206.8, 1261.5, 1316.7,
