@@ -288,6 +288,7 @@ def _fly(spec: Mapping[str, Any]) -> dict[str, Any]:
         "sigma_m": float(est.sigma_m) if est else math.inf,
         "covered_95": covered, "mahalanobis2": d2,
         "dwell_points": len(r.dwell_rates), "search_dwells": int(r.brain.search_dwells),
+        "check_dwells": int(r.brain.check_dwells),
         "mission_time_s": float(r.mission_time_s),
         "est_x": float(est.x) if est else math.nan, "est_y": float(est.y) if est else math.nan,
         "true_x": float(src.x), "true_y": float(src.y),

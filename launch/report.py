@@ -198,7 +198,7 @@ def _tight_layout(fig) -> None:
 
 
 def write_report(out: str | Path, wall_time_s: float | None = None, speedup: float | None = None) -> dict[str, Any]:
-    from estimator.inflight import gof_warning
+    from estimator.inflight import excess_warning, gof_warning
     from mission.search import SearchConfig
 
     out = Path(out)
@@ -295,6 +295,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
     plt.close(fig)
 
     warning = gof_warning(est.p_value, out / "dataset")
+    excess = excess_warning(est.to_json(), ds.scenario.background_cps, out / "dataset")
     samples = mission.get("samples") or {}
     summary = {
         "error_m": err,
@@ -302,7 +303,7 @@ def write_report(out: str | Path, wall_time_s: float | None = None, speedup: flo
         "ellipse_95": dict(est.ellipse_95 or {}),
         "bound_m": float(est.bound_m if est.bound_m is not None else math.nan),
         "p_value": float(est.p_value),
-        "warnings": ([warning] if warning else []) + dropped_warnings(samples),
+        "warnings": [w for w in (warning, excess) if w] + dropped_warnings(samples),
         "estimate_source": est_source,
         "estimate": {**est.to_json(), "sigma_xy_m": [float(v) for v in np.sqrt(np.clip(np.diag(cov), 0, None))]},
         "stop_sigma_m": stop_sigma,

@@ -77,7 +77,8 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
                 continue
             s, cov = est, est["covariance"]
             row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "sigma_local_m",
-                                                  "misfit_factor", "other_mode", "effects", "converged", "p_value")})
+                                                  "misfit_factor", "other_mode", "effects", "converged", "p_value",
+                                                  "background_excess_z")})
         else:
             loc = make_localizer(method, **(settings or {}))
             try:
@@ -212,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the rows as JSON")
     args = p.parse_args(argv)
 
-    from estimator.inflight import ERROR_SIGMAS_FLAG, gof_warning
+    from estimator.inflight import ERROR_SIGMAS_FLAG, excess_warning, gof_warning
     from radseek.dataset import DatasetError
     from radseek_io.mcap_frames import McapFrameError
     from radseek_io.truth import read_dataset_with_truth
@@ -258,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
     # the last estimate is the one the flight ended with: say so when its model does not fit the data
     last = next((r for r in reversed(rows) if "error" not in r), None)
     warning = gof_warning(last.get("p_value"), args.dataset) if last else None
+    excess = excess_warning(last, ds.scenario.background_cps, args.dataset) if last and args.method == INFLIGHT \
+        else None
     outside = outside_warning(rows)
     if args.json:
         print(json.dumps(rows, indent=2))
@@ -265,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"radseek replay: warning: {warning}", file=sys.stderr)
         if outside:
             print(f"radseek replay: warning: {outside}", file=sys.stderr)
+        if excess:
+            print(f"radseek replay: warning: {excess}", file=sys.stderr)
     else:
         truth = any("error_m" in r for r in rows)
         print(f"{'dwells':>6} {'t (s)':>8} {'x (m)':>7} {'y (m)':>7} {'cps@1m':>8} {'sigma (m)':>9} {'error (m)':>9} "
@@ -286,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"THE MODEL MISSES SOMETHING HERE: {warning}")
         if outside:
             print(f"THE UNCERTAINTY IS NOT HONEST HERE: {outside}")
+        if excess:
+            print(f"THE BACKGROUND IS TOO HIGH HERE: {excess}")
     if args.plot:
         import matplotlib
 
