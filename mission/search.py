@@ -77,6 +77,8 @@ AT_FLOOR = 1.25
 #: m: a search dwell planned from a belief whose 1-sigma is above this (the source not yet localised: the
 #: in-flight fit's own confidence limit, ``estimator.inflight.WARM_SIGMA_M``) does not spend the search budget
 LOCALISED_M = WARM_SIGMA_M
+#: bearings (widest gap first) a check dwell tries to route to before it gives up: each may grow a tree
+CHECK_ROUTES = 8
 
 
 @dataclass(frozen=True)
@@ -109,9 +111,10 @@ class SearchConfig:
     #: ``min_readings``, paper 003's three): its score plans from the first in-flight fit, and each exploration
     #: dwell flown first adds drift to the informative counts that follow (docs/planner.md, issue 36)
     info_min_readings: int = 2
-    #: check dwells toward an excess background before an active search stops found (0: none), and how far from
-    #: the estimate (m). Without them the information planner's two-source flights kept the one-source model in
-    #: 107 of 200 (its dwells hug the strong source), covering the truth in 67 % of those
+    #: check dwells before an active search stops found on an estimate with an excess background (0: none), and
+    #: how far from the estimate (m): ``SearchBrain._check_excess``. Without them the information planner's
+    #: two-source flights kept the one-source model in 107 of 200 (its dwells hug the strong source), covering the
+    #: truth in 67 % of those
     excess_checks: int = 2
     check_distance_m: float = 3.0
     next_best: NextBestConfig = field(default_factory=NextBestConfig)
@@ -438,6 +441,7 @@ class SearchBrain:
         estimate's second-source test sees it. The counts there pin the background too."""
         est = self.estimator.estimate
         if (est is None or self.check_dwells >= self.config.excess_checks or "second_source" in est["effects"]
+                or len(self.history) >= self.config.max_dwells  # the battery budget holds for checks too
                 or not est.get("background_excess_z", math.nan) > BACKGROUND_EXCESS_Z):
             return None
         start = self._at_altitude(current)
@@ -447,7 +451,7 @@ class SearchBrain:
         points[:, :2] = np.clip(points[:, :2], self.occ.free_min[:2], self.occ.free_max[:2])
         flown = self.history.positions[:, :2]
         gap = np.min(np.linalg.norm(points[:, None, :2] - flown[None, :, :], axis=2), axis=1)
-        for k in np.argsort(-gap):
+        for k in np.argsort(-gap)[:CHECK_ROUTES]:
             target = self.occ.nearest_valid(points[k])
             path = None if target is None else self._route(start, target)
             if path is not None:

@@ -80,3 +80,15 @@ def test_the_excess_is_said_where_a_one_source_estimate_is_read(flights, tmp_pat
     path = write_dataset(tmp_path / "flight", ds.frames, ds.scenario, ds.truth)
     assert replay_main([str(path)]) == 0
     assert "THE BACKGROUND IS TOO HIGH HERE" in capsys.readouterr().out
+
+
+def test_no_check_is_flown_past_the_battery_budget():
+    """With the battery budget at the dwells the checked flight had flown before its first check, the search
+    stops there: a check would be dwell max_dwells + 1."""
+    scene = load_scene("two-source")
+    checked = fly_offline(scene, SearchConfig(strategy="info", excess_checks=2), seed=0)
+    first = next(i for i, d in enumerate(checked.decisions) if d.reason.startswith("check:"))
+    r = fly_offline(scene, SearchConfig(strategy="info", excess_checks=2, max_dwells=first), seed=0)
+    assert r.brain.check_dwells == 0
+    assert len(r.dwell_positions) == first
+    assert r.decisions[-1].outcome in (Outcome.FOUND, Outcome.DRIFT_LIMITED)
