@@ -127,7 +127,9 @@ def background_excess_z(fitted: float, error: float, prior: float) -> float:
     nan when either is unknown. A one-source fit puts an unmodelled source's flux into the background: on the
     two-source scene (1300 cps 4.9 m from the 2200 cps source, 30 cps background) the information planner's
     one-source estimates read 45-62 cps, z 2.8-6.7, with goodness-of-fit p 0.1-0.9; on the default scene z
-    was -1.4 to 1.2 (seeds 0-7)."""
+    was -1.4 to 1.2 (seeds 0-7). A prior of 0 (the dataset contract allows it) is no pre-flight value: nan."""
+    if not float(prior) > 0:
+        return math.nan
     scale = math.hypot(float(error), BACKGROUND_PRIOR_REL * float(prior))
     z = (float(fitted) - float(prior)) / scale if scale > 0 else math.nan
     return z if math.isfinite(z) else math.nan

@@ -22,7 +22,7 @@ def test_the_excess_is_counted_in_the_fit_and_prior_sds_together():
     assert background_excess_z(30.0, 2.0, 30.0) == 0.0
     assert background_excess_z(20.0, 0.0, 30.0) == pytest.approx(-10.0 / 3.0)  # a deficit is negative
     assert math.isnan(background_excess_z(50.0, math.nan, 30.0))  # a fit without an error says nothing
-    assert math.isnan(background_excess_z(5.0, 0.0, 0.0))
+    assert math.isnan(background_excess_z(5.0, 0.5, 0.0))  # an operator's 0 is no pre-flight value
 
 
 @pytest.fixture(scope="module")
