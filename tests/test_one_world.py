@@ -7,6 +7,8 @@ no flight): the default scene's is the first of tests/test_lockstep_repro.py's p
 lattice-wall's the second of tests/test_run_ports.py's side-by-side pair (seed 1, 3 dwells)."""
 
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -60,3 +62,33 @@ def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path_
     assert run["code"] in (0, 3), run["stderr"][-3000:]
     stack = json.loads((run["out"] / "summary.json").read_text())
     assert_same_team_flight(run["out"], stack, flooded.SCENE, flooded.SEED, tmp_path_factory=tmp_path_factory)
+
+
+def test_a_check_dwell_flies_the_same_through_the_stack(tmp_path):
+    """Two-source, information planner, seed 0: the one-source estimate's background stands above the operator's,
+    so the mission flies a check dwell before it stops (mission/search.py ``_check_excess``). Through the stack
+    (its own run, 50x, every port free) the check is decided in the mission process, and the flight is the
+    in-process driver's row for row: the same frames, the check, the second source and the error."""
+    from tests.conftest import free_port
+    from vehicle_sim.harness import free_udp_port
+
+    dwells, out = 8, tmp_path / "run"
+    cmd = [sys.executable, "-m", "radseek_cli", "run", "two-source", "--strategy", "info", "--out", str(out),
+           "--quiet", "--speedup", "50", "--max-dwells", str(dwells), "--seed", "0", "--zenoh-port", str(free_port()),
+           "--mavlink-port", str(free_udp_port()), "--gcs-port", str(free_udp_port()),
+           "--vehicle-local-ports", f"{free_udp_port()},{free_udp_port()}", "--no-mcap",
+           "--timeout", str(side_by_side.RUN_TIMEOUT_S)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=side_by_side.RUN_TIMEOUT_S + 60)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    stack = _summary(out)
+    r = fly_offline(load_scene("two-source"),
+                    SearchConfig(strategy="info", max_dwells=dwells, max_search_dwells=dwells), seed=0)
+    assert r.brain.check_dwells == 1
+    log = [json.loads(line) for line in (out / "dataset" / "mission_log.jsonl").read_text().splitlines()]
+    assert sum(e.get("reason", "").startswith("check:") for e in log if e.get("event") == "decision") == 1
+    for key in ("reason", "dwell_points", "search_dwell_points", "mission_time_s", "frames_recorded"):
+        assert r.summary[key] == stack[key], key
+    assert stack["estimate"]["effects"] == ["second_source"] == r.brain.estimator.estimate["effects"]
+    assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
+    rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
+    assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
