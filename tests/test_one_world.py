@@ -64,6 +64,8 @@ def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path_
     assert_same_team_flight(run["out"], stack, flooded.SCENE, flooded.SEED, tmp_path_factory=tmp_path_factory)
 
 
+# never beside test_run_flood_summary's 100x flood: a stack beside it starves the mission past the board's copies
+@pytest.mark.exclusive("default-ports-7447-14540")
 def test_a_check_dwell_flies_the_same_through_the_stack(tmp_path):
     """Two-source, information planner, seed 0: the one-source estimate's background stands above the operator's,
     so the mission flies a check dwell before it stops (mission/search.py ``_check_excess``). Through the stack

@@ -40,7 +40,7 @@ SPEEDUP = 5.0
 SEED = 3
 MAX_DWELLS = 16  # radseek run's default; seed 3 finds the source in 5
 FLOOD_X = 100.0  # times the contract rate
-COPY_AFTER_S = 5.0  # wall s after the original a copy is sent (1 s: a loaded clean-clone run stalled past it)
+COPY_AFTER_S = 10.0  # wall s after the original a copy is sent (1 s, then 5 s: loaded clean-clone runs stalled past it)
 RUN_TIMEOUT_S = 900
 HIST, STATUS = topics.key(topics.HISTOGRAM, "uav0"), topics.key(topics.DETECTOR_STATUS, "uav0")
 FORGED = topics.Histogram(seq=10**7, board_time=1.0, t=1.0, duration=0.1, counts=[65535] * 32).to_bytes()
