@@ -29,6 +29,25 @@ def test_pose_interpolates_position_and_unwraps_yaw():
     assert h.at(2.5).x == 1.0  # within max_gap of the last estimate
 
 
+def test_a_frame_from_the_past_is_kept_flagged_and_the_flight_stays_readable(tmp_path):
+    """A usable frame that does not end after the last recorded one (a forged copy filling a dropped frame's
+    sequence number, with t = 1.0) goes to frames_flagged.csv: frames.csv stays in time order, and nothing is lost."""
+    h = PoseHistory()
+    for k in range(200):
+        h.add(pose(k * 0.05, k * 0.05))
+    times = [0.1 * (k + 1) for k in range(40)]
+    times[25] = 1.0  # the forgery, in place of 2.6
+    with FlightRecorder(tmp_path / "flight", SCEN) as rec:
+        for seq, t in enumerate(times):
+            hist = topics.Histogram(seq=seq, board_time=t, t=t, duration=0.1, counts=[3] * 32)
+            rec.record(hist, h.at(t - 0.05), dwell=0)
+        rec.record(topics.Histogram(seq=99, board_time=4.0, t=4.0, duration=0.1, counts=[3] * 32), h.at(3.95), 0)
+    ds = read_dataset(tmp_path / "flight")  # the reader refuses rows out of time order: this one is not
+    assert list(ds.frames.t) == times[:25] + times[26:]  # and 4.0, not after the last (0.1 x 40), is flagged too
+    assert rec.out_of_order == 2 and flagged_rows(tmp_path / "flight") == 2
+    assert rec.received == 41 == len(ds.frames) + flagged_rows(tmp_path / "flight")
+
+
 def test_every_received_frame_is_in_the_dataset(tmp_path):
     h = PoseHistory()
     for k in range(60):
