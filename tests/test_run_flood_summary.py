@@ -28,10 +28,12 @@ from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from launch.ports import ZENOH_BASE
 from mission.key_accounts import UNKNOWN_PUBLISHER
+from mission.recorder import flagged_rows
 from mission.search import SearchConfig
 from radseek import topics
 from radseek.zenoh_auth import find_user
 from radseek.zenoh_session import open_session
+from radseek_io.dataset import read_dataset
 from tests.support.run_credentials import wait_for_credentials
 from tests.support.team_frames import assert_frames_csv
 
@@ -153,14 +155,23 @@ def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_
     summary = json.loads((out / "summary.json").read_text())
     mission = json.loads((out / "dataset" / "mission_summary.json").read_text())
     assert summary["samples"] == mission["samples"]
-    # the flight an unattacked run flies, frame for frame: nothing forged was recorded, nothing real lost
-    config = SearchConfig(max_dwells=MAX_DWELLS, max_search_dwells=MAX_DWELLS)
-    r = fly_offline(load_scene("default"), config, seed=SEED)
-    for key in ("reason", "dwell_points", "mission_time_s", "frames_recorded", "frames_lost"):
-        assert r.summary[key] == mission[key], key
-    assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
-    rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
-    assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
+    ds = read_dataset(out / "dataset")  # readable: frames.csv in time order, whatever came in
+    assert (ds.frames.counts < 65535).all()  # no forged histogram was recorded as a measurement
+    if mission["frames_lost"] == 0:
+        # the flight an unattacked run flies, frame for frame: nothing forged was recorded, nothing real lost
+        config = SearchConfig(max_dwells=MAX_DWELLS, max_search_dwells=MAX_DWELLS)
+        r = fly_offline(load_scene("default"), config, seed=SEED)
+        for key in ("reason", "dwell_points", "mission_time_s", "frames_recorded", "frames_lost"):
+            assert r.summary[key] == mission[key], key
+        assert r.error_m == pytest.approx(summary["error_m"], abs=1e-9)
+        rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
+        assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
+    else:
+        # a loaded machine: the router dropped real histograms in the flood (zenoh's DROP congestion control), so
+        # the flight differs from an unattacked one; a forged copy that came in a lost frame's place is at most
+        # flagged (mission/recorder.py), and the run still ends with its report
+        assert mission["frames_received"] == mission["frames_recorded"] + flagged_rows(out / "dataset")
+        assert flagged_rows(out / "dataset") <= mission["frames_lost"]
 
     honest = board.honest
     hist = summary["samples"][HIST]
