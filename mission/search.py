@@ -423,11 +423,8 @@ class SearchBrain:
     def _next_pattern_point(self, current: np.ndarray) -> Decision:
         start = self._at_altitude(current)
         while self.pattern:
-            target = self.pattern.pop(0)
-            path = self._route(start, target)
-            if path is not None:
-                yaw = np.full((len(path), 1), start[3])
-                plan = DwellPlan(np.r_[target, start[3]][None, :], np.hstack([path, yaw]), self.config.strategy)
+            plan = self._plan_to(start, self.pattern.pop(0), self.config.strategy)
+            if plan is not None:
                 return Decision(Phase.PATTERN, plan, f"{self.config.strategy}: {len(self.pattern)} points left")
         return self._done(f"{self.config.strategy} pattern flown", Outcome.PATTERN_FLOWN)
 
@@ -453,19 +450,25 @@ class SearchBrain:
         gap = np.min(np.linalg.norm(points[:, None, :2] - flown[None, :, :], axis=2), axis=1)
         for k in np.argsort(-gap)[:CHECK_ROUTES]:
             target = self.occ.nearest_valid(points[k])
-            path = None if target is None else self._route(start, target)
-            if path is not None:
+            plan = None if target is None else self._plan_to(start, target, "excess-check")
+            if plan is not None:
                 break
         else:
             return None
         self.check_dwells += 1
-        self.next_dwell_s = None
-        yaw = np.full((len(path), 1), start[3])
-        plan = DwellPlan(np.r_[target, start[3]][None, :], np.hstack([path, yaw]), "excess-check")
         return Decision(Phase.SEARCH, plan, (
             f"check: background {est['background_cps']:.0f} cps stands {est['background_excess_z']:.1f} sd above "
             f"the operator's {self.scenario.background_cps:g}; dwell {self.config.check_distance_m:g} m from the "
             "estimate, where no dwell was, before stopping"))
+
+    def _plan_to(self, start: np.ndarray, target: np.ndarray, method: str) -> DwellPlan | None:
+        """One dwell point at ``target`` (x, y, z) reached along :meth:`_route`, holding ``start``'s yaw; None if
+        no route."""
+        path = self._route(start, target)
+        if path is None:
+            return None
+        yaw = np.full((len(path), 1), start[3])
+        return DwellPlan(np.r_[target, start[3]][None, :], np.hstack([path, yaw]), method)
 
     def _route(self, start: np.ndarray, target: np.ndarray) -> np.ndarray | None:
         """Collision-free polyline (k, 3) from start to target: straight if possible, else along a tree."""
