@@ -53,6 +53,12 @@ if TYPE_CHECKING:
 
 #: sim s: a true pose this far behind a frame's end is not late by a race with sim/clock (a step or two)
 RACE_WINDOW_S = 1.0
+#: wall s a lockstep run's detector waits, with no pose coming in, for the true pose at a frame's end (``--truth-wait``,
+#: ``radseek run`` and teams). At 0.5 s a clean-clone make test's flood test (2 cores, a 100x flood of the router
+#: beside the other tests) once drew one frame that differed from the unhurried flight's by one count moved one
+#: channel (frame 309 of 937, all else equal); a stream that really stopped costs this wait once
+#: (``TruthPoseFollower.wait_until``), and the frames made without the pose are counted (``pose_waits_given_up``)
+LOCKSTEP_TRUTH_WAIT_S = 2.0
 
 @dataclass(frozen=True)
 class FaultConfig:
@@ -115,6 +121,9 @@ class Counters:
     clock_jumps: int = 0  # the sim clock went back or jumped ahead: frames resumed from the new time
     emulator_errors: int = 0  # poses the physics could not evaluate (frame sent stale, zero counts)
     gaps: int = 0
+    #: frames made without the true pose at their end: the wait for it (``truth_wait_wall_s``) gave up, so the frame's
+    #: pose came from the poses in before it and may differ from an unhurried run's (lockstep's same-flight promise)
+    pose_waits_given_up: int = 0
 
 
 class TruthPoseFollower:
@@ -243,7 +252,8 @@ class DetectorProcess:
             self.state = "dropout"
             return
         if self._poses is not None and self.config.truth_wait_wall_s > 0:  # the pose at t1 may arrive after the clock
-            self._poses.wait_until(t1, self.config.truth_wait_wall_s)
+            if not self._poses.wait_until(t1, self.config.truth_wait_wall_s):
+                self.counters.pose_waits_given_up += 1
         pose = self._pose_for(t0, t1)
         got = read_out(self.board, self.emulator, k, pose)
         self.state = got.state

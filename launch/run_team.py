@@ -37,6 +37,7 @@ import threading
 import time
 from pathlib import Path
 
+from detector_fw_sim.detector_process import LOCKSTEP_TRUTH_WAIT_S
 from launch.stack import (
     EXIT_FOUND,
     EXIT_SEARCH_FAILED,
@@ -129,7 +130,7 @@ def run_team(args, scene, out: Path, speedup: float, ports) -> int:
             stack.start(f"detector-{name}", _radseek(
                 "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed + 1000 * v),
                 "--connect", endpoint, "--vehicle-name", name,
-                *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg))
+                *(("--truth-wait", str(LOCKSTEP_TRUTH_WAIT_S)) if args.lockstep else ()), *args.detector_arg))
         recorder = recorder_ready(stack, out) if args.mcap else None
         for name in names:
             stack.wait_for_line(f"detector-{name}", "waiting for", timeout_s=180.0)

@@ -193,5 +193,6 @@ def main(argv: list[str] | None = None) -> int:
         session.close()
     print(f"radseek detector: stopped after {time.monotonic() - wall0:.1f} s wall: {c.frames} frames, "
           f"{c.published} histograms, {c.stale_frames} stale, {c.rejected} rejected by the driver, "
-          f"{c.dropout_frames} in drop-outs, {c.gaps} gaps, {c.bad_pose_msgs} bad pose messages", flush=True)
+          f"{c.dropout_frames} in drop-outs, {c.gaps} gaps, {c.bad_pose_msgs} bad pose messages, "
+          f"{c.pose_waits_given_up} made without the true pose at their end", flush=True)
     return 0

@@ -46,6 +46,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from detector_fw_sim.detector_process import LOCKSTEP_TRUTH_WAIT_S
 from launch.stack import (
     EXIT_FOUND,
     EXIT_SEARCH_FAILED,
@@ -195,7 +196,8 @@ def _run_one(args, scene, out: Path, speedup: float, ports) -> int:
             start_recorder(stack, out, endpoint, port["gcs"])
         detector_cmd = _radseek(
             "detector", "--scene", str(scene_file), "--clock", "zenoh", "--seed", str(args.seed),
-            "--connect", endpoint, *(("--truth-wait", "0.5") if args.lockstep else ()), *args.detector_arg)
+            "--connect", endpoint, *(("--truth-wait", str(LOCKSTEP_TRUTH_WAIT_S)) if args.lockstep else ()),
+            *args.detector_arg)
         stack.start("detector", detector_cmd)
         # the log holds the whole flight: the recorder records before the vehicle (sim time) starts
         recorder = recorder_ready(stack, out) if args.mcap else None

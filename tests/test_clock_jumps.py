@@ -9,6 +9,7 @@ assertion is on events and sim time; wall time only bounds waiting, generously."
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 
@@ -149,3 +150,42 @@ def test_follower_drops_an_unconfirmed_jump_and_resyncs_on_a_confirmed_one(route
             assert clock.last_jump == (pytest.approx(11.0), pytest.approx(0.1))
         finally:
             clock.undeclare()
+
+
+class OwnerLosingPoses(Owner):
+    """The test's vehicle, whose sim/truth_pose stops after ``poses_until`` while sim/clock goes on."""
+
+    def __init__(self, session, poses_until: float):
+        super().__init__(session)
+        self.poses_until = poses_until
+
+    def _run(self) -> None:
+        while not self.stop.wait(0.005):
+            with self.lock:
+                t = self.t
+                self.t += STEP_S
+                self.clock.publish(t)
+                if t <= self.poses_until:
+                    self.truth.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
+
+
+@pytest.mark.slow
+def test_frames_made_without_their_true_pose_are_counted(router):
+    """A lockstep detector (``--truth-wait``) waits for the true pose at each frame's end; when the truth stream
+    stops after 2.0 s while the clock goes on to 4.0 s, the frames after it are made without it, and its stop line
+    counts them (so a run whose frames may differ from an unhurried one's says so: tests/test_run_flood_summary.py).
+    Before 2.0 s every pose came: at most the frames after 2.0 s are counted, and at least the first of them."""
+    with open_session(connect=router) as session:
+        owner = OwnerLosingPoses(session, poses_until=2.025)  # between two steps
+        det = Proc("detector", "--connect", router, "--clock", "zenoh", "--seed", "1", "--truth-wait", "2.0",
+                   "--until", "4.0")
+        try:
+            det.wait_line("waiting for", timeout=WAIT_S)
+            owner.thread.start()
+            line = det.wait_line("stopped after", timeout=WAIT_S)
+        finally:
+            owner.stop.set()
+            owner.thread.join(10)
+            det.stop()
+    hurried = int(re.search(r"(\d+) made without the true pose at their end", line).group(1))
+    assert 1 <= hurried <= round((4.0 - 2.0) / 0.1), line

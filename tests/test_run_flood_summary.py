@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import queue
+import re
 import subprocess
 import sys
 import threading
@@ -55,6 +56,13 @@ FORGED_STATUS = topics.DetectorStatus(t=1e6, frames=10**7, stale_frames=0, crc_e
 # histogram in 60 s) and itself (the board's copies overtook the originals) on a clean-clone make test
 pytestmark = [pytest.mark.slow, pytest.mark.io, pytest.mark.exclusive("default-ports-7447-14540"),
               pytest.mark.timeout(RUN_TIMEOUT_S + 300)]
+
+
+def _hurried_frames(out) -> int:
+    """The frames the run's detector made without the true pose at their end (its stop line in logs/detector.log):
+    each may differ from the unhurried flight's by a count or so."""
+    line = (out / "logs" / "detector.log").read_text()
+    return int(re.search(r"(\d+) made without the true pose at their end", line).group(1))
 
 
 def _rate(topic: str) -> float:
@@ -157,7 +165,8 @@ def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_
     assert summary["samples"] == mission["samples"]
     ds = read_dataset(out / "dataset")  # readable: frames.csv in time order, whatever came in
     assert (ds.frames.counts < 65535).all()  # no forged histogram was recorded as a measurement
-    if mission["frames_lost"] == 0:
+    hurried = _hurried_frames(out)
+    if mission["frames_lost"] == 0 and hurried == 0:
         # the flight an unattacked run flies, frame for frame: nothing forged was recorded, nothing real lost
         config = SearchConfig(max_dwells=MAX_DWELLS, max_search_dwells=MAX_DWELLS)
         r = fly_offline(load_scene("default"), config, seed=SEED)
@@ -167,9 +176,10 @@ def test_a_compromised_board_flooding_and_forging_a_run_is_named_in_its_summary_
         rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
         assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
     else:
-        # a loaded machine: the router dropped real histograms in the flood (zenoh's DROP congestion control), so
-        # the flight differs from an unattacked one; a forged copy that came in a lost frame's place is at most
-        # flagged (mission/recorder.py), and the run still ends with its report
+        # a loaded machine: the router dropped real histograms in the flood (zenoh's DROP congestion control), or
+        # the detector drew a frame without waiting out its true pose (LOCKSTEP_TRUTH_WAIT_S), so the flight may
+        # differ from an unattacked one; a forged copy that came in a lost frame's place is at most flagged
+        # (mission/recorder.py), and the run still ends with its report
         assert mission["frames_received"] == mission["frames_recorded"] + flagged_rows(out / "dataset")
         assert flagged_rows(out / "dataset") <= mission["frames_lost"]
 

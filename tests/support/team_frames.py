@@ -8,19 +8,32 @@ from pathlib import Path
 
 import pytest
 
+FIELDS = ("t", "x", "y", "z", *(f"c{k:02d}" for k in range(32)))
+
+
+def frames_csv_differences(path: Path, frames, label: str = "") -> tuple[list[dict[str, str]], list[str]]:
+    """The rows of ``path`` (a frames.csv) and, for each row that is not ``frames``' row of the same index (time,
+    position, all 32 channels), one line naming the fields that differ, the in-process value first."""
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == len(frames) > 100, (label, len(rows), len(frames))
+    diffs = []
+    for i, row in enumerate(rows):
+        got = (frames.t[i], frames.x[i], frames.y[i], frames.z[i], *(int(c) for c in frames.counts[i]))
+        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]),
+                *(int(row[f"c{k:02d}"]) for k in range(32)))
+        if got != want:
+            diffs.append(f"{label} frame {i} (t {want[0]:g}) differs: " + ", ".join(
+                f"{name} {float(a):g} != {float(b):g}" for name, a, b in zip(FIELDS, got, want, strict=True) if a != b))
+    return rows, diffs
+
 
 def assert_frames_csv(path: Path, frames, label: str = "") -> list[dict[str, str]]:
     """``path`` (a frames.csv) holds exactly ``frames``: time, position and all 32 channels, row for row (a team's
     dwells are numbered across the team in the flight, per vehicle in its file: callers compare those). Returns
     the rows."""
-    with open(path) as fh:
-        rows = list(csv.DictReader(fh))
-    assert len(rows) == len(frames) > 100, (label, len(rows), len(frames))
-    for i, row in enumerate(rows):
-        got = (frames.t[i], frames.x[i], frames.y[i], frames.z[i], *(int(c) for c in frames.counts[i]))
-        want = (float(row["t"]), float(row["x"]), float(row["y"]), float(row["z"]),
-                *(int(row[f"c{k:02d}"]) for k in range(32)))
-        assert got == want, f"{label} frame {i} differs"
+    rows, diffs = frames_csv_differences(path, frames, label)
+    assert not diffs, "; ".join(diffs[:5])
     return rows
 
 
