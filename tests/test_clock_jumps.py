@@ -9,6 +9,7 @@ assertion is on events and sim time; wall time only bounds waiting, generously."
 from __future__ import annotations
 
 import json
+import math
 import re
 import threading
 import time
@@ -26,9 +27,11 @@ pytestmark = pytest.mark.timeout(600)
 
 
 class Owner:
-    """The test's vehicle: sim/clock and sim/truth_pose every STEP_S of sim time at about 10x."""
+    """The test's vehicle: sim/clock and sim/truth_pose every STEP_S of sim time at about 10x (sim/truth_pose only up
+    to ``poses_until``: the truth stream stops there while the clock goes on)."""
 
-    def __init__(self, session):
+    def __init__(self, session, poses_until: float = math.inf):
+        self.poses_until = poses_until
         self.clock = ClockPublisher(session, "uav0", 10.0)
         self.raw_clock = session.declare_publisher(topics.key(topics.SIM_CLOCK))
         self.truth = session.declare_publisher(topics.key(topics.SIM_TRUTH_POSE))
@@ -43,7 +46,8 @@ class Owner:
                 t = self.t
                 self.t += STEP_S
                 self.clock.publish(t)
-                self.truth.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
+                if t <= self.poses_until:
+                    self.truth.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
 
     def inject_clock(self, t: float) -> None:
         """One odd sim/clock sample between two regular ones (schema-valid or not)."""
@@ -152,23 +156,6 @@ def test_follower_drops_an_unconfirmed_jump_and_resyncs_on_a_confirmed_one(route
             clock.undeclare()
 
 
-class OwnerLosingPoses(Owner):
-    """The test's vehicle, whose sim/truth_pose stops after ``poses_until`` while sim/clock goes on."""
-
-    def __init__(self, session, poses_until: float):
-        super().__init__(session)
-        self.poses_until = poses_until
-
-    def _run(self) -> None:
-        while not self.stop.wait(0.005):
-            with self.lock:
-                t = self.t
-                self.t += STEP_S
-                self.clock.publish(t)
-                if t <= self.poses_until:
-                    self.truth.put(topics.TruthPose(t=t, x=1.0, y=2.0, z=1.5, yaw=0.0).to_bytes())
-
-
 @pytest.mark.slow
 def test_frames_made_without_their_true_pose_are_counted(router):
     """A lockstep detector (``--truth-wait``) waits for the true pose at each frame's end; when the truth stream
@@ -176,7 +163,7 @@ def test_frames_made_without_their_true_pose_are_counted(router):
     counts them (so a run whose frames may differ from an unhurried one's says so: tests/test_run_flood_summary.py).
     Before 2.0 s every pose came: at most the frames after 2.0 s are counted, and at least the first of them."""
     with open_session(connect=router) as session:
-        owner = OwnerLosingPoses(session, poses_until=2.025)  # between two steps
+        owner = Owner(session, poses_until=2.025)  # between two steps
         det = Proc("detector", "--connect", router, "--clock", "zenoh", "--seed", "1", "--truth-wait", "2.0",
                    "--until", "4.0")
         try:
