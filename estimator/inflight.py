@@ -58,6 +58,7 @@ from estimator.mle import pooled
 from estimator.modes import misfit_factor, mode_covariance
 from radseek.dataset import Frames, Scenario
 from radseek.geometry import path_lengths, semi_major_axis
+from radseek.topics import ESTIMATE_BLOCK, ESTIMATE_STATE
 
 __all__ = ["BACKGROUND_EXCESS_Z", "DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "ERROR_SIGMAS_FLAG", "GOOD_FIT_P",
            "MIN_SIGMA_M", "InflightEstimator", "background_excess_z", "bound_m", "drift_floor_m", "ellipse",
@@ -356,6 +357,28 @@ class InflightEstimator:
                   "pose_sd_m": pose_sd_m(frames), "background_excess_z": self._excess_z(loc)}
         self.estimates.append(record)
         return record
+
+    def message(self, t: float) -> Any:
+        """The zenoh ``estimate`` of the last record (None before one): the localizer's (``to_estimate``), with the
+        record's source's position block replaced by the record's covariance, the one the search decides on and
+        the summary reports (misfit-scaled, covering the likelihood's other modes: :func:`honest_covariance`). The
+        localizer's own block is the fit's curvature alone: a flight whose likelihood had a second mode as good
+        showed "sigma 0.10 m" live while its decision read 1.37 m. Its cross terms with the strength are kept
+        when the block stays a covariance (the record's covers the fit's), else dropped."""
+        if self.localizer is None or not self.estimates:
+            return None
+        msg = self.localizer.to_estimate(t)
+        k, n = self._primary, len(ESTIMATE_STATE)
+        block = np.array(msg.covariance[ESTIMATE_BLOCK * k:ESTIMATE_BLOCK * (k + 1)], dtype=float).reshape(n, n)
+        honest = np.array(self.estimates[-1]["covariance"], dtype=float)
+        if not np.isfinite(honest).all():
+            return msg
+        block[:3, :3] = honest
+        if np.linalg.eigvalsh(0.5 * (block + block.T)).min() < -1e-12 * max(float(np.abs(block).max()), 1e-300):
+            block[:3, 3] = block[3, :3] = 0.0
+        msg.covariance[ESTIMATE_BLOCK * k:ESTIMATE_BLOCK * (k + 1)] = block.ravel().tolist()
+        msg.validate()
+        return msg
 
     def _wall_free_if_enough(self, frames: Frames, settings: dict[str, Any], walled: Localizer) -> Localizer:
         """A walled fit made because a line of sight crosses a mapped wall, against the wall-free model it nests

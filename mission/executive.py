@@ -245,9 +245,9 @@ class MissionExecutive:
         self.publish(decision.plan.to_topic(self.t))
 
     def publish_estimate(self) -> None:
-        loc = self.brain.localizer
-        if loc is not None and self._put is not None:
-            self.publish(loc.to_estimate(self.t))
+        msg = self.brain.estimator.message(self.t)
+        if msg is not None and self._put is not None:
+            self.publish(msg)
 
     async def search(self) -> Decision:
         """The search from the airborne start to the brain's last decision (its plan None)."""

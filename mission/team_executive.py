@@ -94,9 +94,8 @@ class TeamExecutive(MissionExecutive):
         return await self.frames.tick(**kw)
 
     def publish_estimate(self) -> None:
-        loc = self.brain.localizer
-        if loc is not None:
-            msg = loc.to_estimate(self.t)
+        msg = self.brain.estimator.message(self.t)
+        if msg is not None:
             self.publish(msg)
             self.team.publish_estimate(msg)  # the joint estimate, on the team's one key
 

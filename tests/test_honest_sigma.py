@@ -99,3 +99,29 @@ def test_replay_of_a_clean_flight_does_not_warn(shared_datasets, capsys):
     assert main([str(shared_datasets / "lattice-clean")]) == 0
     out = capsys.readouterr().out
     assert "NOT HONEST" not in out and "err/sigma" in out and "another mode at" in out
+
+
+def test_the_published_estimate_carries_the_honest_covariance():
+    """The zenoh ``estimate`` (what the live line, zenoh-cli and Foxglove show) carries the record's covariance,
+    the one the search decides on, not the fit's curvature alone: on the mirror-mode line flight the record's
+    1-sigma covers the mirror (> 0.7 m) while the localizer's own block says < 0.3 m; the message's position
+    block is the record's, its strength variance the localizer's, and it still validates."""
+    from estimator.inflight import InflightEstimator, sigma_m
+    from radseek.topics import ESTIMATE_BLOCK, Estimate
+
+    sc = scenario_for()
+    pts = np.array([[x, 4.0, 1.5] for x in np.arange(1.0, 9.5, 1.0)])
+    frames = dwell_frames(pts, [(5.0, 5.5, 0.0, 1600.0)], 30.0, dwell_s=10.0, exact=True)
+    est = InflightEstimator(sc)
+    assert est.message(1.0) is None  # no record yet
+    rec = est.update(frames, dwell=len(pts))
+    assert rec is not None and rec["other_mode"] is not None
+    own = np.array(est.localizer.to_estimate(1.0).covariance[:ESTIMATE_BLOCK]).reshape(4, 4)
+    msg = est.message(12.5)
+    block = np.array(msg.covariance[:ESTIMATE_BLOCK]).reshape(4, 4)
+    assert msg.t == 12.5 and Estimate.from_bytes(msg.to_bytes()).covariance == msg.covariance
+    np.testing.assert_allclose(block[:3, :3], np.array(rec["covariance"]), rtol=0, atol=0)
+    assert block[3, 3] == own[3, 3]
+    assert sigma_m(block[:3, :3]) == pytest.approx(rec["sigma_m"]) and rec["sigma_m"] > 0.7
+    assert sigma_m(own[:3, :3]) < 0.3
+    assert np.linalg.eigvalsh(block).min() >= -1e-9 * np.abs(block).max()

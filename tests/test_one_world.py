@@ -10,11 +10,14 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from detector_fw_sim.scene import load_scene
 from launch.offline import fly_offline
 from mission.search import SearchConfig
+from radseek.topics import ESTIMATE_BLOCK
+from radseek_io.mcap_frames import read_flight
 from tests.support import flooded_team_run as flooded
 from tests.support import same_seed_runs as same_seed
 from tests.support import side_by_side_runs as side_by_side
@@ -51,6 +54,11 @@ def test_the_stack_and_the_campaigns_fly_the_same_flight(tmp_path_factory, scene
     assert r.error_m == pytest.approx(stack["error_m"], abs=1e-9)
     rows = assert_frames_csv(out / "dataset" / "frames.csv", r.dataset.frames)
     assert [int(row["dwell"]) for row in rows] == [int(d) for d in r.dataset.frames.dwell]
+    # the last estimate the mission published (flight.mcap) carries the covariance its search decided on: the
+    # in-process flight's final record's, number for number
+    last = read_flight(out / "flight.mcap").estimates[-1]
+    block = np.array(last.covariance[:ESTIMATE_BLOCK]).reshape(4, 4)
+    np.testing.assert_array_equal(block[:3, :3], np.array(r.brain.estimator.estimate["covariance"]))
 
 
 def test_a_team_flies_the_same_flight_through_the_stack_and_in_process(tmp_path_factory):
