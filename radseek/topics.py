@@ -387,7 +387,8 @@ class Estimate(_Payload):
     ``covariance`` holds each source's covariance of (x, y, z, cps_at_1m) as one row-major 4 x 4 block, the
     blocks one after the other: 16 numbers per source, source i's at ``covariance[16 i : 16 i + 16]``
     (cross-source terms are not sent). ``crlb`` has the same layout, or is absent when the method has no bound.
-    Unknown entries are NaN.
+    Unknown entries are NaN. The mission's reported source carries the covariance its search decides on and its
+    summary reports: misfit-scaled and covering the likelihood's other modes, not the fit's curvature alone.
     """
 
     TOPIC: ClassVar[str] = ESTIMATE
