@@ -42,7 +42,6 @@ from estimator.inflight import (
     WARM_SIGMA_M,
     InflightEstimator,
 )
-from estimator.localizers.base import Localizer
 from planner.baselines import fixed_lattice, lawnmower
 from planner.belief import DwellHistory, SourceBelief, drift_density_from_poses
 from planner.dwell_controller import DwellConfig, DwellController, DwellStatus
@@ -502,11 +501,6 @@ class SearchBrain:
         """The in-flight estimate records (``estimator.inflight``, typed), one per dwell from the first search
         estimate on."""
         return [SourceEstimate.from_json(e) for e in self.estimator.estimates]
-
-    @property
-    def localizer(self) -> Localizer | None:
-        """The last fitted localizer (its full ``estimate`` message is what the mission publishes)."""
-        return self.estimator.localizer
 
     @property
     def estimate(self) -> SourceEstimate | None:
