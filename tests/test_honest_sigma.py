@@ -125,3 +125,23 @@ def test_the_published_estimate_carries_the_honest_covariance():
     assert sigma_m(block[:3, :3]) == pytest.approx(rec["sigma_m"]) and rec["sigma_m"] > 0.7
     assert sigma_m(own[:3, :3]) < 0.3
     assert np.linalg.eigvalsh(block).min() >= -1e-9 * np.abs(block).max()
+
+
+def test_the_published_estimate_of_a_fit_without_a_hessian():
+    """An unconverged fit's own covariance is unknown (NaN): the message still carries the record's position block,
+    its cross terms with the strength stay NaN (unknown, as ``Estimate`` declares), and it validates. Before, the
+    eigenvalue check on the NaN block raised and ended the flight (outdoor seed 14 of a 400-seed campaign)."""
+    from estimator.inflight import InflightEstimator
+    from radseek.topics import ESTIMATE_BLOCK
+
+    sc = scenario_for()
+    pts = np.array([[x, y, 1.5] for x in (2.0, 5.0, 8.0) for y in (2.0, 6.0)])
+    frames = dwell_frames(pts, [(4.3, 3.7, 0.0, 1600.0)], 30.0, dwell_s=10.0, exact=True)
+    est = InflightEstimator(sc)
+    rec = est.update(frames, dwell=len(pts))
+    assert rec is not None
+    est.localizer.covariance_ = np.full_like(est.localizer.covariance_, np.nan)
+    msg = est.message(3.0)
+    block = np.array(msg.covariance[:ESTIMATE_BLOCK]).reshape(4, 4)
+    np.testing.assert_array_equal(block[:3, :3], np.array(rec["covariance"]))
+    assert np.isnan(block[:3, 3]).all() and np.isnan(block[3, :3]).all() and np.isnan(block[3, 3])
