@@ -148,3 +148,47 @@ def test_a_full_fit_that_stopped_short_is_fitted_again_from_the_drops_basin(flig
     assert "stopped in a worse minimum" not in err
     assert records[0]["below_full"] < 0.05  # the refit's minimum, to MIGRAD's tolerance
     assert records[0]["lr"] == pytest.approx(honest[0]["lr"], abs=0.1)
+
+
+@pytest.fixture(scope="module")
+def two_source_flight():
+    # a second source 1300 cps at 1 m in the lattice's corner: its drop is decisive (LR ~300 against ~10)
+    second = {"x": 1.5, "y": 1.5, "z": 0.0, "cps_at_1m": 1300.0, "nuclide": "Cs-137"}
+    return simulate(FlightSpec(geometry="lattice", effects={"second_source": second}), seed=3)
+
+
+def test_a_decisive_drop_is_not_fitted_again(two_source_flight, monkeypatch, capsys):
+    """Named dead_time, air_attenuation and second_source on a two-source flight: the first round drops dead_time;
+    second_source's drop was decisive there, so the second round fits only air_attenuation's drop, and the check
+    ends as it does with every drop fitted. The bound it stood on holds on the fits: LR(second_source | without
+    dead_time), fitted, is at least LR(second_source) - LR(dead_time) of the first round."""
+    import math
+
+    import estimator.diagnose.runner as runner
+
+    def run(decisive: float):
+        monkeypatch.setattr(runner, "DECISIVE_LR", decisive)
+        fitter = CountFitter(two_source_flight.scenario, two_source_flight.frames, n_starts=2, quiet=True)
+        sel = _selection(fitter, ["dead_time", "air_attenuation", "second_source"])
+        nll: dict[str, float] = {}
+        many = fitter.fit_many
+
+        def recorded(tasks, *a, **k):
+            fits, rest = many(tasks, *a, **k)
+            nll.update({t.label: f.nll for t, f in zip(tasks, fits, strict=True)})
+            return fits, rest
+
+        fitter.fit_many = recorded
+        return _backward(fitter, sel, (), 0.01, False), nll
+
+    (dropped, reduced, records), fitted = run(runner.DECISIVE_LR)
+    assert "kept without a new drop fit (decisive in an earlier round): second_source" in capsys.readouterr().err
+    (dropped_all, reduced_all, records_all), fitted_all = run(math.inf)
+    assert dropped == dropped_all == ["dead_time", "air_attenuation"] and records == records_all
+    assert reduced.nll == reduced_all.nll and reduced.model.effects == ("second_source",)
+    skipped = set(fitted_all) - set(fitted)
+    assert skipped == {"baseline + air_attenuation + second_source without second_source"}
+    full = "baseline + dead_time + air_attenuation + second_source"
+    bound = 2.0 * (fitted[f"{full} without second_source"] - fitted[f"{full} without dead_time"])
+    lr = 2.0 * (fitted_all[skipped.pop()] - fitted[f"{full} without dead_time"])
+    assert bound > 200.0 and lr >= bound - 0.1  # to MIGRAD's tolerance
