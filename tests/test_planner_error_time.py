@@ -30,8 +30,20 @@ def test_the_verdicts_follow_the_targets():
     active = [_row("s", "active", k, 0.2, 90.0, covered=k < 2) for k in range(20)]
     lattice = [_row("s", "lattice", k, 0.2, 100.0, outcome="pattern_flown") for k in range(20)]
     lines = pet.report(info + active + lattice, np.random.default_rng(0))
-    assert "| s | info | met | met | met |" in lines
-    assert "| s | active | met | NOT met | NOT met |" in lines
+    verdicts = {ln.split(" | ")[1]: ln for ln in lines if ln.startswith("| s | ") and " - lattice" not in ln
+                and ("met |" in ln)}
+    assert verdicts["info"].startswith("| s | info | met | met | met | 1.00 | 0.38 |")  # P(19 of 20) = 0.377
+    assert verdicts["active"].startswith("| s | active | met | NOT met | NOT met | 0.00 | 0.38 |")
     pair = {ln.split(" | ")[1]: ln for ln in lines if " - lattice |" in ln}
     assert pair["info - lattice"].endswith("| met |")  # 0.105 <= 0.2 m at 0.5 x the time
     assert pair["active - lattice"].endswith("| NOT met |")  # as accurate, but at 0.9 x the time
+
+
+def test_a_calibrated_ellipses_chance_of_the_coverage_band():
+    """Analytic: of 20 calibrated ellipses, only 19 covered lands in [0.93, 0.97]: 20 x 0.95^19 x 0.05 = 0.377; at
+    200 flights 0.860 and at 400 0.950 (the binomial's mass from 186 to 194 and from 372 to 388)."""
+    assert pet.band_chance(20) == pytest.approx(20 * 0.95**19 * 0.05)
+    assert pet.band_chance(200) == pytest.approx(0.860, abs=0.001)
+    assert pet.band_chance(400) == pytest.approx(0.950, abs=0.001)
+    assert pet.coverage_p(190, 200) == pytest.approx(1.0)  # the expected count
+    assert pet.coverage_p(180, 200) < 0.05 < pet.coverage_p(185, 200)
