@@ -249,6 +249,12 @@ class SearchBrain:
             fall = plan.info["bound_fall_m_s"]
             self.bound_falls.append((n_dwells, plan.info["bound_m"], fall))
         stop = self.stop_rule(belief, sigma, fall)
+        if stop is not None and stop[1] in (Outcome.FOUND, Outcome.DRIFT_LIMITED) and \
+                self.estimator.recheck(frames, n_dwells):
+            # the second source's test, sent at the stop, passed: search on with the two-source estimate
+            belief, sigma = self._belief_of_last(frames)
+            plan = self._plan_next(current, frames, belief) if self.config.strategy == "info" else None
+            stop = None
         if stop is not None and stop[1] in (Outcome.FOUND, Outcome.DRIFT_LIMITED):
             check = self._check_excess(current)
             if check is not None:
@@ -491,6 +497,10 @@ class SearchBrain:
         planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy)."""
         if self.estimator.update(frames, dwell=len(self.history)) is None:
             return None, math.inf
+        return self._belief_of_last(frames)
+
+    def _belief_of_last(self, frames: Frames) -> tuple[SourceBelief, float]:
+        """The last in-flight estimate as the planner's belief, with its 1-sigma."""
         est = self.estimate
         assert est is not None
         dens = drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell)
