@@ -16,7 +16,9 @@ pin the drift) by more than ``bound_fall_m_s`` per second of flight.
 An active search about to stop found on a one-source estimate whose background stands well above the operator's
 (``estimator.inflight.background_excess_z``: a far source's flux read as background) first flies up to
 ``excess_checks`` check dwells ``check_distance_m`` from the estimate, where no dwell was, so that such a source
-shows itself to the second-source test; check dwells spend no search budget.
+shows itself to the second-source test; check dwells spend no search budget. Before any search stops found on a
+one-source estimate, that estimate's second-source test is sent whatever its trigger said
+(``InflightEstimator.recheck``); a pass replaces it with the two-source estimate and the search goes on.
 Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
