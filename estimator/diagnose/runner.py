@@ -380,7 +380,7 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
     refitted = False
     sure: dict[str, float] = {}  # a lower bound on a named effect's LR in the current model, from an earlier round
 
-    def test(e: str, lr: float, k: int) -> float:
+    def log10_p(e: str, lr: float, k: int) -> float:
         looks = next((getattr(c.fit, "wall_looks", None) for st in sel.steps for c in st.candidates
                       if c.effect == e), None)
         return null_log10_p(e, lr, k, fitter.scenario, fitter.frames, looks)[0]
@@ -389,7 +389,7 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
         worst: tuple[float, str, Any, float] | None = None
         # the second wall goes first
         drops = [e for e in named if not (e == "unmapped_wall" and "unmapped_wall_2" in count)]
-        kept = [e for e in drops if e in sure and test(e, sure[e] - DECISIVE_LR, _n_new(full, e)) < thr]
+        kept = [e for e in drops if e in sure and log10_p(e, sure[e] - DECISIVE_LR, _n_new(full, e)) < thr]
         if kept:
             progress("kept without a new drop fit (decisive in an earlier round): " + ", ".join(
                 f"{e} (LR >= {sure[e]:.0f})" for e in kept), quiet)
@@ -419,7 +419,7 @@ def _backward(fitter: CountFitter, sel: Selection, start: tuple[str, ...], alpha
                 full = again
                 continue
         for e, red in zip(drops, reds, strict=True):
-            lp = test(e, lrs[e], len(set(full.free_names) - set(red.free_names)))
+            lp = log10_p(e, lrs[e], len(set(full.free_names) - set(red.free_names)))
             if lp > thr and (worst is None or lp > worst[0]):
                 worst = (lp, e, red, lrs[e])
         if worst is None:
