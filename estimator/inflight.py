@@ -282,10 +282,9 @@ class InflightEstimator:
     def estimate(self) -> dict[str, Any] | None:
         return self.estimates[-1] if self.estimates else None
 
-    def update(self, frames: Frames, dwell: int, test_second: bool = False) -> dict[str, Any] | None:
+    def update(self, frames: Frames, dwell: int) -> dict[str, Any] | None:
         """Estimate from every frame recorded so far, after ``dwell`` dwell points; None if too few
-        frames or the fit failed (the history is then unchanged). ``test_second``: a one-source fit's
-        second-source test is sent whatever its trigger says (:meth:`recheck`)."""
+        frames or the fit failed (the history is then unchanged)."""
         if len(frames) < MIN_FRAMES:
             return None
         frames = pooled(frames, POOL_FRAMES, dwells_only=True)
@@ -336,7 +335,7 @@ class InflightEstimator:
             elif walls:
                 loc = self._walls_behind(frames, settings, loc)
         if "effects" not in self.settings and "wall_attenuation" not in getattr(loc, "effects", ()):
-            loc = self._second_source(frames, settings, loc, last, test_second)
+            loc = self._second_source(frames, settings, loc, last)
         self.localizer = loc
         self._frames = frames
         info = getattr(loc, "info_", {})
@@ -398,32 +397,14 @@ class InflightEstimator:
         plain = self._fit(frames, {**settings, "effects": (), "init": init, "n_starts": 1})
         return walled if plain is None or _walls_needed(plain, walled) else plain
 
-    def recheck(self, frames: Frames, dwell: int) -> bool:
-        """Before a search stops on a one-source estimate (not walled): the last estimate made again with its
-        second-source test sent whatever the trigger said. True when the two-source fit replaced it (the last
-        record is then the two-source one; else it is as it was). The trigger (a misfit, a background above the
-        operator's) spares a fit at every dwell; at the stop the test decides what is reported, and its own
-        threshold (:data:`SECOND_SOURCE_LR`) holds false alarms down. On two-source (400 seeds) 73 flights had
-        ended on one source, covering 0.795; two-source seed 19 ended 0.32 m off at a 1-sigma of 0.10 m with the
-        second source untested (background excess z 2.1)."""
-        last = self.estimate
-        if last is None or "second_source" in last["effects"] or "wall_attenuation" in last["effects"]:
-            return False
-        self.estimates.pop()
-        rec = self.update(frames, dwell, test_second=True)
-        if rec is None:
-            self.estimates.append(last)
-            return False
-        return "second_source" in rec["effects"]
-
     def _second_source(self, frames: Frames, settings: dict[str, Any], loc: Localizer,
-                       last: Mapping[str, Any] | None, test: bool = False) -> Localizer:
+                       last: Mapping[str, Any] | None) -> Localizer:
         """A one-source fit that fails its goodness of fit (or a last estimate that had two sources) is
         refitted with ``second_source`` (warm-started from the last two-source estimate if any); the
         two-source fit is kept when its likelihood-ratio test against one source passes at ``GOOD_FIT_P``
         (2 delta log L > chi2_3 quantile: x, y, strength of the second source)."""
         two = last is not None and "second_source" in last["effects"]
-        if not (two or test or _misfit(loc, SECOND_SOURCE_TRY_P) or self._excess_z(loc) > BACKGROUND_EXCESS_Z):
+        if not (two or _misfit(loc, SECOND_SOURCE_TRY_P) or self._excess_z(loc) > BACKGROUND_EXCESS_Z):
             return loc
         init = dict(settings.get("init") or {})
         if not two:

@@ -16,9 +16,7 @@ pin the drift) by more than ``bound_fall_m_s`` per second of flight.
 An active search about to stop found on a one-source estimate whose background stands well above the operator's
 (``estimator.inflight.background_excess_z``: a far source's flux read as background) first flies up to
 ``excess_checks`` check dwells ``check_distance_m`` from the estimate, where no dwell was, so that such a source
-shows itself to the second-source test; check dwells spend no search budget. Before any search stops found on a
-one-source estimate, that estimate's second-source test is sent whatever its trigger said
-(``InflightEstimator.recheck``); a pass replaces it with the two-source estimate and the search goes on.
+shows itself to the second-source test; check dwells spend no search budget.
 Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
@@ -251,12 +249,6 @@ class SearchBrain:
             fall = plan.info["bound_fall_m_s"]
             self.bound_falls.append((n_dwells, plan.info["bound_m"], fall))
         stop = self.stop_rule(belief, sigma, fall)
-        if stop is not None and stop[1] in (Outcome.FOUND, Outcome.DRIFT_LIMITED) and \
-                self.estimator.recheck(frames, n_dwells):
-            # the second source's test, sent at the stop, passed: search on with the two-source estimate
-            belief, sigma = self._belief_of_last(frames)
-            plan = self._plan_next(current, frames, belief) if self.config.strategy == "info" else None
-            stop = None
         if stop is not None and stop[1] in (Outcome.FOUND, Outcome.DRIFT_LIMITED):
             check = self._check_excess(current)
             if check is not None:
@@ -499,10 +491,6 @@ class SearchBrain:
         planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy)."""
         if self.estimator.update(frames, dwell=len(self.history)) is None:
             return None, math.inf
-        return self._belief_of_last(frames)
-
-    def _belief_of_last(self, frames: Frames) -> tuple[SourceBelief, float]:
-        """The last in-flight estimate as the planner's belief, with its 1-sigma."""
         est = self.estimate
         assert est is not None
         dens = drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell)
