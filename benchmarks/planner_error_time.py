@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from launch.campaign import median_ci, wilson
 from launch.campaign_store import DamagedStore, load_rows
@@ -129,8 +130,6 @@ def report(rows: list[dict], rng: np.random.Generator | None = None) -> list[str
 def coverage_p(covered: int, n: int, level: float = 0.95) -> float:
     """Exact two-sided binomial p of ``covered`` of ``n`` ellipses holding the truth, if each holds it with
     probability ``level``: how well the coverage agrees with a calibrated ellipse (nan without flights)."""
-    from scipy import stats
-
     return float(stats.binomtest(covered, n, level).pvalue) if n else math.nan
 
 
@@ -138,8 +137,6 @@ def band_chance(n: int, level: float = 0.95) -> float:
     """The probability that ``n`` calibrated ellipses (each holding the truth with probability ``level``) give a
     coverage in :data:`COVERAGE_BAND`: at 200 flights 0.86, so 10 calibrated cases all land in it 22 % of the
     time; at 400 flights 0.95 (60 %)."""
-    from scipy import stats
-
     if not n:
         return math.nan
     lo, hi = math.ceil(COVERAGE_BAND[0] * n - 1e-9), math.floor(COVERAGE_BAND[1] * n + 1e-9)
