@@ -63,7 +63,7 @@ from radseek.topics import ESTIMATE_BLOCK, ESTIMATE_STATE
 __all__ = ["BACKGROUND_EXCESS_Z", "DEFAULT_LOCALIZER", "DEFAULT_SETTINGS", "ERROR_SIGMAS_FLAG", "GOOD_FIT_P",
            "MIN_SIGMA_M", "InflightEstimator", "background_excess_z", "bound_m", "drift_floor_m", "ellipse",
            "error_sigmas", "excess_warning", "gof_warning", "honest_covariance", "pose_sd_m", "repair_covariance",
-           "sigma_m"]
+           "sigma_m", "strength_order_z"]
 
 DEFAULT_LOCALIZER = "mle"
 #: in flight the estimate is refitted after every dwell: warm-started from the previous one (when the
@@ -263,8 +263,9 @@ class InflightEstimator:
     ``effects`` (the fitted
     model's), ``params`` (the fitted effects' parameters, e.g. ``wall_attenuation.mu_per_m``), ``converged``
     ``p_value`` (goodness of fit, nan if the localizer reports none), ``drift_floor_m``
-    (:func:`drift_floor_m`), ``pose_sd_m`` (:func:`pose_sd_m`) and ``background_excess_z``
-    (:func:`background_excess_z`). :meth:`finalize` adds ``bound_m``
+    (:func:`drift_floor_m`), ``pose_sd_m`` (:func:`pose_sd_m`), ``background_excess_z``
+    (:func:`background_excess_z`) and ``strength_order_z`` (:func:`strength_order_z`; nan with one source).
+    :meth:`finalize` adds ``bound_m``
     and ``ellipse_95`` to the last record.
     """
 
@@ -354,7 +355,8 @@ class InflightEstimator:
                   "effects": list(getattr(loc, "effects", ())), "params": params,
                   "converged": converged, "p_value": float(info.get("p_value", math.nan)),
                   "drift_floor_m": drift_floor_m(_block(getattr(loc, "crlb_pose_", None), k)),
-                  "pose_sd_m": pose_sd_m(frames), "background_excess_z": self._excess_z(loc)}
+                  "pose_sd_m": pose_sd_m(frames), "background_excess_z": self._excess_z(loc),
+                  "strength_order_z": strength_order_z(loc, k)}
         self.estimates.append(record)
         return record
 
@@ -384,6 +386,18 @@ class InflightEstimator:
         msg.covariance[ESTIMATE_BLOCK * k:ESTIMATE_BLOCK * (k + 1)] = block.ravel().tolist()
         msg.validate()
         return msg
+
+    def other_source(self) -> dict[str, Any] | None:
+        """The last fit's other source when it has two (the one the record is not): ``x``, ``y``, ``z``,
+        ``cps_at_1m``, ``covariance`` (its (3, 3) position block, repaired as the record's) and ``cps_sd`` (its
+        strength's sd, nan if unknown), with the record's own ``cps_sd`` as ``reported_cps_sd``; else None."""
+        loc = self.localizer
+        if loc is None or len(getattr(loc, "sources_", ())) != 2:
+            return None
+        k, o = self._primary, 1 - self._primary
+        sd = np.sqrt(np.abs(np.diag(np.asarray(loc.covariance_, dtype=float))))
+        return {**loc.sources_[o], "covariance": repair_covariance(_block(loc.covariance_, o))[:3, :3],
+                "cps_sd": float(sd[4 * o + 3]), "reported_cps_sd": float(sd[4 * k + 3])}
 
     def _wall_free_if_enough(self, frames: Frames, settings: dict[str, Any], walled: Localizer) -> Localizer:
         """A walled fit made because a line of sight crosses a mapped wall, against the wall-free model it nests
@@ -529,6 +543,21 @@ def _warm_init(record: Mapping[str, Any]) -> dict[str, float]:
 def _primary(loc: Localizer) -> int:
     """Index of the strongest fitted source: the one the search locates."""
     return int(np.argmax([src["cps_at_1m"] for src in loc.sources_]))
+
+
+def strength_order_z(loc: Localizer, k: int) -> float:
+    """How many sd source ``k``'s fitted strength stands above the other's in a two-source fit: the difference
+    over its sd from the fit's covariance (cross term included); nan with one source or no finite covariance.
+    Below ~2 the counts have not decided which source is the stronger, so which one the record is."""
+    sources = getattr(loc, "sources_", ())
+    cov = getattr(loc, "covariance_", None)
+    if len(sources) != 2 or cov is None:
+        return math.nan
+    c = np.asarray(cov, dtype=float)
+    i, j = 4 * k + 3, 4 * (1 - k) + 3
+    var = c[i, i] + c[j, j] - 2.0 * c[i, j]
+    diff = sources[k]["cps_at_1m"] - sources[1 - k]["cps_at_1m"]
+    return float(diff / math.sqrt(var)) if math.isfinite(var) and var > 0 else math.nan
 
 
 def _block(matrix: Any, k: int) -> Any:

@@ -76,6 +76,12 @@ AT_FLOOR = 1.25
 #: m: a search dwell planned from a belief whose 1-sigma is above this (the source not yet localised: the
 #: in-flight fit's own confidence limit, ``estimator.inflight.WARM_SIGMA_M``) does not spend the search budget
 LOCALISED_M = WARM_SIGMA_M
+#: a two-source estimate is found only once its source's fitted strength stands this many sd above the other's
+#: (``estimator.inflight.strength_order_z``): until then the counts have not decided which source is the stronger,
+#: so which one the record reports, and the planner plans for the source whose strength is the less known
+#: (two-source seed 160: 1364 +- 73 against 1040 +- 592 cps, 0.5 sd, and the search stopped reporting the weaker
+#: source)
+STRENGTH_ORDER_Z = 2.0
 #: bearings (widest gap first) a check dwell tries to route to before it gives up: each may grow a tree
 CHECK_ROUTES = 8
 
@@ -276,7 +282,8 @@ class SearchBrain:
         below ``bound_fall_m_s`` of the config, else (eq. 6, a team) when the 1-sigma has stopped falling at the
         landmark-free drift floor. One rule for one vehicle and a team."""
         misfit = self._misfit()
-        searched = belief is not None and self.search_dwells >= self.config.min_search_dwells
+        searched = (belief is not None and self.search_dwells >= self.config.min_search_dwells
+                    and not self._undecided())
         if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
         spent = self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells
@@ -299,7 +306,7 @@ class SearchBrain:
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
                     "drift allows)", Outcome.DRIFT_LIMITED)
         if spent:
-            return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit})", \
+            return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit}{self._undecided()})", \
                 Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
         return None
 
@@ -363,6 +370,15 @@ class SearchBrain:
         something, so its small ellipse is no found source), else ''."""
         p = self.estimate.p_value if self.estimate else math.nan
         return f"; the model misses something, fit p = {p:.2g}" if p < GOOD_FIT_P else ""
+
+    def _undecided(self) -> str:
+        """A note when the last estimate has two sources and the counts have not decided which is the stronger
+        (``strength_order_z`` below :data:`STRENGTH_ORDER_Z`, or unknown), else ''."""
+        est = self.estimate
+        if est is None or "second_source" not in est.effects:
+            return ""
+        z = float(est.extra.get("strength_order_z", math.nan))
+        return "" if z >= STRENGTH_ORDER_Z else f"; which source is the stronger is undecided ({z:.1f} sd)"
 
     def _budget_dwells(self) -> int:
         """Search dwells that spend ``max_search_dwells``: those planned from a localised belief (1-sigma below
@@ -494,7 +510,11 @@ class SearchBrain:
         est = self.estimate
         assert est is not None
         dens = drift_density_from_poses(frames.positions, frames.pose_variances, frames.dwell)
-        return belief_of(est, dens), est.sigma_m
+        other = self.estimator.other_source() if self._undecided() else None
+        if other is not None and other["cps_sd"] > other["reported_cps_sd"]:
+            # plan for the source whose strength is the less known: its counts decide which one is the stronger
+            est = dataclasses.replace(est, **{k: other[k] for k in ("x", "y", "z", "cps_at_1m", "covariance")})
+        return belief_of(est, dens), self.estimate.sigma_m
 
     @property
     def estimates(self) -> list[SourceEstimate]:

@@ -226,3 +226,52 @@ def test_an_info_search_whose_budget_is_spent_at_a_good_estimate_is_drift_limite
     monkeypatch.setattr(brain.estimator, "update", lambda frames, dwell: brain.estimator.estimates.append(
         _record(9, 0.137, p_value=0.0)) or brain.estimator.estimates[-1])
     assert _stop(brain).outcome is Outcome.MISFIT
+
+
+def _two_source_record(dwell: int, order_z: float) -> dict:
+    """A fitting, stable, localised two-source record (the stronger fitted source at (4.3, 3.7)) whose strength
+    stands ``order_z`` sd above the other's, at (8.1, 3.0)."""
+    return {**_record(dwell, 0.05), "effects": ["second_source"], "strength_order_z": order_z,
+            "params": {"second_source.x": 8.1, "second_source.y": 3.0, "second_source.cps_at_1m": 1300.0}}
+
+
+def _two_source_brain(monkeypatch, order_z: float, sds: tuple[float, float] = (70.0, 590.0),
+                      **kwargs) -> tuple[SearchBrain, list]:
+    """An active search after two such records; the last fit's localizer holds both sources (the record's
+    first), their strengths' sd ``sds``; the planner records the belief it is asked to plan for."""
+    brain = _brain(monkeypatch, [_two_source_record(5, order_z), _two_source_record(6, order_z)], **kwargs)
+    cov = np.diag([0.05**2, 0.05**2, 0.01, sds[0]**2, 0.6**2, 0.5**2, 0.01, sds[1]**2])
+    brain.estimator.localizer = SimpleNamespace(
+        sources_=[{"x": 4.3, "y": 3.7, "z": 0.0, "cps_at_1m": 1600.0}, {"x": 8.1, "y": 3.0, "z": 0.0,
+                                                                       "cps_at_1m": 1300.0}], covariance_=cov)
+    beliefs = []
+    plan = DwellPlan(np.array([[7.0, 3.0, 1.5, 0.0]]), np.array([[1.0, 1.0, 1.5, 0.0], [7.0, 3.0, 1.5, 0.0]]),
+                     "next_best")
+    monkeypatch.setattr(brain, "_plan_next", lambda current, frames, belief: beliefs.append(belief) or plan)
+    return brain, beliefs
+
+
+def test_a_two_source_estimate_is_found_only_once_the_counts_decide_which_source_is_the_stronger(monkeypatch):
+    # two-source seed 160: the search stopped "found" on the source fitted 1364 +- 73 cps, the other 1040 +- 592
+    # (0.5 sd apart), and reported the weaker source. Undecided: no stop, and the next dwell is planned for the
+    # source whose strength is the less known (there the other), whose counts decide the order
+    brain, beliefs = _two_source_brain(monkeypatch, 0.5)
+    d = brain.end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE)
+    assert d.phase is Phase.SEARCH and d.outcome is None, d.reason
+    np.testing.assert_allclose(beliefs[-1].mean, [8.1, 3.0, 0.0])
+    assert beliefs[-1].cps_at_1m == 1300.0
+    np.testing.assert_allclose(np.diag(beliefs[-1].covariance), [0.36, 0.25, 0.01])
+    # seed 6: a far second source fitted stronger than the true one, its strength the less known: planned for
+    brain, beliefs = _two_source_brain(monkeypatch, 0.9, sds=(1500.0, 70.0))
+    assert brain.end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE).outcome is None
+    np.testing.assert_allclose(beliefs[-1].mean, [4.3, 3.7, 0.0])
+    assert beliefs[-1].cps_at_1m == 1600.0
+    # the same estimate decided (and with the order unknown: an unconverged fit has no covariance)
+    brain, beliefs = _two_source_brain(monkeypatch, 2.5)
+    assert _stop(brain).outcome is Outcome.FOUND and not beliefs
+    brain, _ = _two_source_brain(monkeypatch, math.nan)
+    assert brain.end_dwell(np.array([2.0, 2.0, 1.5]), STATUS, FRAMES, HERE).outcome is None
+    # undecided when the budget is spent: spent, and why
+    brain, _ = _two_source_brain(monkeypatch, 0.5, search_dwells=SearchConfig().max_search_dwells)
+    d = _stop(brain)
+    assert d.outcome is Outcome.BUDGET_SPENT and "which source is the stronger is undecided (0.5 sd)" in d.reason
