@@ -44,7 +44,8 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
     ``t``, ``x``, ``y``, ``cps_at_1m``, ``background_cps``, ``sigma_m`` (``estimator.inflight.sigma_m``),
     ``sigma_local_m`` (the fit's own curvature: ``sigma_m`` is it misfit-scaled and covering the likelihood's
     other modes, ``estimator.inflight.honest_covariance``), ``misfit_factor``, ``other_mode``,
-    ``p_value`` (goodness of fit, nan if the localizer has none), ``error_m`` and ``error_sigmas`` (how many
+    ``p_value`` (goodness of fit, nan if the localizer has none), ``background_excess_z`` and
+    ``strength_order_z`` (in-flight only: ``estimator.inflight``'s record), ``error_m`` and ``error_sigmas`` (how many
     1-sigmas outside the ellipse the error lies) with truth; ``error`` instead when there is no estimate.
     """
     from estimator.inflight import (
@@ -78,7 +79,7 @@ def replay(dataset, method: str = INFLIGHT, settings: dict | None = None, first_
             s, cov = est, est["covariance"]
             row.update({key: est[key] for key in ("x", "y", "cps_at_1m", "background_cps", "sigma_m", "sigma_local_m",
                                                   "misfit_factor", "other_mode", "effects", "converged", "p_value",
-                                                  "background_excess_z")})
+                                                  "background_excess_z", "strength_order_z")})
         else:
             loc = make_localizer(method, **(settings or {}))
             try:

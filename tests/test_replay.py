@@ -57,6 +57,8 @@ def test_replay_cli_starts_where_the_flight_log_says(shared_datasets, tmp_path, 
     rows = json.loads(capsys.readouterr().out)
     assert [r["dwells"] for r in rows] == [8, 9]
     assert all(math.isfinite(r["x"]) and r["sigma_m"] > 0 for r in rows)
+    # the in-flight record's tests ride along: one source, no strength order to decide
+    assert all(math.isnan(r["strength_order_z"]) and "background_excess_z" in r for r in rows)
 
 
 def test_replay_converges_on_the_reference_lattice(shared_datasets):
