@@ -13,10 +13,11 @@ eq. 6 (and exploration ended after ``info_min_readings`` readings): the next dwe
 expected D-optimal information per second under drift; it is
 drift-limited when no next leg is expected to lower the bound the flown frames allow (landmark-aware: mapped walls
 pin the drift) by more than ``bound_fall_m_s`` per second of flight.
-An active search about to stop found on a one-source estimate whose background stands well above the operator's
-(``estimator.inflight.background_excess_z``: a far source's flux read as background) first flies up to
-``excess_checks`` check dwells ``check_distance_m`` from the estimate, where no dwell was, so that such a source
-shows itself to the second-source test; check dwells spend no search budget.
+An active search about to stop found on a one-source estimate whose background stands above the operator's
+(``estimator.inflight.background_excess_z`` > ``CHECK_EXCESS_Z``: a far source's flux read as background) first
+flies up to ``excess_checks`` check dwells ``check_distance_m`` from the estimate, towards where a source the flight
+has not seen would give the most flux (``unseen_flux``), so that such a source shows itself to the second-source
+test; check dwells spend no search budget.
 Strategies ``lattice`` (paper 003's 9-point lattice) and
 ``lawnmower`` fly a fixed pattern over the bounds instead: the baselines of the benchmarks.
 
@@ -33,9 +34,9 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from estimator.inflight import (
-    BACKGROUND_EXCESS_Z,
     DEFAULT_LOCALIZER,
     DEFAULT_SETTINGS,
     GOOD_FIT_P,
@@ -82,7 +83,12 @@ LOCALISED_M = WARM_SIGMA_M
 #: (two-source seed 160: 1364 +- 73 against 1040 +- 592 cps, 0.5 sd, and the search stopped reporting the weaker
 #: source)
 STRENGTH_ORDER_Z = 2.0
-#: bearings (widest gap first) a check dwell tries to route to before it gives up: each may grow a tree
+#: a search about to stop on a one-source estimate whose background stands more than this many sd above the
+#: operator's (``estimator.inflight.background_excess_z``) flies check dwells first: the one-sided 2.3 % tail. At
+#: ``BACKGROUND_EXCESS_Z`` (3.09, the second-source test's own trigger) 11 of the 15 two-source info flights that
+#: ended on one source and missed had never checked (z 1.0-3.1)
+CHECK_EXCESS_Z = 2.0
+#: bearings (most unseen flux first) a check dwell tries to route to before it gives up: each may grow a tree
 CHECK_ROUTES = 8
 
 
@@ -256,7 +262,7 @@ class SearchBrain:
             self.bound_falls.append((n_dwells, plan.info["bound_m"], fall))
         stop = self.stop_rule(belief, sigma, fall)
         if stop is not None and stop[1] in (Outcome.FOUND, Outcome.DRIFT_LIMITED):
-            check = self._check_excess(current)
+            check = self._check_excess(current, frames)
             if check is not None:
                 return check
         if stop is not None:
@@ -443,27 +449,30 @@ class SearchBrain:
                 return Decision(Phase.PATTERN, plan, f"{self.config.strategy}: {len(self.pattern)} points left")
         return self._done(f"{self.config.strategy} pattern flown", Outcome.PATTERN_FLOWN)
 
-    def _check_excess(self, current: np.ndarray) -> Decision | None:
+    def _check_excess(self, current: np.ndarray, frames: Frames) -> Decision | None:
         """A check dwell before stopping found, or None: the in-flight estimate has one source and its background
-        stands more than ``BACKGROUND_EXCESS_Z`` sd above the operator's, and fewer than ``excess_checks`` checks
+        stands more than :data:`CHECK_EXCESS_Z` sd above the operator's, and fewer than ``excess_checks`` checks
         were flown. Where the excess comes from is not known (a background gradient fitted to a few dwells hugging
         the source pointed away from the second one on two-source seed 0), so the dwell point is the one
-        ``check_distance_m`` from the estimate (of 32 bearings, in the free volume, reachable) farthest from every
-        dwell flown: a source on that side out-counts the background several times over there, and the next
-        estimate's second-source test sees it. The counts there pin the background too."""
+        ``check_distance_m`` from the estimate (of 32 bearings, in the free volume, reachable) that would see the
+        most flux from a source the flight so far has not seen (:func:`unseen_flux` over every recorded pose):
+        a source there out-counts the background several times over, and the next estimate's second-source test
+        sees it. The counts there pin the background too. (The bearing farthest from every dwell, before: on
+        two-source seed 88 both checks went west and north of dwells hugging the source from the south-west,
+        and the second source is east.)"""
         est = self.estimator.estimate
         if (est is None or self.check_dwells >= self.config.excess_checks or "second_source" in est["effects"]
                 or len(self.history) >= self.config.max_dwells  # the battery budget holds for checks too
-                or not est.get("background_excess_z", math.nan) > BACKGROUND_EXCESS_Z):
+                or not est.get("background_excess_z", math.nan) > CHECK_EXCESS_Z):
             return None
         start = self._at_altitude(current)
         bearings = np.linspace(0.0, 2.0 * math.pi, 32, endpoint=False)
         points = np.c_[est["x"] + self.config.check_distance_m * np.cos(bearings),
                        est["y"] + self.config.check_distance_m * np.sin(bearings), np.full(32, start[2])]
         points[:, :2] = np.clip(points[:, :2], self.occ.free_min[:2], self.occ.free_max[:2])
-        flown = self.history.positions[:, :2]
-        gap = np.min(np.linalg.norm(points[:, None, :2] - flown[None, :, :], axis=2), axis=1)
-        for k in np.argsort(-gap)[:CHECK_ROUTES]:
+        flown = np.vstack([self.history.positions, np.column_stack([frames.x, frames.y, frames.z])])
+        score = unseen_flux(points, flown, self.occ.free_min[:2], self.occ.free_max[:2], est["z"])
+        for k in np.argsort(-score)[:CHECK_ROUTES]:
             target = self.occ.nearest_valid(points[k])
             plan = None if target is None else self._plan_to(start, target, "excess-check")
             if plan is not None:
@@ -527,6 +536,20 @@ class SearchBrain:
         """The last in-flight estimate (with ``bound_m`` and ``ellipse_95`` once the search is done)."""
         last = self.estimator.estimate
         return None if last is None else SourceEstimate.from_json(last)
+
+
+def unseen_flux(points: np.ndarray, flown: np.ndarray, lo: np.ndarray, hi: np.ndarray, z: float,
+                cells_per_side: int = 40) -> np.ndarray:
+    """(k,) how much flux each of ``points`` (k, 3) would see from a source the flight has not seen: a source at
+    a cell c of a grid over [``lo``, ``hi``] (x, y) at height ``z`` unseen from the ``flown`` positions (n, 3) can
+    be as strong as ~ d(c)^2, its squared distance to the nearest flown position (inverse square law), so at p it
+    gives ~ d(c)^2 / |p - c|^2; summed over the cells (where it is: uniform over the grid)."""
+    gx, gy = (np.linspace(lo[i], hi[i], cells_per_side) for i in range(2))
+    cells = np.c_[np.repeat(gx, len(gy)), np.tile(gy, len(gx)), np.full(len(gx) * len(gy), z)]
+    d2 = cKDTree(np.asarray(flown, dtype=float)).query(cells)[0] ** 2
+    r2 = ((np.asarray(points, dtype=float)[:, None, :] - cells[None, :, :]) ** 2).sum(axis=2)
+    floor = (max(hi[0] - lo[0], hi[1] - lo[1]) / cells_per_side) ** 2  # a cell's own size: no 1/0 on a cell
+    return (d2[None, :] / np.maximum(r2, floor)).sum(axis=1)
 
 
 def belief_of(est: SourceEstimate, drift_density: np.ndarray | float = 0.0) -> SourceBelief:

@@ -10,7 +10,7 @@ import pytest
 from detector_fw_sim.scene import load_scene
 from estimator.inflight import BACKGROUND_EXCESS_Z, BACKGROUND_PRIOR_REL, background_excess_z
 from launch.offline import fly_offline
-from mission.search import Outcome, SearchConfig
+from mission.search import Outcome, SearchConfig, unseen_flux
 
 SECOND = np.array([8.1, 3.0])  # detector_fw_sim/scenes/two-source.toml: the 1300 cps second source
 
@@ -44,13 +44,14 @@ def test_a_check_dwell_where_no_dwell_was_lets_the_second_source_show(flights):
     r, without = flights[2], flights[0]
     checks = [i for i, d in enumerate(r.decisions) if d.reason.startswith("check:")]
     assert len(checks) == r.brain.check_dwells >= 1
-    # the check dwell lies check_distance_m from the estimate it was planned from, farther from every earlier
-    # dwell than that estimate's source is (it fills the largest gap)
+    # the check dwell lies check_distance_m from the estimate it was planned from, away from every earlier dwell,
+    # towards where a source the flight had not seen would give the most flux: here towards the second source
     k = checks[0]  # decision k (after k dwells) sends the vehicle to dwell point k
     point = r.dwell_positions[k, :2]
     est = next(e for e in r.brain.estimator.estimates if e["dwell"] == k)
     assert np.linalg.norm(point - [est["x"], est["y"]]) == pytest.approx(3.0, abs=0.3)
     assert np.min(np.linalg.norm(r.dwell_positions[:k, :2] - point, axis=1)) > 1.5
+    assert np.linalg.norm(point - SECOND) < np.linalg.norm(np.array([est["x"], est["y"]]) - SECOND) - 2.0
     final = r.brain.estimator.estimate
     assert final["effects"] == ["second_source"]
     found = np.array([final["params"]["second_source.x"], final["params"]["second_source.y"]])
@@ -92,3 +93,21 @@ def test_no_check_is_flown_past_the_battery_budget():
     assert r.brain.check_dwells == 0
     assert len(r.dwell_positions) == first
     assert r.decisions[-1].outcome in (Outcome.FOUND, Outcome.DRIFT_LIMITED)
+
+
+def test_the_check_looks_where_an_unseen_source_could_hide():
+    """``unseen_flux``: a flight that flew only the west half of a 10 x 8 m room (x <= 4) could have missed a source
+    in the east half, the farther east the stronger: a point 3 m east of (4, 4) sees more of it than one 3 m west,
+    north or south; a flight flown symmetrically about x = 5 scores mirror points alike; one that flew the whole
+    room leaves less to see everywhere."""
+    lo, hi = np.array([0.0, 0.0]), np.array([10.0, 8.0])
+    west = np.array([[x, y, 1.5] for x in np.linspace(0.0, 4.0, 9) for y in np.linspace(0.0, 8.0, 9)])
+    points = np.array([[7.0, 4.0, 1.5], [1.0, 4.0, 1.5], [4.0, 7.0, 1.5], [4.0, 1.0, 1.5]])
+    score = unseen_flux(points, west, lo, hi, 0.0)
+    assert np.argmax(score) == 0 and score[0] > 2 * score[1:].max()
+    assert score[2] == pytest.approx(score[3], rel=1e-9)  # the room and the flight are symmetric about y = 4
+    both = np.vstack([west, west * [-1, 1, 1] + [10.0, 0.0, 0.0]])
+    mirror = unseen_flux(np.array([[7.0, 4.0, 1.5], [3.0, 4.0, 1.5]]), both, lo, hi, 0.0)
+    assert mirror[0] == pytest.approx(mirror[1], rel=1e-9)
+    everywhere = np.array([[x, y, 1.5] for x in np.linspace(0.0, 10.0, 21) for y in np.linspace(0.0, 8.0, 17)])
+    assert np.all(unseen_flux(points, everywhere, lo, hi, 0.0) < score)
