@@ -513,7 +513,9 @@ class SearchBrain:
 
     def _estimate(self, frames: Frames) -> tuple[SourceBelief | None, float]:
         """The in-flight estimate from every frame recorded so far (``estimator.inflight``) as the
-        planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy)."""
+        planner's belief, with its 1-sigma (inf when there is none or it is not trustworthy). With two sources
+        whose strength order is undecided (:meth:`_undecided`) the belief is the source whose strength is the
+        less known, which may be the one the record does not report."""
         if self.estimator.update(frames, dwell=len(self.history)) is None:
             return None, math.inf
         est = self.estimate
@@ -546,7 +548,8 @@ def unseen_flux(points: np.ndarray, flown: np.ndarray, lo: np.ndarray, hi: np.nd
     gives ~ d(c)^2 / |p - c|^2; summed over the cells (where it is: uniform over the grid)."""
     gx, gy = (np.linspace(lo[i], hi[i], cells_per_side) for i in range(2))
     cells = np.c_[np.repeat(gx, len(gy)), np.tile(gy, len(gx)), np.full(len(gx) * len(gy), z)]
-    d2 = cKDTree(np.asarray(flown, dtype=float)).query(cells)[0] ** 2
+    flown = np.asarray(flown, dtype=float)
+    d2 = cKDTree(flown[np.isfinite(flown).all(axis=1)]).query(cells)[0] ** 2  # a frame without a pose: not flown
     r2 = ((np.asarray(points, dtype=float)[:, None, :] - cells[None, :, :]) ** 2).sum(axis=2)
     floor = (max(hi[0] - lo[0], hi[1] - lo[1]) / cells_per_side) ** 2  # a cell's own size: no 1/0 on a cell
     return (d2[None, :] / np.maximum(r2, floor)).sum(axis=1)

@@ -111,3 +111,5 @@ def test_the_check_looks_where_an_unseen_source_could_hide():
     assert mirror[0] == pytest.approx(mirror[1], rel=1e-9)
     everywhere = np.array([[x, y, 1.5] for x in np.linspace(0.0, 10.0, 21) for y in np.linspace(0.0, 8.0, 17)])
     assert np.all(unseen_flux(points, everywhere, lo, hi, 0.0) < score)
+    # a frame recorded without a pose (NaN) was not flown anywhere
+    np.testing.assert_array_equal(unseen_flux(points, np.vstack([west, np.full((1, 3), np.nan)]), lo, hi, 0.0), score)
