@@ -287,9 +287,8 @@ class SearchBrain:
         planner's largest expected fall of the flown frames' bound per second of a next leg, m/s) when that is
         below ``bound_fall_m_s`` of the config, else (eq. 6, a team) when the 1-sigma has stopped falling at the
         landmark-free drift floor. One rule for one vehicle and a team."""
-        misfit = self._misfit()
-        searched = (belief is not None and self.search_dwells >= self.config.min_search_dwells
-                    and not self._undecided())
+        misfit, undecided = self._misfit(), self._undecided()
+        searched = belief is not None and self.search_dwells >= self.config.min_search_dwells and not undecided
         if searched and sigma < self.config.stop_sigma_m and self._stable() and not misfit:
             return f"source found: 1-sigma {sigma:.3f} m < {self.config.stop_sigma_m} m", Outcome.FOUND
         spent = self._budget_dwells() >= self.config.max_search_dwells or len(self.history) >= self.config.max_dwells
@@ -312,7 +311,7 @@ class SearchBrain:
                     f"floor {floor:.3f} m; the {self.config.stop_sigma_m} m target is below what this flight's "
                     "drift allows)", Outcome.DRIFT_LIMITED)
         if spent:
-            return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit}{self._undecided()})", \
+            return f"dwell budget spent (1-sigma {sigma:.3f} m{misfit}{undecided})", \
                 Outcome.MISFIT if misfit else Outcome.BUDGET_SPENT
         return None
 
